@@ -1,0 +1,26 @@
+# Two entry points (see README "Quick start"); each sets up its own virtual environment.
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+
+.PHONY: demo test venv clean
+
+$(STAMP): pyproject.toml
+	$(PY) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e '.[test]'
+	touch $(STAMP)
+
+venv: $(STAMP)
+
+## Main job: emulated rig -> capture over a pseudo-terminal -> fit -> report in out/demo
+demo: $(STAMP)
+	$(BIN)/difflattice demo --out out/demo
+
+## Test suite
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+clean:
+	rm -rf $(VENV) out

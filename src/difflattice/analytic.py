@@ -1,0 +1,110 @@
+"""Independent references: formulas the simulator is checked against (NumPy only).
+
+- the discrete dispersion relation of the five-point leapfrog,
+  ``sin^2(omega/2) = c^2 (sin^2(kx/2) + sin^2(ky/2))`` (lattice units);
+- exact plane-wave reflection/transmission at a flat interface for each boundary model, from the
+  discrete equations themselves (not from the continuum), and the continuum eqs. 14-15;
+- the far-field pattern of a line of point sources on the lattice.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def lattice_wavenumber(omega: float, c: float, theta_rad=0.0, iters: int = 30) -> np.ndarray:
+    """Wavenumber k (radians/cell) of a lattice plane wave of angular frequency `omega`
+    (radians/step) and speed `c` (cells/step) travelling at angle `theta_rad`."""
+    theta = np.asarray(theta_rad, dtype=float)
+    cx, sy = np.cos(theta), np.sin(theta)
+    target = math.sin(omega / 2) ** 2 / c**2
+    k = np.full_like(theta, omega / c, dtype=float)
+    for _ in range(iters):
+        f = np.sin(k * cx / 2) ** 2 + np.sin(k * sy / 2) ** 2 - target
+        df = 0.5 * (cx * np.sin(k * cx) + sy * np.sin(k * sy))
+        k = k - f / df
+    return k
+
+
+def phase_velocity_error(cells_per_wavelength: float, courant: float, theta_rad=0.0) -> np.ndarray:
+    """Relative phase-velocity error (c_lattice / c - 1) of a wave at `cells_per_wavelength` in the
+    medium of lattice speed `courant`, travelling at `theta_rad`."""
+    omega = 2 * math.pi * courant / cells_per_wavelength
+    k = lattice_wavenumber(omega, courant, theta_rad)
+    return (omega / k) / courant - 1.0
+
+
+def phase_error_rad(cells_per_wavelength: float, courant: float, distance_wavelengths: float) -> float:
+    """Worst-direction phase error in radians accumulated over a distance (in wavelengths)."""
+    thetas = np.linspace(0, math.pi / 4, 46)
+    err = np.abs(phase_velocity_error(cells_per_wavelength, courant, thetas)).max()
+    return float(2 * math.pi * distance_wavelengths * err / (1 + err))
+
+
+def continuum_rt(z1: float, z2: float) -> tuple[float, float]:
+    """Continuum pressure R12 and T12 (eqs. 14-15)."""
+    r = (z2 - z1) / (z2 + z1)
+    return r, 1 + r
+
+
+def discrete_rt(
+    omega: float, c1: float, c2: float, rho1: float, rho2: float, model: str
+) -> tuple[complex, complex]:
+    """Exact R and T of the discrete 1-D scheme for a plane wave exp(i(k n - omega t)) hitting the
+    face between cell 0 (medium 1) and cell 1 (medium 2).
+
+    R multiplies exp(-i k1 n) (referenced to cell 0); T multiplies exp(i k2 (n - 1)) (referenced to
+    cell 1). `model` is "conservative" or "paper" (eqs. 17-19)."""
+    s = math.sin(omega / 2) ** 2
+    k1 = 2 * math.asin(math.sqrt(s) / c1)
+    k2 = 2 * math.asin(min(1.0, math.sqrt(s) / c2)) if math.sqrt(s) / c2 <= 1 else complex(math.pi, 2 * math.acosh(math.sqrt(s) / c2))
+    lam = -4 * s  # second time difference of exp(-i omega t)
+    z1, z2 = rho1 * c1, rho2 * c2
+    # unknowns x = (R, T). P_{-1} = e^{-ik1} + R e^{ik1}, P_0 = 1 + R, P_1 = T, P_2 = T e^{ik2}
+    e1, e2 = np.exp(1j * k1), np.exp(1j * k2)
+    if model == "conservative":
+        b = 2 / (rho1 + rho2)
+        K1, K2 = rho1 * c1**2, rho2 * c2**2
+        # lam P0 = K1 [ (P_-1 - P0)/rho1 + b (P1 - P0) ]
+        A = np.array(
+            [
+                [lam - K1 * ((e1 - 1) / rho1 - b), -K1 * b],
+                [-K2 * b, lam - K2 * (-b + (e2 - 1) / rho2)],
+            ],
+            dtype=complex,
+        )
+        rhs = np.array([-lam + K1 * ((1 / e1 - 1) / rho1 - b), K2 * b], dtype=complex)
+    elif model == "paper":
+        r12 = (z2 - z1) / (z2 + z1)
+        u1, u2 = c1**2, c2**2
+        # lam P0 = u1 (P_-1 - P0) + (1 - r12)(u2 P1 - u1 P0)
+        # lam P1 = (1 + r12)(u1 P0 - u2 P1) + u2 (P2 - P1)
+        A = np.array(
+            [
+                [lam - u1 * (e1 - 1) + (1 - r12) * u1, -(1 - r12) * u2],
+                [-(1 + r12) * u1, lam + (1 + r12) * u2 - u2 * (e2 - 1)],
+            ],
+            dtype=complex,
+        )
+        rhs = np.array([-lam + u1 * (1 / e1 - 1) - (1 - r12) * u1, (1 + r12) * u1], dtype=complex)
+    else:
+        raise ValueError(f"model {model!r}: 'conservative' or 'paper'")
+    R, T = np.linalg.solve(A, rhs)
+    return complex(R), complex(T)
+
+
+def line_array_pattern(
+    n_cells: int, omega: float, c: float, theta_rad, weights=None, lattice: bool = True
+) -> np.ndarray:
+    """Far-field array factor |sum_k w_k exp(-i k_y(theta) y_k)| of a line of cells along y
+    (spacing 1 cell), normalised to its value on axis. With `lattice`, k(theta) obeys the
+    lattice dispersion relation; otherwise k = omega / c."""
+    theta = np.asarray(theta_rad, dtype=float)
+    w = np.ones(n_cells) if weights is None else np.asarray(weights, float)
+    y = np.arange(n_cells) - (n_cells - 1) / 2
+    k = lattice_wavenumber(omega, c, theta) if lattice else np.full_like(theta, omega / c)
+    ky = k * np.sin(theta)
+    af = np.abs(np.exp(-1j * ky[..., None] * y) @ w)
+    return af / np.abs(w.sum())

@@ -1,0 +1,164 @@
+"""Grid and units: the one place where physical (SI) and lattice units meet.
+
+Inside the simulator everything is in lattice units: one cell is the length unit and one time step
+the time unit, so speeds are in cells/step. The paper's scales (McKerrow, Zhu & New 2001, eqs.
+11-12) fix the cell size from the drive frequency and the number of cells per wavelength in the
+fastest medium, and the time step from a Courant number (the fastest medium's speed in
+cells/step).
+
+    model scale  S = m f / c_max             cells per metre   (m = cells per wavelength)
+    sim rate     R = c_max S / courant        steps per second
+
+The 2-D five-point leapfrog is stable for speeds up to 1/sqrt(2) cells/step; a faster one is refused.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+
+MAX_COURANT = 1.0 / math.sqrt(2.0)
+"""Stability limit of the 2-D five-point leapfrog in cells/step."""
+
+PAPER_COURANT = 0.707
+"""The paper's choice: just below the limit."""
+
+
+class Grid(eqx.Module):
+    """A square-cell lattice of `shape` = (nx, ny) cells, axis 0 is x and axis 1 is y.
+
+    All fields are static (they decide array shapes and compiled structure).
+
+    **Arguments:**
+    - `shape`: number of cells along x and y.
+    - `frequency_hz`: drive frequency the scales are built for.
+    - `cells_per_wavelength`: cells per wavelength in the fastest medium at `frequency_hz`.
+    - `c_max_m_s`: speed of sound of the fastest medium in the scene, m/s.
+    - `courant`: that medium's speed in cells/step (<= 1/sqrt(2)).
+    - `dtype`: "float32" or "float64".
+    """
+
+    shape: tuple[int, int] = eqx.field(static=True)
+    frequency_hz: float = eqx.field(static=True)
+    cells_per_wavelength: float = eqx.field(static=True)
+    c_max_m_s: float = eqx.field(static=True)
+    courant: float = eqx.field(static=True, default=PAPER_COURANT)
+    dtype: Literal["float32", "float64"] = eqx.field(static=True, default="float32")
+
+    def __check_init__(self):
+        nx, ny = self.shape
+        if nx < 3 or ny < 1:
+            raise ValueError(f"grid shape {self.shape} is too small: need at least 3 x 1 cells")
+        if not (self.frequency_hz > 0 and self.cells_per_wavelength > 0 and self.c_max_m_s > 0):
+            raise ValueError(
+                "frequency_hz, cells_per_wavelength and c_max_m_s must be positive, got "
+                f"{self.frequency_hz}, {self.cells_per_wavelength}, {self.c_max_m_s}"
+            )
+        check_courant(self.courant, what="grid courant (the fastest medium's speed)")
+        if self.dtype not in ("float32", "float64"):
+            raise ValueError(f"dtype must be 'float32' or 'float64', got {self.dtype!r}")
+
+    # --- scales -------------------------------------------------------------------------
+    @property
+    def dx_m(self) -> float:
+        """Cell size in metres (1 / model scale S)."""
+        return self.c_max_m_s / (self.frequency_hz * self.cells_per_wavelength)
+
+    @property
+    def dt_s(self) -> float:
+        """Time step in seconds (1 / sim rate R)."""
+        return self.courant * self.dx_m / self.c_max_m_s
+
+    @property
+    def cells_per_m(self) -> float:
+        return 1.0 / self.dx_m
+
+    @property
+    def steps_per_period(self) -> float:
+        """Time steps per period of the drive frequency."""
+        return 1.0 / (self.frequency_hz * self.dt_s)
+
+    @property
+    def omega(self) -> float:
+        """Drive angular frequency in radians per step."""
+        return 2.0 * math.pi * self.frequency_hz * self.dt_s
+
+    @property
+    def size_m(self) -> tuple[float, float]:
+        return (self.shape[0] * self.dx_m, self.shape[1] * self.dx_m)
+
+    @property
+    def jnp_dtype(self):
+        return jnp.float64 if self.dtype == "float64" else jnp.float32
+
+    # --- conversions ----------------------------------------------------------------------
+    def speed_to_lattice(self, c_m_s):
+        """Speed in m/s -> cells/step (array or float)."""
+        return c_m_s * (self.dt_s / self.dx_m)
+
+    def m_to_cells(self, length_m):
+        return length_m / self.dx_m
+
+    def cells_to_m(self, cells):
+        return cells * self.dx_m
+
+    def s_to_steps(self, time_s):
+        return time_s / self.dt_s
+
+    def steps_to_s(self, steps):
+        return steps * self.dt_s
+
+    def hz_to_lattice_omega(self, frequency_hz):
+        """Frequency in Hz -> angular frequency in radians/step."""
+        return 2.0 * math.pi * frequency_hz * self.dt_s
+
+    def cell_of(self, position_m) -> tuple[int, int]:
+        """Nearest cell index to a point (x_m, y_m); the origin is the centre of cell (0, 0)."""
+        ix, iy = (int(round(p / self.dx_m)) for p in position_m)
+        return ix, iy
+
+    def coordinates_m(self) -> tuple[np.ndarray, np.ndarray]:
+        """Cell-centre coordinates (x_m of shape (nx,), y_m of shape (ny,))."""
+        return np.arange(self.shape[0]) * self.dx_m, np.arange(self.shape[1]) * self.dx_m
+
+
+def check_courant(c_lattice: float, what: str = "speed") -> None:
+    """Refuse a lattice speed above 1/sqrt(2) cells/step (unstable, not merely inaccurate)."""
+    if not (c_lattice >= 0):
+        raise ValueError(f"{what} = {c_lattice} cells/step: must be >= 0")
+    if c_lattice > MAX_COURANT * (1 + 1e-12):
+        raise ValueError(
+            f"{what} = {c_lattice:.6f} cells/step exceeds the 2-D stability limit 1/sqrt(2) = "
+            f"{MAX_COURANT:.6f}: the leapfrog would grow without bound. Lower `courant` "
+            f"(the paper uses {PAPER_COURANT}) or set c_max_m_s to the fastest medium's speed."
+        )
+
+
+def make_grid(
+    *,
+    frequency_hz: float,
+    cells_per_wavelength: float,
+    c_max_m_s: float,
+    shape: tuple[int, int] | None = None,
+    size_m: tuple[float, float] | None = None,
+    courant: float = PAPER_COURANT,
+    dtype: Literal["float32", "float64"] = "float32",
+) -> Grid:
+    """Build a `Grid` from the paper's scale parameters and either `shape` (cells) or `size_m`."""
+    if (shape is None) == (size_m is None):
+        raise ValueError("give exactly one of shape=(nx, ny) cells or size_m=(width_m, height_m)")
+    if shape is None:
+        dx = c_max_m_s / (frequency_hz * cells_per_wavelength)
+        shape = (max(3, int(round(size_m[0] / dx))), max(1, int(round(size_m[1] / dx))))
+    return Grid(
+        shape=(int(shape[0]), int(shape[1])),
+        frequency_hz=float(frequency_hz),
+        cells_per_wavelength=float(cells_per_wavelength),
+        c_max_m_s=float(c_max_m_s),
+        courant=float(courant),
+        dtype=dtype,
+    )

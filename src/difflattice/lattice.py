@@ -1,0 +1,280 @@
+"""Lattice coefficients: a `Medium` and `Edges` turned into the arrays the time step uses.
+
+The spatial operator of every boundary model is written in one flux form, per axis,
+
+    D(P)_i = K_i [ a_hi,i  b_{i+1/2} (q_{i+1} - q_i)  -  a_lo,i  b_{i-1/2} (q_i - q_{i-1}) ]
+
+- homogeneous:   K = c^2,      q = P,      b = a = 1            (the 5-point leapfrog)
+- speed_zero:    K = 1,        q = c^2 P,  b = a = 1            (eq. 10, c = 0 in obstacles)
+- paper:         K = 1,        q = c^2 P,  a = 1 - R (eqs. 17-19, R seen from the cell)
+- conservative:  K = rho c^2,  q = P,      b = face-averaged 1/rho = 2/(rho_i + rho_j)
+
+so ``P(t+1) = 2 P(t) - P(t-1) + D(P(t))``. Arrays that a scene does not need are ``None`` and
+the compiled step contains no work for them.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from .grid import Grid, check_courant
+from .medium import Medium
+
+EdgeKind = Literal["pml", "mur", "sponge", "rigid", "soft"]
+EDGE_KINDS = ("pml", "mur", "sponge", "rigid", "soft")
+ABSORBING = ("pml", "mur", "sponge")
+
+
+class Edges(eqx.Module):
+    """Window edges, per side: "pml" (perfectly matched layer), "mur" (first-order absorbing),
+    "sponge" (graded damping), "rigid" (reflecting, R = +1) or "soft" (reflecting, R = -1).
+
+    PML and sponge layers lie inside the grid, `thickness_cells` deep. PML cannot be mixed with
+    Mur or sponge on other sides. `pml_order` and `pml_r0` shape the PML damping profile
+    sigma(d) = sigma_max (d/L)^order with sigma_max = (order + 1) c ln(1/r0) / (2 L).
+    """
+
+    x_lo: EdgeKind = eqx.field(static=True, default="pml")
+    x_hi: EdgeKind = eqx.field(static=True, default="pml")
+    y_lo: EdgeKind = eqx.field(static=True, default="pml")
+    y_hi: EdgeKind = eqx.field(static=True, default="pml")
+    thickness_cells: int = eqx.field(static=True, default=20)
+    pml_order: float = eqx.field(static=True, default=3.0)
+    pml_r0: float = eqx.field(static=True, default=1e-6)
+    sponge_strength: float = eqx.field(static=True, default=0.08)
+
+    def __check_init__(self):
+        for side in self.sides:
+            kind = getattr(self, side)
+            if kind not in EDGE_KINDS:
+                raise ValueError(f"edge {side} = {kind!r}; allowed: {', '.join(EDGE_KINDS)}")
+        absorbing = {getattr(self, s) for s in self.sides} & set(ABSORBING)
+        if len(absorbing) > 1:
+            raise ValueError(
+                f"edges mix absorbing kinds {sorted(absorbing)}: use one of pml, mur, sponge "
+                "(rigid or soft sides may be combined with any)"
+            )
+        if self.thickness_cells < 1 and absorbing & {"pml", "sponge"}:
+            raise ValueError(f"thickness_cells = {self.thickness_cells} must be >= 1")
+
+    sides = ("x_lo", "x_hi", "y_lo", "y_hi")
+
+    @classmethod
+    def all(cls, kind: EdgeKind, **kwargs) -> "Edges":
+        return cls(x_lo=kind, x_hi=kind, y_lo=kind, y_hi=kind, **kwargs)
+
+    def kinds(self) -> set[str]:
+        return {getattr(self, s) for s in self.sides}
+
+    @property
+    def uses_pml(self) -> bool:
+        return "pml" in self.kinds()
+
+    def ghost(self, side: str) -> Literal["neumann", "dirichlet"]:
+        """Value beyond the window: rigid -> mirror (zero flux); everything else -> zero."""
+        return "neumann" if getattr(self, side) == "rigid" else "dirichlet"
+
+    def layer_depth(self, n: int, lo: str, hi: str, *, faces: bool) -> np.ndarray:
+        """Depth (in cells) into an absorbing layer along one axis, 0 outside it."""
+        L = self.thickness_cells
+        x = np.arange(n + 1) - 0.5 if faces else np.arange(n, dtype=float)
+        d = np.zeros_like(x, dtype=float)
+        if getattr(self, lo) in ("pml", "sponge"):
+            d = np.maximum(d, (L - 0.5) - x)
+        if getattr(self, hi) in ("pml", "sponge"):
+            d = np.maximum(d, x - (n - 1 - (L - 0.5)))
+        return np.clip(d, 0.0, L)
+
+
+class PML(eqx.Module):
+    """Split-field PML update factors (decay a, gain b) per axis, for cells and faces."""
+
+    ax_cell: Float[Array, "nx 1"]
+    bx_cell: Float[Array, "nx 1"]
+    ax_face: Float[Array, "nx1 1"]
+    bx_face: Float[Array, "nx1 1"]
+    ay_cell: Float[Array, "1 ny"]
+    by_cell: Float[Array, "1 ny"]
+    ay_face: Float[Array, "1 ny1"]
+    by_face: Float[Array, "1 ny1"]
+
+
+class Lattice(eqx.Module):
+    """Everything the step needs, in lattice units. `None` = term absent (not compiled)."""
+
+    K: Float[Array, "nx ny"] | float
+    q_scale: Float[Array, "nx ny"] | None
+    bx: Float[Array, "nx1 ny"] | None
+    by: Float[Array, "nx ny1"] | None
+    ax_lo: Float[Array, "nx ny"] | None
+    ax_hi: Float[Array, "nx ny"] | None
+    ay_lo: Float[Array, "nx ny"] | None
+    ay_hi: Float[Array, "nx ny"] | None
+    keep: Float[Array, "nx ny"] | None
+    c_edge: Float[Array, "nx ny"] | float
+    sponge: Float[Array, "nx ny"] | None
+    pml: PML | None
+    eta: float = eqx.field(static=True)
+    ghosts: tuple[str, str, str, str] = eqx.field(static=True)
+    mur: tuple[bool, bool, bool, bool] = eqx.field(static=True)
+
+
+def _faces(v, axis: int, fn):
+    """Interior face values fn(v_lo, v_hi) along `axis`, shape n-1 along that axis."""
+    lo = v[:-1] if axis == 0 else v[:, :-1]
+    hi = v[1:] if axis == 0 else v[:, 1:]
+    return fn(lo, hi)
+
+
+def _with_outer(interior, edge_lo, edge_hi, axis: int):
+    return jnp.concatenate([edge_lo, interior, edge_hi], axis=axis)
+
+
+def _edge(v, axis: int, hi: bool):
+    if axis == 0:
+        return v[-1:] if hi else v[:1]
+    return v[:, -1:] if hi else v[:, :1]
+
+
+def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
+    """Turn SI maps into lattice coefficients (differentiable in the medium's arrays)."""
+    dtype = grid.jnp_dtype
+    nx, ny = grid.shape
+    shape = (nx, ny)
+    c = jnp.asarray(grid.speed_to_lattice(medium.sound_speed_m_s), dtype)
+    rho = jnp.asarray(medium.density_kg_m3, dtype)
+    for name, arr in (("sound_speed_m_s", c), ("density_kg_m3", rho), ("rigid", medium.rigid), ("soft", medium.soft)):
+        if arr is not None and jnp.ndim(arr) != 0 and tuple(jnp.shape(arr)) != shape:
+            raise ValueError(f"medium.{name} has shape {jnp.shape(arr)}, expected the grid shape {shape}")
+    _check_speed(c)
+
+    rigid = None if medium.rigid is None else jnp.clip(jnp.asarray(medium.rigid, dtype), 0, 1)
+    soft = None if medium.soft is None else jnp.clip(jnp.asarray(medium.soft, dtype), 0, 1)
+    model = medium.boundary_model
+    homogeneous = jnp.ndim(c) == 0 and jnp.ndim(rho) == 0 and rigid is None and soft is None
+
+    K = c**2
+    q_scale = bx = by = None
+    a = {"ax_lo": None, "ax_hi": None, "ay_lo": None, "ay_hi": None}
+    keep = None
+
+    if homogeneous:
+        pass
+    elif model == "conservative":
+        cf = jnp.broadcast_to(c, shape)
+        rf = jnp.broadcast_to(rho, shape)
+        K = rf * cf**2
+        faces = []
+        for axis in (0, 1):
+            b = _faces(rf, axis, lambda l, h: 2.0 / (l + h))
+            b = _with_outer(b, 1.0 / _edge(rf, axis, False), 1.0 / _edge(rf, axis, True), axis)
+            if rigid is not None:
+                openf = _faces(1 - rigid, axis, lambda l, h: l * h)
+                b = b * _with_outer(openf, 1 - _edge(rigid, axis, False), 1 - _edge(rigid, axis, True), axis)
+            if soft is not None:
+                # Dirichlet at the face of a soft cell: the half-cell gap doubles the conductance.
+                dbl = _faces(soft, axis, lambda l, h: 1 + l + h)
+                b = b * _with_outer(dbl, jnp.ones_like(_edge(soft, axis, False)), jnp.ones_like(_edge(soft, axis, True)), axis)
+            faces.append(b)
+        bx, by = faces
+        if soft is not None:
+            keep = 1 - soft
+    else:  # "paper" and "speed_zero": eq. 10, q = c^2 P
+        cf = jnp.broadcast_to(c, shape)
+        K = jnp.asarray(1.0, dtype)
+        obstacle = None
+        if rigid is not None or soft is not None:
+            obstacle = jnp.clip((0 if rigid is None else rigid) + (0 if soft is None else soft), 0, 1)
+            keep = 1 - obstacle
+        if model == "speed_zero":
+            q_scale = cf**2 if obstacle is None else cf**2 * (1 - obstacle)
+        else:
+            q_scale = cf**2
+            z = jnp.broadcast_to(rho, shape) * cf
+            zero = jnp.zeros(shape, dtype)
+            pr = zero if rigid is None else rigid
+            ps = zero if soft is None else soft
+            for axis, lo_key, hi_key in ((0, "ax_lo", "ax_hi"), (1, "ay_lo", "ay_hi")):
+                # R seen from the low cell looking into the high cell, fluids only (eq. 14)
+                r_lh = _faces(z, axis, lambda l, h: jnp.where(l + h > 0, (h - l) / jnp.where(l + h > 0, l + h, 1.0), 0.0))
+                r_seen_lo = _faces_pair(r_lh, pr, ps, axis, from_low=True)
+                r_seen_hi = _faces_pair(-r_lh, pr, ps, axis, from_low=False)
+                ones = jnp.ones_like(_edge(z, axis, False))
+                # alpha at the cell's high face (cell is the low side of that face) and low face
+                a[hi_key] = _with_outer_cells(1 - r_seen_lo, ones, axis, high=True)
+                a[lo_key] = _with_outer_cells(1 - r_seen_hi, ones, axis, high=False)
+
+    eta = 0.0
+    if medium.absorption_db_per_m > 0:
+        alpha_cell = medium.absorption_db_per_m / (20 / math.log(10)) * grid.dx_m
+        c_ref = float(grid.courant)
+        eta = 2 * alpha_cell * c_ref / grid.omega**2
+        if eta > 0.05:
+            raise ValueError(
+                f"absorption_db_per_m = {medium.absorption_db_per_m} is too strong for this grid "
+                f"(viscous coefficient {eta:.3g} > 0.05 per step): refine the grid"
+            )
+
+    ghosts = tuple(edges.ghost(s) for s in Edges.sides)
+    mur = tuple(getattr(edges, s) == "mur" for s in Edges.sides)
+    sponge = _sponge(grid, edges, dtype) if "sponge" in edges.kinds() else None
+    pml = _pml(grid, edges, dtype) if edges.uses_pml else None
+    return Lattice(
+        K=K, q_scale=q_scale, bx=bx, by=by, keep=keep, c_edge=c, sponge=sponge, pml=pml,
+        eta=eta, ghosts=ghosts, mur=mur, **a,
+    )
+
+
+def _faces_pair(r_lh, pr, ps, axis, *, from_low: bool):
+    """Blend the fluid R with ideal obstacles occupying the cell across the face."""
+    other = (lambda v: v[1:] if axis == 0 else v[:, 1:]) if from_low else (lambda v: v[:-1] if axis == 0 else v[:, :-1])
+    r_o, s_o = other(pr), other(ps)
+    return (1 - r_o - s_o) * r_lh + r_o - s_o
+
+
+def _with_outer_cells(interior_faces, ones, axis, *, high: bool):
+    """Per-cell array of a face quantity: the cell's high face (or low face); outer faces = 1."""
+    parts = [interior_faces, ones] if high else [ones, interior_faces]
+    return jnp.concatenate(parts, axis=axis)
+
+
+def _check_speed(c) -> None:
+    try:
+        cmax = float(jnp.max(c))
+    except Exception:  # traced: checked at run time by the solver
+        return
+    check_courant(cmax, what="the fastest medium's speed")
+
+
+def _pml(grid: Grid, edges: Edges, dtype) -> PML:
+    L = edges.thickness_cells
+    m = edges.pml_order
+    smax = (m + 1) * grid.courant * math.log(1 / edges.pml_r0) / (2 * L)
+    out = {}
+    nx, ny = grid.shape
+    for axis, n, lo, hi in ((0, nx, "x_lo", "x_hi"), (1, ny, "y_lo", "y_hi")):
+        for where, faces in (("cell", False), ("face", True)):
+            d = edges.layer_depth(n, lo, hi, faces=faces)
+            sigma = smax * (d / L) ** m
+            av = (1 - sigma / 2) / (1 + sigma / 2)
+            bv = 1 / (1 + sigma / 2)
+            shape = (-1, 1) if axis == 0 else (1, -1)
+            key = "x" if axis == 0 else "y"
+            out[f"a{key}_{where}"] = jnp.asarray(av.reshape(shape), dtype)
+            out[f"b{key}_{where}"] = jnp.asarray(bv.reshape(shape), dtype)
+    return PML(**out)
+
+
+def _sponge(grid: Grid, edges: Edges, dtype):
+    nx, ny = grid.shape
+    L = edges.thickness_cells
+    dx = edges.layer_depth(nx, "x_lo", "x_hi", faces=False)
+    dy = edges.layer_depth(ny, "y_lo", "y_hi", faces=False)
+    sigma = edges.sponge_strength * ((dx[:, None] / L) ** 2 + (dy[None, :] / L) ** 2)
+    return jnp.asarray(sigma, dtype)

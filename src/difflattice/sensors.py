@@ -1,0 +1,84 @@
+"""Sensors: what is recorded inside the time loop (never the whole field history).
+
+- `probes`: cells whose pressure is recorded every step (time series).
+- `phasor_cells`: cells whose running DFT at one frequency is accumulated on the fly
+  (complex amplitude, sum over steps of p(n) exp(+i omega n)); arcs, lines and the far-field
+  contour are phasor cells.
+- `p_max`, `p_rms`, `arrival_threshold_pa`: whole-field statistics (peak |p|, RMS, first step at
+  which |p| exceeds a threshold), each compiled in only when asked.
+- `snapshot_every`: the field every k steps, for images and animations.
+"""
+
+from __future__ import annotations
+
+
+import equinox as eqx
+import numpy as np
+
+from .grid import Grid
+from .source import _as_static_cells
+
+
+class Sensors(eqx.Module):
+    """What to record. Cell lists are static (they fix output shapes).
+
+    **Arguments:**
+    - `probes`: (n, 2) cell indices recorded every step.
+    - `phasor_cells`: (m, 2) cell indices whose DFT at `phasor_frequency_hz` is accumulated.
+    - `phasor_frequency_hz`: None means the grid's drive frequency.
+    - `p_max`, `p_rms`: record the whole-field peak |p| and RMS (Pa).
+    - `arrival_threshold_pa`: if set, record the first step at which |p| exceeds it (-1: never).
+    - `snapshot_every`: if set, return the field every that many steps.
+    """
+
+    probes: tuple[tuple[int, int], ...] = eqx.field(static=True, default=(), converter=_as_static_cells)
+    phasor_cells: tuple[tuple[int, int], ...] = eqx.field(
+        static=True, default=(), converter=_as_static_cells
+    )
+    phasor_frequency_hz: float | None = eqx.field(static=True, default=None)
+    p_max: bool = eqx.field(static=True, default=False)
+    p_rms: bool = eqx.field(static=True, default=False)
+    arrival_threshold_pa: float | None = eqx.field(static=True, default=None)
+    snapshot_every: int | None = eqx.field(static=True, default=None)
+
+    def __check_init__(self):
+        if self.snapshot_every is not None and self.snapshot_every < 1:
+            raise ValueError(f"snapshot_every = {self.snapshot_every} must be >= 1 step")
+        if self.arrival_threshold_pa is not None and not self.arrival_threshold_pa > 0:
+            raise ValueError(f"arrival_threshold_pa = {self.arrival_threshold_pa} must be > 0")
+
+    def check_inside(self, grid: Grid) -> None:
+        nx, ny = grid.shape
+        for name, cells in (("probes", self.probes), ("phasor_cells", self.phasor_cells)):
+            for ix, iy in cells:
+                if not (0 <= ix < nx and 0 <= iy < ny):
+                    raise ValueError(
+                        f"sensor {name} cell ({ix}, {iy}) lies outside the {nx} x {ny} grid"
+                    )
+
+
+def probe_cells(grid: Grid, points_m) -> np.ndarray:
+    """Nearest cells to points given in metres, shape (n, 2)."""
+    pts = np.asarray(points_m, dtype=float).reshape(-1, 2)
+    return np.rint(pts / grid.dx_m).astype(np.int64)
+
+
+def arc_cells(grid: Grid, centre_m, radius_m: float, angles_deg) -> np.ndarray:
+    """Cells nearest to points on an arc (angle 0 = +x, counter-clockwise towards +y)."""
+    a = np.radians(np.asarray(angles_deg, dtype=float))
+    pts = np.stack([centre_m[0] + radius_m * np.cos(a), centre_m[1] + radius_m * np.sin(a)], 1)
+    return probe_cells(grid, pts)
+
+
+def segment_cells(grid: Grid, start_m, stop_m, n: int) -> np.ndarray:
+    """Cells nearest to `n` points evenly spaced from `start_m` to `stop_m` (metres)."""
+    t = np.linspace(0.0, 1.0, n)[:, None]
+    pts = np.asarray(start_m, float)[None] * (1 - t) + np.asarray(stop_m, float)[None] * t
+    return probe_cells(grid, pts)
+
+
+def phasor_scale(n_steps: int) -> float:
+    """Factor turning the accumulated DFT of a steady sine into its amplitude (2 / n_steps)."""
+    return 2.0 / max(n_steps, 1)
+
+

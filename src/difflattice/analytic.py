@@ -108,3 +108,16 @@ def line_array_pattern(
     ky = k * np.sin(theta)
     af = np.abs(np.exp(-1j * ky[..., None] * y) @ w)
     return af / np.abs(w.sum())
+
+
+def mur_reflection(omega: float, c: float) -> complex:
+    """Exact reflection of the first-order Mur edge P_N(t+1) = P_{N-1}(t) + m (P_{N-1}(t+1) -
+    P_N(t)), m = (c - 1)/(c + 1), for a lattice plane wave at normal incidence (lattice units)."""
+    k = float(lattice_wavenumber(omega, c, 0.0))
+    m = (c - 1) / (c + 1)
+    z = np.exp(-1j * omega)
+    ek = np.exp(1j * k)
+    # incident A e^{ikn}, reflected B e^{-ikn}, referenced at the edge cell n = N
+    a_coef = z - 1 / ek - m * (z / ek - 1)
+    b_coef = z - ek - m * (z * ek - 1)
+    return complex(-a_coef / b_coef)

@@ -45,9 +45,9 @@ class Edges(eqx.Module):
     y_lo: EdgeKind = eqx.field(static=True, default="pml")
     y_hi: EdgeKind = eqx.field(static=True, default="pml")
     thickness_cells: int = eqx.field(static=True, default=20)
-    pml_order: float = eqx.field(static=True, default=3.0)
-    pml_r0: float = eqx.field(static=True, default=1e-6)
-    sponge_strength: float = eqx.field(static=True, default=0.08)
+    pml_order: float = eqx.field(static=True, default=4.0)
+    pml_r0: float = eqx.field(static=True, default=1e-8)
+    sponge_strength: float = eqx.field(static=True, default=0.2)
 
     def __check_init__(self):
         for side in self.sides:
@@ -117,7 +117,7 @@ class Lattice(eqx.Module):
     ay_lo: Float[Array, "nx ny"] | None
     ay_hi: Float[Array, "nx ny"] | None
     keep: Float[Array, "nx ny"] | None
-    c_edge: Float[Array, "nx ny"] | float
+    c: Float[Array, "nx ny"] | float  # lattice speed (cells/step): Mur edges, run-time checks
     sponge: Float[Array, "nx ny"] | None
     pml: PML | None
     eta: float = eqx.field(static=True)
@@ -226,7 +226,7 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
     sponge = _sponge(grid, edges, dtype) if "sponge" in edges.kinds() else None
     pml = _pml(grid, edges, dtype) if edges.uses_pml else None
     return Lattice(
-        K=K, q_scale=q_scale, bx=bx, by=by, keep=keep, c_edge=c, sponge=sponge, pml=pml,
+        K=K, q_scale=q_scale, bx=bx, by=by, keep=keep, c=c, sponge=sponge, pml=pml,
         eta=eta, ghosts=ghosts, mur=mur, **a,
     )
 

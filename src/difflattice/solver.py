@@ -241,7 +241,7 @@ class Stepper(eqx.Module):
     def _mur(self, p, p_new):
         """First-order Mur absorbing edges: P_edge(t+1) = P_in(t) + k (P_in(t+1) - P_edge(t))."""
         lat = self.lattice
-        c = lat.c_edge
+        c = lat.c
         x_lo, x_hi, y_lo, y_hi = lat.mur
         cfield = c if jnp.ndim(c) == 0 else None
 
@@ -465,12 +465,9 @@ def simulate(
 @eqx.filter_jit
 def _simulate(stepper: Stepper, n_steps: int, checkpoint, unroll: int, throw: bool) -> Result:
     lat = stepper.lattice
-    if lat.q_scale is not None or jnp.ndim(lat.K) != 0:
+    if jnp.ndim(lat.c) != 0 or isinstance(lat.c, jax.core.Tracer):
         # speeds may be traced (e.g. fitted): check the stability limit at run time
-        c2 = lat.q_scale if lat.q_scale is not None else lat.K
-        c2max = jnp.max(c2) if lat.q_scale is not None else None
-        if c2max is not None:
-            stepper = eqx.error_if(stepper, c2max > MAX_COURANT**2 * (1 + 1e-6), SPEED_MESSAGE)
+        stepper = eqx.error_if(stepper, jnp.max(lat.c) > MAX_COURANT * (1 + 1e-6), SPEED_MESSAGE)
     result = run(stepper, n_steps, checkpoint=checkpoint, unroll=unroll)
     if throw:
         result = check_result(result, stepper)

@@ -1,0 +1,450 @@
+"""Capture files: append-only CSV with a commented header, a completion trailer and a loader.
+
+A capture file holds one scan. It is human-readable CSV that ``pandas.read_csv(path,
+comment="#")`` loads as is::
+
+    # format: difflattice-capture/1
+    # kind: lobe
+    # ... one "# key: value" line per header key (see HEADER_KEYS) ...
+    seq,angle_mdeg,amp_uV,amp_sd_uV,tof_ns,temp_cC,t_unix_s
+    0,-90000,61,33,2906203,2149,1732245600.123
+    # event: 2025-11-22T03:00:01.5Z reset: boot_id 13903 -> 20441, re-homed
+    ...
+    # complete: n_points=181 crc32=1A2B3C4D
+
+Records hold the rig's integers exactly as received (units in the column names) and the host
+time of reception; they are in arrival order, each ``seq`` exactly once. Every record is one
+``write`` followed by ``fsync``, so a crash loses no acknowledged point; a torn last line is
+dropped when the scan is resumed. The trailer's ``crc32`` (CRC-32 of all record lines, in file
+order, with their newlines) marks the scan complete. ``# event:`` lines record link events.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import os
+import re
+import warnings
+import zlib
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .errors import CaptureFileError
+
+FORMAT = "difflattice-capture/1"
+
+COLUMNS: dict[str, tuple[str, ...]] = {
+    "lobe": ("seq", "angle_mdeg", "amp_uV", "amp_sd_uV", "tof_ns", "temp_cC", "t_unix_s"),
+    "wave": ("seq", "x_um", "z_um", "tof_ns", "phase_mdeg", "amp_uV", "temp_cC", "t_unix_s"),
+}
+"""Record columns by scan kind: the protocol's integers (units in the names), then host time."""
+
+HEADER_KEYS: dict[str, tuple[type, str]] = {
+    "format": (str, "file format, difflattice-capture/1"),
+    "kind": (str, "lobe or wave"),
+    "created_utc": (str, "when the file was started, ISO 8601 UTC"),
+    "protocol": (int, "rig protocol version"),
+    "rig_id": (str, "rig identity from IDN"),
+    "fw_version": (str, "rig firmware version from IDN"),
+    "boot_id": (int, "rig boot id when the file was started (later ones: events)"),
+    "scan_id": (int, "scan number used in the protocol for this file"),
+    "n_points": (int, "points in the scan, seq 0..n_points-1"),
+    "start_mdeg": (int, "lobe: angle of seq 0 [mdeg]"),
+    "step_mdeg": (int, "lobe: angle step [mdeg]"),
+    "x0_um": (int, "wave: x of seq 0 [um]"),
+    "dx_um": (int, "wave: x step [um]"),
+    "z_um": (int, "wave: distance of the scan line from the face [um]"),
+    "n_avg": (int, "bursts averaged per point"),
+    "cycles": (int, "burst length [cycles]"),
+    "freq_hz": (int, "drive frequency sent to the rig and used [Hz]"),
+    "range_m": (float, "microphone range from the centre of the face [m] (required for lobe)"),
+    "temperature_c": (float, "air temperature [degC]"),
+    "humidity_pct": (float, "relative humidity [%]"),
+    "pressure_hpa": (float, "air pressure [hPa]"),
+    "speed_of_sound_m_s": (float, "speed of sound used, 331.3 sqrt(1 + temperature_c/273.15) [m/s]"),
+    "transducer_id": (str, "transducer under test"),
+    "microphone": (str, "measurement microphone"),
+    "operator": (str, "who measured"),
+}
+"""Known header keys: type and meaning (with unit). Other keys are kept as text."""
+
+REQUIRED: dict[str, tuple[str, ...]] = {
+    "lobe": ("start_mdeg", "step_mdeg", "range_m"),
+    "wave": ("x0_um", "dx_um", "z_um"),
+}
+COMMON_REQUIRED = (
+    "format", "kind", "created_utc", "protocol", "rig_id", "fw_version", "boot_id", "scan_id",
+    "n_points", "n_avg", "cycles", "freq_hz", "temperature_c", "speed_of_sound_m_s",
+)  # fmt: skip
+
+_KEY = re.compile(r"[a-z][a-z0-9_]*\Z")
+_INT = re.compile(r"-?[0-9]+\Z")
+_TIME = re.compile(r"[0-9]+\.[0-9]{3}\Z")
+_TRAILER = re.compile(r"# complete: n_points=([0-9]+) crc32=([0-9A-F]{8})\Z")
+
+
+def utc_now() -> str:
+    """The current UTC time, ISO 8601 with milliseconds."""
+    return datetime.now(timezone.utc).isoformat(timespec="milliseconds").replace("+00:00", "Z")
+
+
+def format_header(header: dict[str, Any]) -> bytes:
+    """The header lines and the column line for ``header`` (``format`` and ``kind`` first)."""
+    kind = header.get("kind")
+    if kind not in COLUMNS:
+        raise ValueError(f"header kind must be 'lobe' or 'wave', got {kind!r}")
+    lines = []
+    for key, value in {"format": FORMAT, **header}.items():
+        text = str(value)
+        if not _KEY.match(key) or "\n" in text or "\r" in text:
+            raise ValueError(f"header key {key!r} must be lower_snake_case and its value one line")
+        lines.append(f"# {key}: {text}\n")
+    return ("".join(lines) + ",".join(COLUMNS[kind]) + "\n").encode()
+
+
+def _fsync_dir(path: Path) -> None:
+    fd = os.open(path.parent, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+class CaptureWriter:
+    """Append records to a capture file, one ``write`` + ``fsync`` each, under an exclusive lock."""
+
+    def __init__(self, path: Path, fd: int, kind: str, n_points: int, crc: int) -> None:
+        self.path = path
+        self.kind = kind
+        self.n_points = n_points
+        self._fd = fd
+        self._crc = crc
+
+    @staticmethod
+    def _open_locked(path: Path) -> int:
+        fd = os.open(path, os.O_RDWR | os.O_APPEND)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            os.close(fd)
+            raise CaptureFileError(f"{path}: another capture is writing this file; wait for it or use another path")
+        return fd
+
+    @classmethod
+    def create(cls, path: str | Path, header: dict[str, Any]) -> CaptureWriter:
+        """Create ``path`` with ``header`` atomically (the header is complete or absent)."""
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        with open(tmp, "wb") as f:
+            f.write(format_header(header))
+            f.flush()
+            os.fsync(f.fileno())
+        try:
+            os.link(tmp, path)  # fails if the file exists: never clobber a capture
+        except FileExistsError:
+            raise CaptureFileError(f"{path}: exists already; resume it or choose another path") from None
+        finally:
+            tmp.unlink()
+        _fsync_dir(path)
+        return cls(path, cls._open_locked(path), header["kind"], int(header["n_points"]), 0)
+
+    @classmethod
+    def resume(cls, path: str | Path) -> tuple[CaptureWriter, Capture]:
+        """Open an existing capture for appending: drop a torn last line, return what it holds."""
+        path = Path(path)
+        fd = cls._open_locked(path)
+        try:
+            size = os.fstat(fd).st_size
+            data = os.pread(fd, size, 0)
+            keep = data.rfind(b"\n") + 1
+            if keep < size:
+                os.ftruncate(fd, keep)
+                os.fsync(fd)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                capture = load_capture(path, allow_incomplete=True)
+        except BaseException:
+            os.close(fd)
+            raise
+        writer = cls(path, fd, capture.kind, int(capture.metadata["n_points"]), capture.records_crc32)
+        if keep < size:
+            writer.event(f"repaired torn last line: dropped {size - keep} bytes {data[keep:][:60]!r}")
+        return writer, capture
+
+    def _write(self, line: str) -> None:
+        os.write(self._fd, line.encode())
+        os.fsync(self._fd)
+
+    def append(self, values: tuple[int, ...], t_unix_s: float) -> None:
+        """Append one record (the integers of ``COLUMNS[kind]`` but the time) and fsync."""
+        line = ",".join(map(str, values)) + f",{t_unix_s:.3f}\n"
+        self._crc = zlib.crc32(line.encode(), self._crc)
+        self._write(line)
+
+    def event(self, text: str) -> None:
+        """Record a link or rig event as a comment line."""
+        self._write(f"# event: {utc_now()} {' '.join(text.split())}\n")
+
+    def finish(self) -> None:
+        """Write the trailer that marks the scan complete."""
+        self._write(f"# complete: n_points={self.n_points} crc32={self._crc:08X}\n")
+
+    def close(self) -> None:
+        if self._fd >= 0:
+            os.close(self._fd)
+            self._fd = -1
+
+    def __enter__(self) -> CaptureWriter:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+# --------------------------------------------------------------------------------------------
+# Loading
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Capture:
+    """A loaded capture file; arrays are sorted by ``seq``.
+
+    ``metadata``: the typed header, plus derived values in SI units (lobe: ``start_deg``,
+    ``step_deg``, ``stop_deg``; wave: ``x0_m``, ``dx_m``, ``x1_m``, ``z_m``). ``columns``: the raw
+    record columns (file names and units). ``missing``: the seqs absent (empty when complete).
+    ``events``: the ``# event:`` lines. ``records_crc32``: CRC-32 of the record lines so far.
+    """
+
+    path: Path
+    kind: str
+    metadata: dict[str, Any]
+    columns: dict[str, NDArray[Any]]
+    complete: bool
+    missing: tuple[int, ...]
+    events: tuple[str, ...]
+    seq: NDArray[np.int64]
+    t_unix_s: NDArray[np.float64]
+    records_crc32: int
+
+
+@dataclass(frozen=True)
+class LobeCapture(Capture):
+    """A lobe scan: angle [deg], amplitude and its sd [uV], time of flight [s], temperature [degC]."""
+
+    angle_deg: NDArray[np.float64]
+    amp_uV: NDArray[np.float64]
+    amp_sd_uV: NDArray[np.float64]
+    tof_s: NDArray[np.float64]
+    temp_c: NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class WaveCapture(Capture):
+    """A wavefront scan: position [m], arrival time [s], carrier phase [deg], amplitude [uV], temperature."""
+
+    x_m: NDArray[np.float64]
+    z_m: NDArray[np.float64]
+    tof_s: NDArray[np.float64]
+    phase_deg: NDArray[np.float64]
+    amp_uV: NDArray[np.float64]
+    temp_c: NDArray[np.float64]
+
+
+def describe_seqs(seqs: list[int] | tuple[int, ...]) -> str:
+    """Compact ranges of sequence numbers, e.g. ``"3, 7-9"``."""
+    runs: list[list[int]] = []
+    for s in sorted(seqs):
+        if runs and s == runs[-1][1] + 1:
+            runs[-1][1] = s
+        else:
+            runs.append([s, s])
+    return ", ".join(str(a) if a == b else f"{a}-{b}" for a, b in runs)
+
+
+def _parse_value(key: str, text: str, where: str) -> Any:
+    kind = HEADER_KEYS.get(key, (str, ""))[0]
+    try:
+        return kind(text)
+    except ValueError:
+        raise CaptureFileError(f"{where}: header {key!r} must be {kind.__name__}, got {text!r}") from None
+
+
+def load_capture(path: str | Path, *, allow_incomplete: bool = False) -> LobeCapture | WaveCapture:
+    """Load and check a capture file.
+
+    Raises :class:`CaptureFileError` naming the file, line and problem for a malformed file, and
+    for an incomplete one unless ``allow_incomplete`` (then a warning says what is missing).
+    """
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise CaptureFileError(f"{path}: cannot read: {exc.strerror}") from None
+    torn = b""
+    if data and not data.endswith(b"\n"):
+        cut = data.rfind(b"\n") + 1
+        data, torn = data[:cut], data[cut:]
+    try:
+        lines = data.decode("ascii").split("\n")[:-1]
+    except UnicodeDecodeError as exc:
+        line = data[: exc.start].count(b"\n") + 1
+        raise CaptureFileError(f"{path}:{line}: non-ASCII byte") from None
+
+    def fail(lineno: int, problem: str) -> CaptureFileError:
+        return CaptureFileError(f"{path}:{lineno}: {problem}")
+
+    if not lines or lines[0] != f"# format: {FORMAT}":
+        raise fail(1, f"not a capture file (the first line must be '# format: {FORMAT}')")
+    meta: dict[str, Any] = {}
+    i = 0
+    while i < len(lines) and lines[i].startswith("#"):
+        key, sep, value = lines[i][2:].partition(": ")
+        if not (lines[i].startswith("# ") and sep and _KEY.match(key)):
+            raise fail(i + 1, f"header lines are '# key: value', got {lines[i]!r}")
+        if key in meta:
+            raise fail(i + 1, f"header key {key!r} given twice")
+        meta[key] = _parse_value(key, value, f"{path}:{i + 1}")
+        i += 1
+    kind = meta.get("kind")
+    if kind not in COLUMNS:
+        raise fail(i, f"header 'kind' must be lobe or wave, got {kind!r}")
+    absent = [k for k in COMMON_REQUIRED + REQUIRED[kind] if k not in meta]
+    if absent:
+        raise fail(i + 1, f"header lacks {', '.join(absent)}")
+    columns = COLUMNS[kind]
+    if i >= len(lines) or lines[i] != ",".join(columns):
+        raise fail(i + 1, f"expected the column line {','.join(columns)!r}")
+    n_points = meta["n_points"]
+    rows: dict[int, list[int]] = {}
+    first_line: dict[int, int] = {}
+    times: dict[int, float] = {}
+    events: list[str] = []
+    crc = 0
+    trailer: tuple[int, str] | None = None
+    for lineno, line in enumerate(lines[i + 1 :], start=i + 2):
+        if trailer is not None:
+            raise fail(lineno, "text after the '# complete:' trailer")
+        if line.startswith("# event: "):
+            events.append(line[len("# event: ") :])
+            continue
+        if line.startswith("# complete:"):
+            trailer = (lineno, line)
+            continue
+        fields = line.split(",")
+        if len(fields) != len(columns):
+            raise fail(lineno, f"expected {len(columns)} fields ({','.join(columns)}), got {len(fields)}: {line!r}")
+        if not all(_INT.match(f) for f in fields[:-1]) or not _TIME.match(fields[-1]):
+            raise fail(lineno, f"fields must be integers and a time with 3 decimals: {line!r}")
+        values = [int(f) for f in fields[:-1]]
+        seq = values[0]
+        if not 0 <= seq < n_points:
+            raise fail(lineno, f"seq {seq} outside 0..{n_points - 1}")
+        if seq in rows:
+            raise fail(lineno, f"duplicate seq {seq} (first at line {first_line[seq]})")
+        expected = _position(meta, kind, seq)
+        if tuple(values[1 : 1 + len(expected)]) != expected:
+            names = ",".join(columns[1 : 1 + len(expected)])
+            raise fail(lineno, f"seq {seq}: {names} should be {expected}, got {tuple(values[1:1 + len(expected)])}")
+        rows[seq], first_line[seq], times[seq] = values, lineno, float(fields[-1])
+        crc = zlib.crc32((line + "\n").encode(), crc)
+    missing = tuple(s for s in range(n_points) if s not in rows)
+    if trailer is not None:
+        lineno, line = trailer
+        m = _TRAILER.match(line)
+        if not m:
+            raise fail(lineno, f"trailer must be '# complete: n_points=N crc32=XXXXXXXX', got {line!r}")
+        if int(m.group(1)) != n_points or missing:
+            raise fail(lineno, f"trailer says complete but seq {describe_seqs(missing)} missing")
+        if int(m.group(2), 16) != crc:
+            raise fail(lineno, f"records do not match the trailer's crc32 (file edited or corrupted): {crc:08X}")
+    if torn:
+        problem = f"torn last line {torn[:40]!r} (an interrupted write)"
+        if not allow_incomplete or trailer is not None:
+            raise fail(len(lines) + 1, problem + "; re-run the capture command to repair and continue it")
+        warnings.warn(f"{path}:{len(lines) + 1}: {problem} ignored", stacklevel=2)
+    if trailer is None:
+        problem = f"incomplete: {len(rows)} of {n_points} points, seq {describe_seqs(missing)} missing"
+        if not allow_incomplete:
+            raise CaptureFileError(
+                f"{path}: {problem}; re-run the capture command to continue it, or load with allow_incomplete=True"
+            )
+        warnings.warn(f"{path}: {problem}", stacklevel=2)
+    return _build(path, kind, meta, rows, times, trailer is not None, missing, events, crc)
+
+
+def _position(meta: dict[str, Any], kind: str, seq: int) -> tuple[int, ...]:
+    if kind == "lobe":
+        return (meta["start_mdeg"] + seq * meta["step_mdeg"],)
+    return (meta["x0_um"] + seq * meta["dx_um"], meta["z_um"])
+
+
+def _build(
+    path: Path,
+    kind: str,
+    meta: dict[str, Any],
+    rows: dict[int, list[int]],
+    times: dict[int, float],
+    complete: bool,
+    missing: tuple[int, ...],
+    events: list[str],
+    crc: int,
+) -> LobeCapture | WaveCapture:
+    names = COLUMNS[kind]
+    order = sorted(rows)
+    table = np.array([rows[s] for s in order], dtype=np.int64).reshape(len(order), len(names) - 1)
+    raw = {name: table[:, j] for j, name in enumerate(names[:-1])}
+    raw["t_unix_s"] = np.array([times[s] for s in order], dtype=float)
+    n = meta["n_points"]
+    meta = dict(meta)
+    if kind == "lobe":
+        meta.update(
+            start_deg=meta["start_mdeg"] / 1e3,
+            step_deg=meta["step_mdeg"] / 1e3,
+            stop_deg=(meta["start_mdeg"] + (n - 1) * meta["step_mdeg"]) / 1e3,
+        )
+    else:
+        meta.update(
+            x0_m=meta["x0_um"] * 1e-6,
+            dx_m=meta["dx_um"] * 1e-6,
+            x1_m=(meta["x0_um"] + (n - 1) * meta["dx_um"]) * 1e-6,
+            z_m=meta["z_um"] * 1e-6,
+        )
+    common = dict(
+        path=path,
+        kind=kind,
+        metadata=meta,
+        columns=raw,
+        complete=complete,
+        missing=missing,
+        events=tuple(events),
+        seq=raw["seq"],
+        t_unix_s=raw["t_unix_s"],
+        records_crc32=crc,
+    )
+    temp_c = raw["temp_cC"] / 100
+    tof_s = raw["tof_ns"] * 1e-9
+    if kind == "lobe":
+        return LobeCapture(
+            **common,
+            angle_deg=raw["angle_mdeg"] / 1e3,
+            amp_uV=raw["amp_uV"].astype(float),
+            amp_sd_uV=raw["amp_sd_uV"].astype(float),
+            tof_s=tof_s,
+            temp_c=temp_c,
+        )
+    return WaveCapture(
+        **common,
+        x_m=raw["x_um"] * 1e-6,
+        z_m=raw["z_um"] * 1e-6,
+        tof_s=tof_s,
+        phase_deg=raw["phase_mdeg"] / 1e3,
+        amp_uV=raw["amp_uV"].astype(float),
+        temp_c=temp_c,
+    )

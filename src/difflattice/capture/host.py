@@ -1,0 +1,804 @@
+"""Host side of rig protocol v1 on pyserial, and the capture of whole scans into files.
+
+:class:`RigHost` speaks the protocol (:mod:`difflattice.capture.protocol`): it matches replies
+by type, never by order; keeps its own line buffer (pyserial's ``readline`` blocks per byte and
+returns partial lines); treats 3 s without a byte as a dead link and reopens the port's stable
+path until the rig is back; re-homes a rig that was reset; and resumes an interrupted scan from
+the first missing point, re-requesting the points lost to bad lines. :func:`capture_lobe` and
+:func:`capture_wave` run one scan into an append-only capture file
+(:mod:`difflattice.capture.files`) with a raw log beside it; calling them again on an unfinished
+file continues it. Nothing here imports JAX.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import errno
+import random
+import sys
+import time
+from collections import Counter, deque
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import serial
+
+from . import protocol as P
+from .errors import CaptureFileError, PortBusy, PortNotFound, ProtocolVersionError, RigError, RigTimeout
+from .files import COLUMNS, HEADER_KEYS, CaptureWriter, describe_seqs, utc_now
+from .groundtruth import speed_of_sound
+
+BAUD = 115_200
+MAX_REQUESTS_PER_POINT = 25
+
+
+@dataclass(frozen=True)
+class Timeouts:
+    """Host timing [s].
+
+    ``link_down_s``: total silence that means the link is down (protocol: 3 s). ``reply_s``: wait
+    for the reply to a command before sending it again. ``retries``: HELLOs sent when first
+    connecting, and sends of any command the rig does not acknowledge. ``reconnect_s``: how long
+    to try to get a lost link back. ``home_s``: homing time limit. ``point_s``: longest wait for
+    the next point while the rig reports that it is scanning. ``poll_s``: read granularity.
+    """
+
+    link_down_s: float = 3.0
+    reply_s: float = 1.0
+    retries: int = 3
+    reconnect_s: float = 30.0
+    home_s: float = 60.0
+    point_s: float = 60.0
+    poll_s: float = 0.02
+
+    @classmethod
+    def scaled(cls, timeout_s: float = 3.0, reconnect_s: float = 30.0) -> Timeouts:
+        """Timeouts derived from the link-down silence ``timeout_s`` (the defaults at 3 s)."""
+        return cls(
+            link_down_s=timeout_s,
+            reply_s=timeout_s / 3,
+            reconnect_s=reconnect_s,
+            home_s=20 * timeout_s,
+            point_s=20 * timeout_s,
+            poll_s=min(0.02, timeout_s / 30),
+        )
+
+
+@dataclass
+class LinkStats:
+    """Counters of a capture session."""
+
+    points: int = 0
+    rerequested: int = 0
+    bad_lines: int = 0
+    junk: int = 0
+    duplicates: int = 0
+    resets: int = 0
+    reconnects: int = 0
+
+    @property
+    def link_events(self) -> int:
+        return self.resets + self.reconnects
+
+
+@dataclass(frozen=True)
+class ScanPlan:
+    """One scan in the rig's integer units: ``n`` points at ``start + seq * step``.
+
+    Lobe: ``start``/``step`` in mdeg. Wave: ``start``/``step`` are ``x0``/``dx`` in um and ``z_um``
+    is the line's distance from the face.
+    """
+
+    kind: str
+    n: int
+    start: int
+    step: int
+    n_avg: int
+    cycles: int
+    freq_hz: int
+    z_um: int = 0
+
+    @classmethod
+    def lobe(
+        cls, start_deg: float, stop_deg: float, step_deg: float, n_avg: int, cycles: int, freq_hz: float
+    ) -> ScanPlan:
+        start, stop, step = (round(v * 1000) for v in (start_deg, stop_deg, step_deg))
+        return cls("lobe", _count(start, stop, step, "deg", 1000), start, step, n_avg, cycles, round(freq_hz))
+
+    @classmethod
+    def wave(
+        cls, x0_m: float, x1_m: float, dx_m: float, z_m: float, n_avg: int, cycles: int, freq_hz: float
+    ) -> ScanPlan:
+        x0, x1, dx = (round(v * 1e6) for v in (x0_m, x1_m, dx_m))
+        n = _count(x0, x1, dx, "m", 1e6)
+        return cls("wave", n, x0, dx, n_avg, cycles, round(freq_hz), round(z_m * 1e6))
+
+    def __post_init__(self) -> None:
+        for name in ("n_avg", "cycles", "freq_hz"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.kind == "wave" and self.z_um <= 0:
+            raise ValueError(f"z_m must be > 0, got {self.z_um * 1e-6}")
+
+    def command(self, scan: int, first: int, n: int) -> P.Lobe | P.Wave:
+        """The scan command for points ``first..n-1``."""
+        if self.kind == "lobe":
+            return P.Lobe(scan, first, n, self.start, self.step, self.n_avg, self.cycles, self.freq_hz)
+        return P.Wave(scan, first, n, self.start, self.step, self.z_um, self.n_avg, self.cycles, self.freq_hz)
+
+    def matches(self, msg: P.Lob | P.Wav) -> bool:
+        """Whether a point line is of this scan's kind and at its seq's position."""
+        if self.kind == "lobe":
+            return isinstance(msg, P.Lob) and msg.angle_mdeg == self.start + msg.seq * self.step
+        return isinstance(msg, P.Wav) and msg.x_um == self.start + msg.seq * self.step and msg.z_um == self.z_um
+
+    def header(self) -> dict[str, int]:
+        """The scan's keys of a capture file header."""
+        keys = ("start_mdeg", "step_mdeg") if self.kind == "lobe" else ("x0_um", "dx_um")
+        head = {"n_points": self.n, keys[0]: self.start, keys[1]: self.step}
+        if self.kind == "wave":
+            head["z_um"] = self.z_um
+        return head | {"n_avg": self.n_avg, "cycles": self.cycles, "freq_hz": self.freq_hz}
+
+    def next_request(self, missing: list[int]) -> tuple[int, int]:
+        """``(first_seq, n)`` for the next command: the first run of missing points, or the rest
+        of the scan from the first missing point when everything after it is missing."""
+        first = end = missing[0]
+        for s in missing[1:]:
+            if s != end + 1:
+                break
+            end = s
+        return first, (self.n if end == self.n - 1 else end + 1)
+
+
+def _count(start: int, stop: int, step: int, unit: str, scale: float) -> int:
+    if step == 0 or (stop - start) * step < 0 or (stop - start) % step:
+        raise ValueError(
+            f"the scan from {start / scale} to {stop / scale} {unit} must be a whole, positive number "
+            f"of steps of {step / scale} {unit}"
+        )
+    return (stop - start) // step + 1
+
+
+class _LinkDown(Exception):
+    """The link failed (serial error or silence); the host reopens the port."""
+
+
+class _Reset(Exception):
+    """The rig was reset or lost its home; the host handshakes and re-homes."""
+
+
+class RawLog:
+    """A timestamped log of every line sent (``>``) and received (``<``; bad ones ``<!``) and of
+    link events (``**``); bytes that are not printable ASCII are written as ``\\xNN``."""
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        self._f = open(self.path, "a", encoding="ascii", buffering=1)
+
+    @staticmethod
+    def _escape(raw: bytes) -> str:
+        return "".join(chr(b) if 32 <= b < 127 and b != 92 else f"\\x{b:02x}" for b in raw)
+
+    def write(self, tag: str, raw: bytes) -> None:
+        """Log one line (its final newline left out)."""
+        text = self._escape(raw[:-1] if raw.endswith(b"\n") else raw)
+        self._f.write(f"{utc_now()} {tag} {text}\n")
+
+    def note(self, text: str) -> None:
+        self._f.write(f"{utc_now()} ** {text}\n")
+
+    def close(self) -> None:
+        self._f.close()
+
+
+class _Link:
+    """The serial port: exclusive open, raw reads through a :class:`protocol.LineBuffer`."""
+
+    def __init__(self, port: str, timeouts: Timeouts, log: RawLog | None) -> None:
+        self.port = port
+        self.t = timeouts
+        self.log = log
+        self.ser: serial.Serial | None = None
+        self.buffer = P.LineBuffer()
+        self.last_rx = time.monotonic()
+        self.rx_bytes = 0
+
+    def open(self) -> None:
+        port = self.port
+        try:
+            self.ser = serial.Serial(
+                port, BAUD, timeout=self.t.poll_s, write_timeout=self.t.link_down_s, exclusive=True
+            )
+        except serial.SerialException as exc:
+            if exc.errno == errno.ENOENT:
+                raise PortNotFound(
+                    f"{port}: no such serial port. Is the rig plugged in and powered (or "
+                    f"'difflattice rig emulate' running)? Use its stable path, e.g. under /dev/serial/by-id/."
+                ) from None
+            if exc.errno in (errno.EAGAIN, errno.EBUSY):
+                raise PortBusy(
+                    f"{port}: the port is in use by another process (another capture or a serial "
+                    f"monitor); close it first ('fuser {port}' shows which)."
+                ) from None
+            if exc.errno == errno.EACCES:
+                raise RigError(f"{port}: permission denied; add yourself to the 'dialout' group") from None
+            raise RigError(f"{port}: cannot open the port: {exc}") from None
+        self.buffer = P.LineBuffer()
+        self.last_rx = time.monotonic()
+
+    def close(self) -> None:
+        if self.ser is not None:
+            try:
+                self.ser.close()
+            except OSError:
+                pass
+            self.ser = None
+
+    def send(self, msg: P.Message) -> None:
+        line = P.encode(msg)
+        if self.log:
+            self.log.write(">", line)
+        try:
+            assert self.ser is not None
+            self.ser.write(line)
+        except (OSError, serial.SerialException) as exc:
+            raise _LinkDown(f"write failed: {exc}") from None
+
+    def read(self) -> list[P.Frame | P.BadLine]:
+        """Whatever arrives within ``poll_s``, as frames and bad lines."""
+        try:
+            assert self.ser is not None
+            data = self.ser.read(self.ser.in_waiting or 1)
+        except (OSError, serial.SerialException) as exc:
+            raise _LinkDown(f"read failed: {exc}") from None
+        if not data:
+            return []
+        self.last_rx = time.monotonic()
+        self.rx_bytes += len(data)
+        items = self.buffer.feed(data)
+        if self.log:
+            for item in items:
+                self.log.write("<" if isinstance(item, P.Frame) else f"<! {item.reason}", item.raw)
+        return items
+
+
+class RigHost:
+    """A connection to one rig through its stable serial path.
+
+    ``on_event(text)`` is told of link and rig events (resets, reconnects, re-requests).
+    """
+
+    def __init__(
+        self,
+        port: str | Path,
+        *,
+        timeouts: Timeouts = Timeouts(),
+        log: RawLog | None = None,
+        on_event: Callable[[str], None] | None = None,
+    ) -> None:
+        self.port = str(port)
+        self.t = timeouts
+        self.log = log
+        self.on_event = on_event
+        self.stats = LinkStats()
+        self.info: P.Idn | None = None
+        self._link = _Link(self.port, timeouts, log)
+        self._backlog: deque[P.Frame | P.BadLine] = deque()
+        self._plan: ScanPlan | None = None
+        self._scan_id = -1
+        self._have: set[int] = set()
+        self._on_point: Callable[[P.Lob | P.Wav], None] = lambda msg: None
+        self._last_point = 0.0
+
+    # connection -----------------------------------------------------------------------------
+
+    def connect(self) -> P.Idn:
+        """Open the port and handshake; raises a :class:`RigError` subclass, never hangs."""
+        self._link.open()
+        try:
+            return self._handshake(time.monotonic() + self.t.retries * self.t.reply_s + 0.01, self.t.retries)
+        except BaseException:
+            self.close()
+            raise
+
+    def close(self) -> None:
+        self._link.close()
+
+    def __enter__(self) -> RigHost:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def _event(self, text: str) -> None:
+        if self.log:
+            self.log.note(text)
+        if self.on_event:
+            self.on_event(text)
+
+    def _handshake(self, deadline: float, tries: int | None = None) -> P.Idn:
+        sent = 0
+        while tries is None or sent < tries:
+            self._link.send(P.Hello(P.PROTOCOL_VERSION))
+            sent += 1
+            msg = self._wait(
+                min(deadline, time.monotonic() + self.t.reply_s),
+                lambda m: isinstance(m, (P.Idn, P.Err)),
+                watch_silence=False,
+                boot_resets=False,
+            )
+            if isinstance(msg, P.Err) and msg.code in ("BADCMD", "BADARG"):
+                raise ProtocolVersionError(
+                    f"{self.port}: the rig answered HELLO,{P.PROTOCOL_VERSION} with ERR,{msg.code},{msg.detail}: "
+                    f"it does not speak protocol {P.PROTOCOL_VERSION}; use matching firmware or host software"
+                )
+            if isinstance(msg, P.Idn):
+                return self._identified(msg)
+            if time.monotonic() >= deadline:
+                break
+        raise RigTimeout(self._silence_diagnosis(sent))
+
+    def _silence_diagnosis(self, sent: int) -> str:
+        if self._link.rx_bytes == 0:
+            return (
+                f"{self.port}: no answer from the rig ({sent} HELLO sent, nothing received). Check that "
+                f"the rig is powered and connected and that this is its port."
+            )
+        return (
+            f"{self.port}: no IDN answer to {sent} HELLO ({self._link.rx_bytes} bytes received, "
+            f"{self.stats.bad_lines} bad lines): wrong port or baud rate, or firmware that does not speak "
+            f"protocol {P.PROTOCOL_VERSION}."
+        )
+
+    def _identified(self, idn: P.Idn) -> P.Idn:
+        old = self.info
+        if old is not None:
+            if idn.rig_id != old.rig_id:
+                raise RigError(f"{self.port} now leads to rig {idn.rig_id}, not {old.rig_id}: reconnect the right rig")
+            if idn.boot_id != old.boot_id:
+                self.stats.resets += 1
+                self._event(f"rig reset: boot_id {old.boot_id} -> {idn.boot_id}, homed={int(idn.homed)}")
+        self.info = idn
+        return idn
+
+    def _reconnect(self, reason: str) -> None:
+        self.stats.reconnects += 1
+        self._event(f"link down ({reason}); reconnecting")
+        t0 = time.monotonic()
+        deadline = t0 + self.t.reconnect_s
+        while True:
+            self._link.close()
+            self._backlog.clear()
+            try:
+                self._link.open()
+            except PortBusy:
+                raise
+            except RigError:  # the path is gone or not ready yet: the rig is unplugged
+                pass
+            else:
+                try:
+                    self._handshake(deadline)
+                    self._event(f"link back after {time.monotonic() - t0:.2f} s")
+                    return
+                except (RigTimeout, _LinkDown):
+                    pass
+            if time.monotonic() >= deadline:
+                raise RigTimeout(
+                    f"{self.port}: the link went down ({reason}) and did not come back within "
+                    f"{self.t.reconnect_s:g} s. The capture file keeps every point so far: reconnect the "
+                    f"rig and re-run the same command to continue."
+                )
+            time.sleep(min(0.1, self.t.reply_s))
+
+    # reading --------------------------------------------------------------------------------
+
+    def _wait(
+        self,
+        deadline: float,
+        want: Callable[[P.Message], bool],
+        *,
+        watch_silence: bool = True,
+        boot_resets: bool = True,
+    ) -> P.Message | None:
+        """Handle incoming lines until one satisfies ``want`` (returned) or ``deadline`` (None).
+
+        Points of the current scan are recorded whatever is awaited. Raises :class:`_LinkDown` on
+        a serial error or (``watch_silence``) silence, :class:`_Reset` on ``BOOT``
+        (``boot_resets``), :class:`ProtocolVersionError` on an IDN of another version.
+        """
+        while True:
+            while self._backlog:
+                msg = self._dispatch(self._backlog.popleft())
+                if msg is None:
+                    continue
+                if boot_resets and isinstance(msg, P.Boot):
+                    raise _Reset(f"BOOT, boot_id {msg.boot_id}, reason {msg.reason}")
+                if want(msg):
+                    return msg
+            now = time.monotonic()
+            if now >= deadline:
+                return None
+            if watch_silence and now - self._link.last_rx > self.t.link_down_s:
+                raise _LinkDown(f"nothing received for {self.t.link_down_s:g} s")
+            self._backlog.extend(self._link.read())
+
+    def _dispatch(self, item: P.Frame | P.BadLine) -> P.Message | None:
+        if isinstance(item, P.BadLine):
+            if item.reason == "JUNK":
+                self.stats.junk += 1
+            else:
+                self.stats.bad_lines += 1
+            return None
+        try:
+            msg = P.parse_body(item.body)
+        except P.FrameError:
+            fields = item.body.split(b",")
+            if fields[0] == b"IDN" and len(fields) > 1 and fields[1] != str(P.PROTOCOL_VERSION).encode():
+                self._version_error(fields[1].decode("ascii", "replace"), "?")
+            self.stats.bad_lines += 1
+            return None
+        if isinstance(msg, P.Idn) and msg.proto != P.PROTOCOL_VERSION:
+            self._version_error(str(msg.proto), msg.fw_version)
+        if isinstance(msg, (P.Lob, P.Wav)):
+            self._point(msg)
+        return msg
+
+    def _version_error(self, proto: str, fw: str) -> None:
+        raise ProtocolVersionError(
+            f"{self.port}: the rig speaks protocol {proto} (firmware {fw}); this host speaks protocol "
+            f"{P.PROTOCOL_VERSION}. Use difflattice for protocol {proto}, or firmware for protocol {P.PROTOCOL_VERSION}."
+        )
+
+    def _point(self, msg: P.Lob | P.Wav) -> None:
+        plan = self._plan
+        if plan is None or msg.scan != self._scan_id:
+            return
+        if not (0 <= msg.seq < plan.n and plan.matches(msg)):
+            self.stats.bad_lines += 1
+            if self.log:
+                self.log.note(f"rejected point at the wrong position: {msg}")
+            return
+        if msg.seq in self._have:
+            self.stats.duplicates += 1
+            return
+        self._on_point(msg)
+        self._have.add(msg.seq)
+        self.stats.points += 1
+        self._last_point = time.monotonic()
+
+    # commands -------------------------------------------------------------------------------
+
+    def _abort_running(self) -> None:
+        """Stop whatever scan the rig is running (STAT tells which)."""
+        for _ in range(self.t.retries):
+            self._link.send(P.Stat())
+            hbt = self._wait(time.monotonic() + self.t.reply_s, lambda m: isinstance(m, P.Hbt))
+            if isinstance(hbt, P.Hbt) and hbt.state == "IDLE":
+                break
+            if isinstance(hbt, P.Hbt):
+                self._link.send(P.Abort(hbt.scan))
+                end = self._wait(
+                    time.monotonic() + self.t.reply_s,
+                    lambda m: (isinstance(m, P.End) and m.scan == hbt.scan) or (isinstance(m, P.Hbt) and m.state == "IDLE"),
+                )
+                if end is not None:
+                    self._event(f"aborted the rig's running scan {hbt.scan}")
+                    break
+        else:
+            raise RigTimeout(f"{self.port}: the rig does not stop its running scan (STAT/ABORT unanswered)")
+        assert self.info is not None
+        self.info = dataclasses.replace(self.info, state="IDLE")
+
+    def home(self) -> None:
+        """Home the axis (``HOME`` until ``ACK,HOME,0``; IDN's homed flag covers a lost ACK)."""
+        assert self.info is not None
+        deadline = time.monotonic() + self.t.home_s
+        self._link.send(P.Home())
+        while True:
+            msg = self._wait(
+                min(deadline, time.monotonic() + self.t.reply_s),
+                lambda m: (isinstance(m, P.Ack) and m.command == "HOME")
+                or (isinstance(m, P.Err) and m.detail in ("HOME", "-"))
+                or isinstance(m, P.Idn),
+            )
+            if isinstance(msg, P.Ack) or (isinstance(msg, P.Idn) and msg.homed):
+                break
+            if isinstance(msg, P.Err):
+                if msg.code == "LIMIT":
+                    raise RigError(f"{self.port}: homing failed (ERR,LIMIT,HOME): the axis did not find its home switch")
+                if msg.code == "BUSY":
+                    self._abort_running()
+                self._link.send(P.Home())
+            elif time.monotonic() >= deadline:
+                raise RigTimeout(f"{self.port}: the rig did not finish homing within {self.t.home_s:g} s")
+            elif msg is None:
+                self._link.send(P.Hello(P.PROTOCOL_VERSION))  # IDN tells whether homing is done
+        self.info = dataclasses.replace(self.info, homed=True)
+        self._event("homed")
+
+    def _run_command(self, cmd: P.Lobe | P.Wave) -> None:
+        """Send one scan command and take its points until END (or the rig is idle again)."""
+        ours = cmd.scan
+
+        def started(m: P.Message) -> bool:
+            return (
+                (isinstance(m, P.Ack) and m.command == cmd.TYPE and m.arg == ours)
+                or (isinstance(m, (P.Lob, P.Wav)) and m.scan == ours)
+                or (isinstance(m, P.Hbt) and m.state == "SCAN" and m.scan == ours)
+                or (isinstance(m, P.Err) and m.detail in (cmd.TYPE, "-"))
+            )
+
+        for _ in range(self.t.retries):
+            self._link.send(cmd)
+            msg = self._wait(time.monotonic() + self.t.reply_s, started)
+            if msg is None or (isinstance(msg, P.Err) and msg.code in ("BADCRC", "MALFORMED", "TOOLONG")):
+                continue
+            if isinstance(msg, P.Err):
+                if msg.code == "BUSY":
+                    self._abort_running()
+                    continue
+                if msg.code == "NOTHOMED":
+                    raise _Reset("the rig is not homed")
+                raise RigError(
+                    f"{self.port}: the rig refused {P.encode(cmd).decode().strip()} with ERR,{msg.code},{msg.detail}"
+                    + (": positions outside the axis range" if msg.code == "LIMIT" else ": check the scan options")
+                )
+            break
+        else:
+            raise RigTimeout(f"{self.port}: the rig does not acknowledge {cmd.TYPE} ({self.t.retries} sent)")
+        progress = time.monotonic()
+        next_seq = -1
+        while True:
+            msg = self._wait(
+                time.monotonic() + self.t.reply_s, lambda m: isinstance(m, P.Hbt) or (isinstance(m, P.End) and m.scan == ours)
+            )
+            progress = max(progress, self._last_point)
+            if isinstance(msg, P.End):
+                if msg.status == "FAULT":
+                    assert self.info is not None
+                    self.info = dataclasses.replace(self.info, homed=False)
+                    self._event(f"the rig ended scan {ours} with FAULT; re-homing")
+                return
+            if isinstance(msg, P.Hbt):
+                if msg.state == "IDLE" or msg.scan != ours:
+                    return  # END lost, or the rig was reset (BOOT lost)
+                if msg.next_seq != next_seq:
+                    next_seq, progress = msg.next_seq, time.monotonic()
+            if time.monotonic() - progress > self.t.point_s:
+                raise RigTimeout(f"{self.port}: the rig reports scanning but sent no point for {self.t.point_s:g} s")
+
+    def run_scan(
+        self, plan: ScanPlan, scan_id: int, have: set[int], on_point: Callable[[P.Lob | P.Wav], None]
+    ) -> None:
+        """Collect every point of ``plan`` not in ``have`` (updated), calling ``on_point`` for each.
+
+        Interrupted commands are resumed from the first missing point, lost points re-requested,
+        a reset rig re-homed and a lost link reopened; a point requested more than
+        ``MAX_REQUESTS_PER_POINT`` times is an error.
+        """
+        if self.info is None:
+            raise RigError("connect() first")
+        self._plan, self._scan_id, self._have, self._on_point = plan, scan_id, have, on_point
+        requests: Counter[int] = Counter()
+        sync = False
+        try:
+            while missing := [s for s in range(plan.n) if s not in have]:
+                first, n = plan.next_request(missing)
+                todo = [s for s in missing if s < n]
+                again = [s for s in todo if requests[s]]
+                if again:
+                    self._event(f"re-requesting seq {describe_seqs(again)}")
+                requests.update(todo)
+                self.stats.rerequested = sum(1 for c in requests.values() if c > 1)
+                if requests[first] > MAX_REQUESTS_PER_POINT:
+                    raise RigError(f"{self.port}: point {first} requested {MAX_REQUESTS_PER_POINT} times without success")
+                try:
+                    if sync:
+                        self._handshake(time.monotonic() + self.t.reconnect_s)
+                        sync = False
+                    if self.info.state == "SCAN":
+                        self._abort_running()
+                    if not self.info.homed:
+                        self.home()
+                    self._run_command(plan.command(scan_id, first, n))
+                except _LinkDown as exc:
+                    self._reconnect(str(exc))
+                except _Reset as exc:
+                    self._event(f"rig reset or lost its home ({exc})")
+                    sync = True
+        finally:
+            self._plan = None
+
+    def abort(self, scan_id: int) -> None:
+        """Best effort: tell the rig to stop ``scan_id`` (used when the operator interrupts)."""
+        try:
+            self._link.send(P.Abort(scan_id))
+        except _LinkDown:
+            pass
+
+
+# --------------------------------------------------------------------------------------------
+# Capture into files
+# --------------------------------------------------------------------------------------------
+
+_SYSTEM_KEYS = ("format", "kind", "created_utc", "protocol", "rig_id", "fw_version", "boot_id", "scan_id")
+_SCAN_KEYS = ("n_points", "start_mdeg", "step_mdeg", "x0_um", "dx_um", "z_um", "n_avg", "cycles", "freq_hz")
+_LOADER_KEYS = ("start_deg", "step_deg", "stop_deg", "x0_m", "dx_m", "x1_m", "z_m")  # added by load_capture
+_DERIVED_KEYS = ("speed_of_sound_m_s",) + _LOADER_KEYS
+
+
+def normalise_metadata(kind: str, metadata: dict[str, Any]) -> dict[str, Any]:
+    """Check measurement metadata and give it its header types; adds ``speed_of_sound_m_s``.
+
+    ``temperature_c`` is required, and ``range_m`` for a lobe scan; known keys
+    (:data:`files.HEADER_KEYS`) get their types, other keys are kept as text.
+    """
+    meta: dict[str, Any] = {}
+    for key, value in metadata.items():
+        if value is None:
+            continue
+        if key in _SYSTEM_KEYS or key in _SCAN_KEYS or key in _DERIVED_KEYS:
+            raise ValueError(f"metadata key {key!r} is set by the capture itself")
+        kind_of = HEADER_KEYS.get(key, (str, ""))[0]
+        try:
+            meta[key] = kind_of(value)
+        except (TypeError, ValueError):
+            raise ValueError(f"metadata {key!r} must be {kind_of.__name__}, got {value!r}") from None
+    required = ("temperature_c", "range_m") if kind == "lobe" else ("temperature_c",)
+    absent = [k for k in required if k not in meta]
+    if absent:
+        raise ValueError(f"metadata needs {', '.join(absent)} (see docs/capture.md)")
+    meta["speed_of_sound_m_s"] = round(float(speed_of_sound(meta["temperature_c"])), 3)
+    return meta
+
+
+def _check_resume(path: Path, existing: dict[str, Any], wanted: dict[str, Any]) -> None:
+    keys = (set(existing) | set(wanted)) - set(_SYSTEM_KEYS) - set(_LOADER_KEYS)
+    diffs = [f"{k}: file {existing.get(k)!r}, now {wanted.get(k)!r}" for k in sorted(keys) if existing.get(k) != wanted.get(k)]
+    if existing["kind"] != wanted["kind"]:
+        diffs.insert(0, f"kind: file {existing['kind']!r}, now {wanted['kind']!r}")
+    if diffs:
+        raise CaptureFileError(
+            f"{path}: holds an unfinished scan with other parameters ({'; '.join(diffs)}). Re-run with the "
+            f"same options to continue it, or capture to another file."
+        )
+
+
+def _capture(
+    port: str | Path,
+    out_path: str | Path,
+    plan: ScanPlan,
+    metadata: dict[str, Any],
+    progress: bool,
+    timeouts: Timeouts,
+) -> Path:
+    path = Path(out_path)
+    if path.suffix != ".csv":
+        raise ValueError(f"{path}: capture files end in .csv")
+    meta = normalise_metadata(plan.kind, metadata)
+    wanted = {"kind": plan.kind, **plan.header(), **meta}
+    writer: CaptureWriter | None = None
+    have: set[int] = set()
+    scan_id, rig_id = 0, ""
+    if path.exists():
+        writer, existing = CaptureWriter.resume(path)
+        if existing.complete:
+            writer.close()
+            return path
+        _check_resume(path, existing.metadata, wanted)
+        have = set(existing.seq.tolist())
+        scan_id, rig_id = existing.metadata["scan_id"], existing.metadata["rig_id"]
+    log_path = path.with_suffix(".log")
+    new_log = not log_path.exists()
+    log = RawLog(log_path)
+    bar = None
+    try:
+        host = RigHost(port, timeouts=timeouts, log=log)
+        with host:
+            info = host.connect()
+            if writer is None:
+                scan_id = random.SystemRandom().randrange(1, 65536)
+                header = {
+                    "kind": plan.kind,
+                    "created_utc": utc_now(),
+                    "protocol": info.proto,
+                    "rig_id": info.rig_id,
+                    "fw_version": info.fw_version,
+                    "boot_id": info.boot_id,
+                    "scan_id": scan_id,
+                    **plan.header(),
+                    **meta,
+                }
+                writer = CaptureWriter.create(path, header)
+            elif info.rig_id != rig_id:
+                raise CaptureFileError(f"{path}: was captured on rig {rig_id}, but {port} is rig {info.rig_id}")
+            else:
+                writer.event(f"resumed with {len(have)} of {plan.n} points; rig boot_id {info.boot_id}")
+            if progress:
+                from tqdm import tqdm
+
+                bar = tqdm(total=plan.n, initial=len(have), desc=path.name, unit="pt", file=sys.stderr, dynamic_ncols=True)
+            w = writer
+
+            def on_point(msg: P.Lob | P.Wav) -> None:
+                w.append(tuple(getattr(msg, c) for c in COLUMNS[plan.kind][:-1]), time.time())
+                if bar is not None:
+                    bar.update(1)
+                    s = host.stats
+                    bar.set_postfix({"rereq": s.rerequested, "link": s.link_events, "bad": s.bad_lines}, refresh=False)
+
+            host.on_event = writer.event
+            try:
+                host.run_scan(plan, scan_id, have, on_point)
+            except KeyboardInterrupt:
+                host.abort(scan_id)
+                writer.event("interrupted by the operator")
+                raise
+            writer.finish()
+            log.note(
+                f"complete: {plan.n} points; {host.stats.rerequested} re-requested, {host.stats.bad_lines} bad lines, "
+                f"{host.stats.resets} resets, {host.stats.reconnects} reconnects"
+            )
+    finally:
+        if bar is not None:
+            bar.close()
+        log.close()
+        if writer is not None:
+            writer.close()
+        elif new_log:
+            log_path.unlink()  # nothing captured: leave no stray log
+    return path
+
+
+def capture_lobe(
+    port: str | Path,
+    out_path: str | Path,
+    *,
+    start_deg: float,
+    stop_deg: float,
+    step_deg: float,
+    n_avg: int,
+    cycles: int,
+    freq_hz: float,
+    metadata: dict[str, Any],
+    progress: bool = False,
+    timeout_s: float = 3.0,
+    reconnect_s: float = 30.0,
+) -> Path:
+    """Capture a lobe pattern into ``out_path`` (``.csv``; raw log ``.log`` beside it).
+
+    Angles [deg] from ``start_deg`` to ``stop_deg`` (inclusive, a whole number of ``step_deg``),
+    ``n_avg`` bursts of ``cycles`` cycles at ``freq_hz`` [Hz, rounded to an integer] per point.
+    ``metadata`` needs ``temperature_c`` [degC] and ``range_m`` [m]; optional keys are listed in
+    :data:`files.HEADER_KEYS`. ``timeout_s``: silence that means the link is down (other timeouts
+    scale with it, :meth:`Timeouts.scaled`); ``reconnect_s``: how long to wait for a lost link.
+    Calling it again on an unfinished file continues the scan; on a complete file it does nothing.
+    """
+    plan = ScanPlan.lobe(start_deg, stop_deg, step_deg, n_avg, cycles, freq_hz)
+    return _capture(port, out_path, plan, metadata, progress, Timeouts.scaled(timeout_s, reconnect_s))
+
+
+def capture_wave(
+    port: str | Path,
+    out_path: str | Path,
+    *,
+    x0_m: float,
+    x1_m: float,
+    dx_m: float,
+    z_m: float,
+    n_avg: int,
+    cycles: int,
+    freq_hz: float,
+    metadata: dict[str, Any],
+    progress: bool = False,
+    timeout_s: float = 3.0,
+    reconnect_s: float = 30.0,
+) -> Path:
+    """Capture a wavefront scan along x [m] from ``x0_m`` to ``x1_m`` by ``dx_m`` at distance
+    ``z_m`` [m] from the face into ``out_path``; otherwise as :func:`capture_lobe`
+    (``metadata`` needs ``temperature_c``)."""
+    plan = ScanPlan.wave(x0_m, x1_m, dx_m, z_m, n_avg, cycles, freq_hz)
+    return _capture(port, out_path, plan, metadata, progress, Timeouts.scaled(timeout_s, reconnect_s))

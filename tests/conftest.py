@@ -1,0 +1,9 @@
+"""Shared test configuration: float64 available, strict rank promotion, a non-interactive backend."""
+
+import os
+
+os.environ.setdefault("MPLBACKEND", "Agg")
+
+import jax  # noqa: E402
+
+jax.config.update("jax_enable_x64", True)

@@ -1,0 +1,101 @@
+"""Energy conservation in a closed box, stability at the Courant limit and of every edge type,
+and detection of instability."""
+
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from difflattice.grid import MAX_COURANT, make_grid
+from difflattice.lattice import Edges
+from difflattice.medium import Medium
+from difflattice.sensors import Sensors
+from difflattice.solver import INSTABILITY_MESSAGE, Stepper, check_result, run, simulate
+from difflattice.source import PointSources, ToneBurst
+from difflattice.validation import discrete_energy
+
+
+def _box(dtype, courant=MAX_COURANT, n=64):
+    grid = make_grid(frequency_hz=50e3, cells_per_wavelength=12, c_max_m_s=343.0, shape=(n, n), courant=courant, dtype=dtype)
+    x, y = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
+    # two fluids: a dense slow block (conservative form)
+    block = (x > n // 2) & (y > n // 3)
+    c = np.where(block, 200.0, 343.0)
+    rho = np.where(block, 5.0, 1.2)
+    med = Medium(jnp.asarray(c, grid.jnp_dtype), jnp.asarray(rho, grid.jnp_dtype))
+    p0 = np.exp(-((x - n / 4) ** 2 + (y - n / 4) ** 2) / 8.0)
+    stepper = Stepper.build(grid, med, edges=Edges.all("rigid"))
+    st = stepper.init()
+    st = eqx.tree_at(lambda s: (s.p, s.p_prev), st, (jnp.asarray(p0, grid.jnp_dtype), jnp.asarray(p0, grid.jnp_dtype)))
+    return stepper, st
+
+
+@pytest.mark.parametrize("dtype, tol", [("float64", 1e-11), ("float32", 2e-4)])
+def test_energy_conserved_closed_box(dtype, tol):
+    """The leapfrog conserves a discrete energy exactly; float64 must hold it to round-off
+    (~1e-16 per step, 2e4 steps -> ~1e-12 random walk); float32 to ~sqrt(steps) * 6e-8 * 10."""
+    stepper, st = _box(dtype)
+    e0 = discrete_energy(stepper, st.p, st.p_prev)
+    res = run(stepper, 20_000, state=st)
+    e1 = discrete_energy(stepper, res.final.p, res.final.p_prev)
+    assert e0 > 0
+    assert abs(e1 - e0) / e0 < tol
+    assert np.all(np.isfinite(np.asarray(res.peak_history)))
+
+
+def test_long_run_at_the_courant_limit_is_bounded():
+    """Exactly at 1/sqrt(2) (homogeneous box), 1e5 steps: bounded (energy conserved)."""
+    grid = make_grid(frequency_hz=50e3, cells_per_wavelength=12, c_max_m_s=343.0, shape=(32, 32), courant=MAX_COURANT, dtype="float64")
+    stepper = Stepper.build(grid, Medium(343.0, 1.2), edges=Edges.all("rigid"))
+    x, y = np.meshgrid(np.arange(32), np.arange(32), indexing="ij")
+    p0 = jnp.asarray(np.exp(-((x - 10) ** 2 + (y - 12) ** 2) / 6.0))
+    st = eqx.tree_at(lambda s: (s.p, s.p_prev), stepper.init(), (p0, p0))
+    res = run(stepper, 100_000, state=st, checkpoint=1000)
+    peaks = np.asarray(res.peak_history)
+    assert np.all(np.isfinite(peaks))
+    assert peaks.max() < 1.0 + 1e-9  # initial peak 1; energy conservation keeps it below
+    e0 = discrete_energy(stepper, p0, p0)
+    assert abs(discrete_energy(stepper, res.final.p, res.final.p_prev) - e0) / e0 < 1e-9
+
+
+@pytest.mark.parametrize("kind", ["pml", "mur", "sponge", "rigid", "soft"])
+def test_every_edge_type_stable_20000_steps(kind):
+    grid = make_grid(frequency_hz=50e3, cells_per_wavelength=10, c_max_m_s=343.0, shape=(60, 50))
+    src = PointSources(cells=[(30, 25)], signal=ToneBurst(50e3, 3), weights=jnp.ones(1, jnp.float32), lags_s=jnp.zeros(1, jnp.float32))
+    res = simulate(grid, Medium(343.0, 1.2), src, Sensors(), n_steps=20_000, edges=Edges.all(kind, thickness_cells=10))
+    peaks = np.asarray(res.peak_history)
+    assert np.all(np.isfinite(peaks))
+    q = len(peaks) // 4
+    # no late growth: the last quarter never exceeds the third (a slow instability would)
+    assert peaks[-q:].max() <= 1.01 * peaks[-2 * q : -q].max()
+    if kind in ("pml", "mur", "sponge"):
+        # absorbing: the field decays after the burst (corners included); the residue is the
+        # 2-D wake of the point source at wavelengths far longer than the 10-cell layer
+        assert peaks[-1] < 0.05 * peaks.max()
+
+
+def test_instability_is_detected_and_explained():
+    grid = make_grid(frequency_hz=50e3, cells_per_wavelength=10, c_max_m_s=343.0, shape=(30, 30))
+    src = PointSources(cells=[(15, 15)], signal=ToneBurst(50e3, 2), weights=jnp.ones(1, jnp.float32), lags_s=jnp.zeros(1, jnp.float32))
+    stepper = Stepper.build(grid, Medium(343.0, 1.2), src, edges=Edges.all("rigid"))
+    bad = eqx.tree_at(lambda s: s.lattice.K, stepper, jnp.asarray(0.6, jnp.float32))  # c = 0.77 > 0.707
+    res = run(bad, 3000)
+    assert not np.all(np.isfinite(np.asarray(res.peak_history)))
+    with pytest.raises(Exception, match="non-finite pressure"):
+        check_result(res, bad).peak_history.block_until_ready()
+
+
+def test_traced_speed_above_limit_is_refused_at_run_time():
+    grid = make_grid(frequency_hz=50e3, cells_per_wavelength=10, c_max_m_s=343.0, shape=(20, 20))
+
+    @jax.jit
+    def f(c):
+        med = Medium(c * jnp.ones((20, 20), jnp.float32), 1.2)
+        return simulate(grid, med, (), Sensors(), n_steps=5, edges=Edges.all("rigid")).peak_history
+
+    f(jnp.float32(343.0)).block_until_ready()
+    with pytest.raises(Exception, match="stability limit"):
+        f(jnp.float32(400.0)).block_until_ready()

@@ -12,6 +12,7 @@ from difflattice.capture.emulator import EmulatorHandle, start_emulator
 
 from .helpers import FAST_RIG, PISTON
 
+
 @pytest.fixture
 def start_rig(tmp_path: Path) -> Iterator[Callable[..., EmulatorHandle]]:
     """Start emulators (own processes) with fast timing; all are stopped after the test."""

@@ -46,7 +46,6 @@ from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.special import j1
 
 TABLE_FORMAT = "difflattice-transducer-table/1"
 
@@ -98,6 +97,8 @@ class Piston:
         return 0.5 * self.diameter_m
 
     def far_field(self, angle_deg: NDArray[np.float64], freq_hz: float, c_m_s: float) -> NDArray[np.complex128]:
+        from scipy.special import j1  # on first use: the capture host imports this module, not scipy
+
         theta = np.deg2rad(np.asarray(angle_deg, dtype=float))
         u = 2 * np.pi * freq_hz / c_m_s * self.radius_m * np.sin(theta)
         small = np.abs(u) < 1e-8

@@ -1,0 +1,374 @@
+"""Scene files (TOML): a documented, validated description of a whole simulation.
+
+`load_scene(path)` reads and validates a file into a `Scene` (plain data, SI units);
+`Scene.build()` turns it into the simulator's objects (grid, medium, sources, sensors, edges).
+Every key, its unit and its default are listed in `SCHEMA` (and in docs/scene-files.md); an
+unknown key, a wrong type or a value out of range raises `SceneError` naming the file, the key and
+what is allowed.
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+class SceneError(ValueError):
+    """A scene file that cannot be used: the message names the file, the key and the fix."""
+
+
+NUM = (int, float)
+# section -> key -> (type(s), default, description with unit). default REQUIRED = must be given.
+REQUIRED = object()
+SCHEMA: dict[str, dict[str, tuple]] = {
+    "grid": {
+        "frequency_hz": (NUM, REQUIRED, "drive frequency the scales are built for, Hz"),
+        "cells_per_wavelength": (NUM, 20.0, "cells per wavelength in the fastest medium"),
+        "size_m": (list, None, "[width, height] of the window, m (or give shape)"),
+        "shape": (list, None, "[nx, ny] cells (or give size_m)"),
+        "courant": (NUM, 0.707, "fastest medium's speed in cells/step, <= 0.7071"),
+        "dtype": (str, "float32", "float32 or float64"),
+    },
+    "medium": {
+        "background": (str, "air", "material filling the window (see MATERIALS)"),
+        "temperature_c": (NUM, 20.0, "air temperature, deg C (speed of sound of air)"),
+        "boundary_model": (str, "conservative", "conservative, paper or speed_zero"),
+        "absorption_db_per_m": (NUM, 0.0, "air absorption at the drive frequency, dB/m (f^2 law)"),
+        "rasterise": (str, "hard", "hard or smooth object edges"),
+    },
+    "edges": {
+        "kind": (str, "pml", "pml, mur, sponge, rigid or soft on every side"),
+        "x_lo": (str, None, "override for the left side"),
+        "x_hi": (str, None, "override for the right side"),
+        "y_lo": (str, None, "override for the bottom side"),
+        "y_hi": (str, None, "override for the top side"),
+        "thickness_cells": (int, 20, "PML or sponge thickness, cells"),
+    },
+    "transducers": {
+        "name": (str, "transducer", "label"),
+        "centre_m": (list, REQUIRED, "[x, y] of the face centre, m"),
+        "n_cells": (int, None, "number of source cells (or give diameter_m)"),
+        "diameter_m": (NUM, None, "active diameter, m (n_cells = diameter / cell size)"),
+        "direction_deg": (NUM, 0.0, "facing direction, deg (0 = +x, 90 = +y)"),
+        "signal": (str, "burst", "burst or cw"),
+        "frequency_hz": (NUM, None, "drive frequency, Hz (default: the grid's)"),
+        "cycles": (NUM, 5.0, "burst length in cycles"),
+        "window": (str, "hann", "burst window: hann or rect"),
+        "ramp_cycles": (NUM, 3.0, "cw switch-on ramp, cycles"),
+        "amplitude_pa": (NUM, 1.0, "source amplitude, Pa"),
+        "injection": (str, "soft", "soft (add to P) or hard (set P)"),
+        "weights": (list, None, "per-cell amplitude weights (n_cells values)"),
+        "lags_s": (list, None, "per-cell delays, s (n_cells values)"),
+    },
+    "objects": {
+        "shape": (str, REQUIRED, "segment, box, circle, polygon or polyline"),
+        "material": (str, "rigid", "material name (rigid, soft, pine, ...)"),
+        "a_m": (list, None, "segment start [x, y], m"),
+        "b_m": (list, None, "segment end [x, y], m"),
+        "thickness_m": (NUM, None, "wall thickness of segment/polyline, m"),
+        "lo_m": (list, None, "box lower-left corner [x, y], m"),
+        "hi_m": (list, None, "box upper-right corner [x, y], m"),
+        "centre_m": (list, None, "circle centre [x, y], m"),
+        "radius_m": (NUM, None, "circle radius, m"),
+        "vertices_m": (list, None, "polygon vertices [[x, y], ...], m"),
+        "points_m": (list, None, "polyline points [[x, y], ...], m"),
+        "cut": (dict, None, "a shape (same keys) removed from this one, e.g. a gap"),
+    },
+    "sensors": {
+        "probes_m": (list, [], "points [[x, y], ...] recorded every step, m"),
+        "p_max": (bool, True, "record the peak |p| map"),
+        "p_rms": (bool, False, "record the RMS map"),
+        "arrival_threshold_pa": (NUM, None, "record first-arrival step where |p| exceeds this, Pa"),
+        "snapshot_every_steps": (int, None, "keep the field every that many steps"),
+    },
+    "farfield": {
+        "range_m": (NUM, 1.0, "range of the lobe pattern, m"),
+        "angles_deg": (list, [-90.0, 90.0, 0.5], "[start, stop, step] of the lobe angles, deg"),
+        "gap_cells": (int, 4, "contour distance from the transducer cells, cells"),
+        "transducer": (str, None, "name of the transducer whose lobe is computed (default: first)"),
+    },
+    "run": {
+        "n_steps": (int, None, "number of time steps (or give duration_s)"),
+        "duration_s": (NUM, None, "simulated time, s"),
+        "checkpoint": (str, "none", "none or sqrt (memory-bounded gradients)"),
+    },
+}
+ARRAY_SECTIONS = ("transducers", "objects")
+
+
+def _fail(path, key, msg):
+    raise SceneError(f"{path}: [{key}] {msg}")
+
+
+def _validate_table(path, section: str, table: dict, where: str) -> dict:
+    schema = SCHEMA[section]
+    if not isinstance(table, dict):
+        _fail(path, where, f"must be a table, got {type(table).__name__}")
+    out = {}
+    for key, value in table.items():
+        if key not in schema:
+            _fail(path, f"{where}.{key}", f"unknown key; allowed: {', '.join(schema)}")
+        types = schema[key][0]
+        if types is NUM and isinstance(value, bool) or not isinstance(value, types):
+            tname = "number" if types is NUM else getattr(types, "__name__", str(types))
+            _fail(path, f"{where}.{key}", f"must be a {tname}, got {value!r} ({schema[key][2]})")
+        out[key] = value
+    for key, (types, default, desc) in schema.items():
+        if key not in out:
+            if default is REQUIRED:
+                _fail(path, f"{where}.{key}", f"is required ({desc})")
+            out[key] = default
+    return out
+
+
+@dataclass
+class Scene:
+    """A validated scene (SI units). Sections mirror the file; see `SCHEMA`."""
+
+    path: str
+    grid: dict
+    medium: dict
+    edges: dict
+    transducers: list[dict]
+    objects: list[dict]
+    sensors: dict
+    farfield: dict | None
+    run: dict
+    raw: dict = field(default_factory=dict)
+
+    # ---------------------------------------------------------------------------------------
+    def build(self):
+        """Build (grid, medium, sources, sensors, edges, n_steps, extras) for `simulate`."""
+        from . import geometry as geo
+        from .farfield import box_around
+        from .grid import make_grid
+        from .lattice import Edges
+        from .medium import Medium, air, material
+        from .sensors import Sensors, probe_cells
+        from .source import ContinuousWave, ToneBurst, line_transducer
+
+        p = self.path
+        med = self.medium
+        bg = air(med["temperature_c"]) if med["background"] == "air" else _material(p, "medium.background", med["background"], material)
+        if bg.kind != "fluid":
+            _fail(p, "medium.background", f"must be a fluid material, got {bg.name} ({bg.kind})")
+        mats = [bg] + [_material(p, f"objects[{i}].material", o["material"], material) for i, o in enumerate(self.objects)]
+        if med["boundary_model"] == "speed_zero":
+            mats = [bg]
+        c_max = max(m.speed_m_s for m in mats if m.kind == "fluid")
+        g = self.grid
+        if (g["size_m"] is None) == (g["shape"] is None):
+            _fail(p, "grid", "give exactly one of size_m = [width, height] (m) or shape = [nx, ny] (cells)")
+        try:
+            grid = make_grid(
+                frequency_hz=g["frequency_hz"],
+                cells_per_wavelength=g["cells_per_wavelength"],
+                c_max_m_s=c_max,
+                shape=tuple(g["shape"]) if g["shape"] else None,
+                size_m=tuple(g["size_m"]) if g["size_m"] else None,
+                courant=g["courant"],
+                dtype=g["dtype"],
+            )
+        except ValueError as e:
+            _fail(p, "grid", str(e))
+
+        # medium maps
+        rigid, soft = [], []
+        speed = np.full(grid.shape, bg.speed_m_s)
+        rho = np.full(grid.shape, bg.density_kg_m3)
+        fluid_objects = False
+        for i, (o, m) in enumerate(zip(self.objects, mats[1:] if med["boundary_model"] != "speed_zero" else [None] * len(self.objects))):
+            shape = _shape(p, f"objects[{i}]", o, geo)
+            try:
+                occ = np.asarray(geo.rasterise(shape, grid, med["rasterise"]))
+            except ValueError as e:
+                _fail(p, "medium.rasterise", str(e))
+            if med["boundary_model"] == "speed_zero" or m.kind == "soft":
+                soft.append(occ)
+            elif m.kind == "rigid":
+                rigid.append(occ)
+            else:
+                fluid_objects = True
+                speed = speed * (1 - occ) + m.speed_m_s * occ
+                rho = rho * (1 - occ) + m.density_kg_m3 * occ
+        dt = grid.jnp_dtype
+        import jax.numpy as jnp
+
+        def union(occs):
+            return None if not occs else jnp.asarray(np.asarray(geo.union_occupancy(occs)), dt)
+
+        try:
+            medium = Medium(
+                sound_speed_m_s=jnp.asarray(speed, dt) if fluid_objects else bg.speed_m_s,
+                density_kg_m3=jnp.asarray(rho, dt) if fluid_objects else bg.density_kg_m3,
+                rigid=union(rigid),
+                soft=union(soft),
+                boundary_model=med["boundary_model"],
+                absorption_db_per_m=float(med["absorption_db_per_m"]),
+            )
+        except ValueError as e:
+            _fail(p, "medium", str(e))
+
+        e = self.edges
+        try:
+            edges = Edges(
+                **{s: (e[s] or e["kind"]) for s in ("x_lo", "x_hi", "y_lo", "y_hi")},
+                thickness_cells=e["thickness_cells"],
+            )
+        except ValueError as err:
+            _fail(p, "edges", str(err))
+
+        sources = []
+        if not self.transducers:
+            _fail(p, "transducers", "a scene needs at least one [[transducers]] entry")
+        for i, t in enumerate(self.transducers):
+            where = f"transducers[{i}]"
+            f = t["frequency_hz"] or grid.frequency_hz
+            try:
+                if t["signal"] == "burst":
+                    sig = ToneBurst(f, t["cycles"], t["window"], t["amplitude_pa"])
+                elif t["signal"] == "cw":
+                    sig = ContinuousWave(f, t["ramp_cycles"], t["amplitude_pa"])
+                else:
+                    _fail(p, f"{where}.signal", f"= {t['signal']!r}; allowed: burst, cw")
+                sources.append(
+                    line_transducer(
+                        grid, tuple(t["centre_m"]), n_cells=t["n_cells"], diameter_m=t["diameter_m"],
+                        direction_deg=t["direction_deg"], signal=sig, weights=t["weights"],
+                        lags_s=t["lags_s"], injection=t["injection"],
+                    )
+                )
+            except (ValueError, TypeError) as err:
+                _fail(p, where, str(err))
+
+        s = self.sensors
+        probes = probe_cells(grid, s["probes_m"]) if s["probes_m"] else np.zeros((0, 2), int)
+        contour = None
+        phasor_cells = np.zeros((0, 2), int)
+        ff_index = 0
+        if self.farfield is not None:
+            ff = self.farfield
+            names = [t["name"] for t in self.transducers]
+            if ff["transducer"] is not None:
+                if ff["transducer"] not in names:
+                    _fail(p, "farfield.transducer", f"= {ff['transducer']!r}; known: {', '.join(names)}")
+                ff_index = names.index(ff["transducer"])
+            contour = box_around(sources[ff_index].cells_array, ff["gap_cells"])
+            L = edges.thickness_cells if edges.kinds() & {"pml", "sponge"} else 0
+            try:
+                contour.check_inside(grid, margin=L)
+            except ValueError as err:
+                _fail(p, "farfield.gap_cells", str(err))
+            phasor_cells = contour.cells
+        try:
+            sensors = Sensors(
+                probes=probes, phasor_cells=phasor_cells, p_max=s["p_max"], p_rms=s["p_rms"],
+                arrival_threshold_pa=s["arrival_threshold_pa"], snapshot_every=s["snapshot_every_steps"],
+            )
+            sensors.check_inside(grid)
+        except ValueError as err:
+            _fail(p, "sensors", str(err))
+
+        r = self.run
+        if (r["n_steps"] is None) == (r["duration_s"] is None):
+            _fail(p, "run", "give exactly one of n_steps or duration_s (s)")
+        n_steps = r["n_steps"] if r["n_steps"] is not None else int(math.ceil(grid.s_to_steps(r["duration_s"])))
+        if n_steps < 1:
+            _fail(p, "run", f"n_steps = {n_steps} must be >= 1")
+        if r["checkpoint"] not in ("none", "sqrt"):
+            _fail(p, "run.checkpoint", f"= {r['checkpoint']!r}; allowed: none, sqrt")
+        extras = {"contour": contour, "farfield_source": ff_index, "shapes": self.objects}
+        return grid, medium, tuple(sources), sensors, edges, n_steps, extras
+
+
+def _material(path, key, name, lookup):
+    try:
+        return lookup(name)
+    except ValueError as e:
+        _fail(path, key, str(e))
+
+
+def _shape(path, where, o: dict, geo):
+    kind = o["shape"]
+    need = {
+        "segment": ("a_m", "b_m", "thickness_m"),
+        "box": ("lo_m", "hi_m"),
+        "circle": ("centre_m", "radius_m"),
+        "polygon": ("vertices_m",),
+        "polyline": ("points_m", "thickness_m"),
+    }
+    if kind not in need:
+        _fail(path, f"{where}.shape", f"= {kind!r}; allowed: {', '.join(need)}")
+    for k in need[kind]:
+        if o.get(k) is None:
+            _fail(path, f"{where}.{k}", f"is required for shape = {kind!r}")
+    a = lambda k: np.asarray(o[k], dtype=float)
+    try:
+        s = {
+            "segment": lambda: geo.Segment(a("a_m"), a("b_m"), a("thickness_m")),
+            "box": lambda: geo.Box(a("lo_m"), a("hi_m")),
+            "circle": lambda: geo.Circle(a("centre_m"), a("radius_m")),
+            "polygon": lambda: geo.Polygon(a("vertices_m")),
+            "polyline": lambda: geo.Polyline(a("points_m"), a("thickness_m")),
+        }[kind]()
+    except Exception as e:  # malformed coordinates
+        _fail(path, where, f"bad {kind} parameters: {e}")
+    if o.get("cut"):
+        cut = _validate_table(path, "objects", o["cut"], f"{where}.cut")
+        s = geo.Difference(s, _shape(path, f"{where}.cut", cut, geo))
+    return s
+
+
+def parse_scene(data: dict, path: str = "<scene>") -> Scene:
+    """Validate a scene given as a dict (e.g. parsed TOML)."""
+    allowed = set(SCHEMA)
+    for key in data:
+        if key not in allowed:
+            _fail(path, key, f"unknown section; allowed: {', '.join(SCHEMA)}")
+    if "grid" not in data:
+        _fail(path, "grid", "section is required (frequency_hz, size_m or shape, ...)")
+    sec = {}
+    for name in SCHEMA:
+        if name in ARRAY_SECTIONS:
+            items = data.get(name, [])
+            if not isinstance(items, list):
+                _fail(path, name, f"must be an array of tables ([[{name}]]), got {type(items).__name__}")
+            sec[name] = [_validate_table(path, name, t, f"{name}[{i}]") for i, t in enumerate(items)]
+        elif name == "farfield":
+            sec[name] = _validate_table(path, name, data[name], name) if name in data else None
+        else:
+            sec[name] = _validate_table(path, name, data.get(name, {}), name)
+    return Scene(path=str(path), raw=data, **sec)
+
+
+def load_scene(path: str | Path) -> Scene:
+    """Read and validate a TOML scene file."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as e:
+        raise SceneError(f"{path}: cannot read the scene file ({e.strerror})") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as e:
+        raise SceneError(f"{path}: not valid TOML: {e}") from None
+    return parse_scene(data, str(path))
+
+
+def schema_markdown() -> str:
+    """The scene-file reference as Markdown tables (used to write docs/scene-files.md)."""
+    lines = []
+    for section, keys in SCHEMA.items():
+        head = f"[[{section}]]" if section in ARRAY_SECTIONS else f"[{section}]"
+        lines += [f"### `{head}`", "", "| key | type | default | meaning (unit) |", "|---|---|---|---|"]
+        for k, (types, default, desc) in keys.items():
+            tname = "number" if types is NUM else types.__name__
+            d = "**required**" if default is REQUIRED else ("—" if default is None else f"`{default}`")
+            lines.append(f"| `{k}` | {tname} | {d} | {desc} |")
+        lines.append("")
+    return "\n".join(lines)

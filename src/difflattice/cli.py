@@ -90,11 +90,11 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    from .scene import SceneError
+    from .schema import ConfigError
 
     try:
         return int(args.func(args) or 0)
-    except SceneError as e:
+    except ConfigError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     except FileNotFoundError as e:

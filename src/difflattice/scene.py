@@ -17,14 +17,14 @@ from typing import Any
 
 import numpy as np
 
+from .schema import NUM, REQUIRED, ConfigError, fail, schema_markdown as _schema_markdown, validate_table
 
-class SceneError(ValueError):
+
+class SceneError(ConfigError):
     """A scene file that cannot be used: the message names the file, the key and the fix."""
 
 
-NUM = (int, float)
 # section -> key -> (type(s), default, description with unit). default REQUIRED = must be given.
-REQUIRED = object()
 SCHEMA: dict[str, dict[str, tuple]] = {
     "grid": {
         "frequency_hz": (NUM, REQUIRED, "drive frequency the scales are built for, Hz"),
@@ -102,28 +102,11 @@ ARRAY_SECTIONS = ("transducers", "objects")
 
 
 def _fail(path, key, msg):
-    raise SceneError(f"{path}: [{key}] {msg}")
+    fail(path, key, msg, SceneError)
 
 
 def _validate_table(path, section: str, table: dict, where: str) -> dict:
-    schema = SCHEMA[section]
-    if not isinstance(table, dict):
-        _fail(path, where, f"must be a table, got {type(table).__name__}")
-    out = {}
-    for key, value in table.items():
-        if key not in schema:
-            _fail(path, f"{where}.{key}", f"unknown key; allowed: {', '.join(schema)}")
-        types = schema[key][0]
-        if types is NUM and isinstance(value, bool) or not isinstance(value, types):
-            tname = "number" if types is NUM else getattr(types, "__name__", str(types))
-            _fail(path, f"{where}.{key}", f"must be a {tname}, got {value!r} ({schema[key][2]})")
-        out[key] = value
-    for key, (types, default, desc) in schema.items():
-        if key not in out:
-            if default is REQUIRED:
-                _fail(path, f"{where}.{key}", f"is required ({desc})")
-            out[key] = default
-    return out
+    return validate_table(path, SCHEMA[section], table, where, SceneError)
 
 
 @dataclass
@@ -362,13 +345,4 @@ def load_scene(path: str | Path) -> Scene:
 
 def schema_markdown() -> str:
     """The scene-file reference as Markdown tables (used to write docs/scene-files.md)."""
-    lines = []
-    for section, keys in SCHEMA.items():
-        head = f"[[{section}]]" if section in ARRAY_SECTIONS else f"[{section}]"
-        lines += [f"### `{head}`", "", "| key | type | default | meaning (unit) |", "|---|---|---|---|"]
-        for k, (types, default, desc) in keys.items():
-            tname = "number" if types is NUM else types.__name__
-            d = "**required**" if default is REQUIRED else ("—" if default is None else f"`{default}`")
-            lines.append(f"| `{k}` | {tname} | {d} | {desc} |")
-        lines.append("")
-    return "\n".join(lines)
+    return _schema_markdown(SCHEMA, ARRAY_SECTIONS)

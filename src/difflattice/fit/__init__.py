@@ -1,0 +1,7 @@
+"""Fitting transducer models (per-cell weights, lags, active diameter) to measured beams.
+
+Data flow: captures (`data.py`) -> free-field transfer of one source cell computed once by the
+simulator (`transfer.py`) -> model observables, linear in the complex cell amplitudes
+w_k exp(i omega tau_k) (`model.py`) -> optimistix least squares with a convergence trace and
+Jacobian-based uncertainties (`solve.py`) -> report (`report.py`); `config.py` runs a fit file.
+"""

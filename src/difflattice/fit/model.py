@@ -1,0 +1,160 @@
+"""Transducer models for fitting: parameterisations of weights, lags and active diameter.
+
+Every fitted quantity is an unconstrained array; positivity and ranges come from
+reparameterisation (optimistix has no bounds):
+
+- weight w = exp(u) > 0, with the centre cell's weight pinned to 1 and no constant term in a
+  smooth profile (the overall scale is the fitted gain, so it must not be a parameter too);
+- lag tau = (T/2) tanh(v) in (-T/2, T/2), T the drive period (at one frequency a lag is only
+  defined modulo the period); the centre cell's lag is 0 (a common lag is the phase offset);
+- active diameter D = D_max sigmoid(d), with a soft aperture window per cell
+  sigmoid((D/2 - |y_k|) / s), s = wavelength/20 (a physical, resolution-independent edge).
+
+Parameterisations of a profile across the face ("weights" and "lags" each):
+"uniform" (no parameters), "free" (one per cell), "symmetric" (one per mirror pair), "smooth"
+(`n_basis` Chebyshev coefficients; even polynomials only when `symmetric`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Literal
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+Profile = Literal["uniform", "free", "symmetric", "smooth"]
+PROFILES = ("uniform", "free", "symmetric", "smooth")
+@dataclass(frozen=True)
+class ModelSpec:
+    """Static description of a transducer model (what is fitted, how)."""
+
+    n_cells: int
+    dx_m: float
+    frequency_hz: float
+    weights: Profile = "smooth"
+    lags: Profile = "smooth"
+    n_basis: int = 4
+    symmetric: bool = True
+    fit_diameter: bool = True
+    diameter_m: float | None = None  # initial active diameter (default: the whole line)
+
+    def __post_init__(self):
+        for name in ("weights", "lags"):
+            v = getattr(self, name)
+            if v not in PROFILES:
+                raise ValueError(f"model {name} = {v!r}; allowed: {', '.join(PROFILES)}")
+        if self.n_basis < 1:
+            raise ValueError(f"n_basis = {self.n_basis} must be >= 1")
+
+    @property
+    def y_m(self) -> np.ndarray:
+        return (np.arange(self.n_cells) - (self.n_cells - 1) / 2.0) * self.dx_m
+
+    @property
+    def d_max_m(self) -> float:
+        return self.n_cells * self.dx_m
+
+    @property
+    def edge_softness_m(self) -> float:
+        """Width scale of the aperture's edge: 1/20 of the wavelength in air at 343 m/s, in metres
+        (resolution independent, and wide enough that the cost is smooth in the diameter)."""
+        return 343.0 / self.frequency_hz / 20
+
+    @property
+    def period_s(self) -> float:
+        return 1.0 / self.frequency_hz
+
+    # -- basis ------------------------------------------------------------------------
+    def _basis(self, first: int = 0) -> np.ndarray:
+        """(n_cells, n_basis) Chebyshev polynomials of the normalised position, skipping the
+        first `first` (even, when symmetric) degrees."""
+        u = self.y_m / (self.d_max_m / 2)
+        step = 2 if self.symmetric else 1
+        degs = [step * (i + first) for i in range(self.n_basis)]
+        return np.stack([np.cos(d * np.arccos(np.clip(u, -1, 1))) for d in degs], 1)
+
+    def _n_params(self, profile: str, pinned: bool = False) -> int:
+        n = {"uniform": 0, "free": self.n_cells, "symmetric": (self.n_cells + 1) // 2, "smooth": self.n_basis}[profile]
+        return n - 1 if pinned and profile in ("free", "symmetric") else n
+
+    def _expand(self, profile: str, p, pinned: bool = False):
+        """Raw parameters -> per-cell raw values. With `pinned` the centre cell's value is 0 and a
+        smooth profile has no constant term: a common lag is the fitted phase offset, a common
+        log-weight the fitted gain."""
+        if profile == "smooth":
+            return jnp.asarray(self._basis(first=1 if pinned else 0)) @ p
+        if profile == "free":
+            if pinned:
+                c = self.n_cells // 2
+                p = jnp.concatenate([p[:c], jnp.zeros(1, p.dtype), p[c:]])
+            return p
+        if profile == "symmetric":
+            half = jnp.concatenate([p, jnp.zeros(1, p.dtype)]) if pinned else p
+            n = self.n_cells
+            return jnp.concatenate([half, half[: n // 2][::-1]]) if n % 2 else jnp.concatenate([half, half[::-1]])
+        return None
+
+    # -- parameters -------------------------------------------------------------------
+    def init_params(self) -> dict:
+        """Initial raw parameters: uniform weights 1, no lags, the initial diameter."""
+        p = {"gain_db": jnp.asarray(0.0), "phase0": jnp.asarray(0.0)}
+        nw = self._n_params(self.weights, pinned=True)
+        if nw:
+            p["w"] = jnp.zeros(nw)
+        nl = self._n_params(self.lags, pinned=True)
+        if nl:
+            p["lag"] = jnp.zeros(nl)
+        if self.fit_diameter:
+            d0 = self.diameter_m or 0.97 * self.d_max_m
+            frac = min(max(d0 / self.d_max_m, 1e-3), 1 - 1e-3)
+            p["diam"] = jnp.asarray(math.log(frac / (1 - frac)))
+        return p
+
+    def physical(self, params: dict) -> dict:
+        """Raw parameters -> physical: weights (aperture applied), lags_s, diameter_m, gain_db,
+        phase0_rad."""
+        w = jnp.ones(self.n_cells)
+        if "w" in params:
+            w = jnp.exp(self._expand(self.weights, params["w"], pinned=True))
+        lag = jnp.zeros(self.n_cells)
+        if "lag" in params:
+            lag = 0.5 * self.period_s * jnp.tanh(self._expand(self.lags, params["lag"], pinned=True))
+        if "diam" in params:
+            diam = self.d_max_m * jax.nn.sigmoid(params["diam"])
+        else:
+            diam = jnp.asarray(self.diameter_m or self.d_max_m)
+        window = jax.nn.sigmoid((diam / 2 - jnp.abs(jnp.asarray(self.y_m))) / self.edge_softness_m)
+        return {
+            "weights": w * window,
+            "weights_raw": w,
+            "lags_s": lag,
+            "diameter_m": diam,
+            "gain_db": params["gain_db"],
+            "phase0_rad": params["phase0"],
+        }
+
+    def amplitudes(self, params: dict):
+        """Complex cell amplitudes a_k = w_k exp(i omega tau_k) (exp(-i omega t) convention)."""
+        ph = self.physical(params)
+        return ph["weights"] * jnp.exp(1j * 2 * math.pi * self.frequency_hz * ph["lags_s"])
+
+
+def soft_floor_db(level_db, floor_db):
+    """10 log10(10^(L/10) + 10^(F/10)): equals L well above the floor, F at deep nulls, smooth."""
+    return jnp.logaddexp(level_db * (math.log(10) / 10), floor_db * (math.log(10) / 10)) * (10 / math.log(10))
+
+
+def lobe_model_db(spec: ModelSpec, params: dict, lobe_transfer):
+    a = spec.amplitudes(params)
+    p = jnp.asarray(lobe_transfer) @ a
+    return 10 * jnp.log10(jnp.abs(p) ** 2 + 1e-300) + params["gain_db"]
+
+
+def wave_model_phase(spec: ModelSpec, params: dict, wave_transfer):
+    """Model carrier phase in the rig's convention (-arg p) plus the fitted offset, radians."""
+    a = spec.amplitudes(params)
+    p = jnp.asarray(wave_transfer) @ a
+    return -jnp.angle(p) + params["phase0"]

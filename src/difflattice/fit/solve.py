@@ -1,0 +1,272 @@
+"""Least-squares fitting with optimistix: residuals, solve, convergence trace, uncertainties.
+
+Residuals (each divided by its 1-sigma, times sqrt(observable weight)):
+
+- lobe: soft_floor(model dB) - soft_floor(measured dB), with the floor `floor_db` below the
+  measured peak, so deep nulls (where a small angle error means tens of dB) do not dominate;
+- wavefront: the pair (sin d, 1 - cos d) of the phase difference d, smooth and periodic (its
+  squared norm is 4 sin^2(d/2) ~ d^2), so 2 pi wraps never jump.
+
+Uncertainties come from the Jacobian J at the solution: cov = s^2 (J^T J)^+ with s^2 the reduced
+chi-square (floored at 1), propagated to physical parameters through the reparameterisation.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Literal
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+from jax.flatten_util import ravel_pytree
+
+from .data import LobeData, WaveData
+from .model import ModelSpec, lobe_model_db, soft_floor_db, wave_model_phase
+from .transfer import Transfer
+
+Solver = Literal["levenberg_marquardt", "dogleg", "gauss_newton", "bfgs"]
+SOLVERS = ("levenberg_marquardt", "dogleg", "gauss_newton", "bfgs")
+
+
+@dataclass(frozen=True)
+class FitOptions:
+    solver: Solver = "levenberg_marquardt"
+    rtol: float = 1e-7
+    atol: float = 1e-7
+    max_steps: int = 200
+    floor_db: float = 40.0  # below the measured peak
+    lobe_weight: float = 1.0
+    wave_weight: float = 1.0
+
+    def __post_init__(self):
+        if self.solver not in SOLVERS:
+            raise ValueError(f"solver = {self.solver!r}; allowed: {', '.join(SOLVERS)}")
+        if self.max_steps < 1:
+            raise ValueError(f"max_steps = {self.max_steps} must be >= 1")
+
+
+@dataclass
+class FitResult:
+    spec: ModelSpec
+    params: dict
+    physical: dict
+    converged: bool
+    result_code: str
+    n_steps: int
+    wall_time_s: float
+    cost: float
+    chi2_reduced: float
+    rms: dict
+    stderr: dict
+    correlation: np.ndarray
+    correlation_labels: list
+    condition_number: float
+    rank_deficient: bool
+    trace: list = field(default_factory=list)
+    model_curves: dict = field(default_factory=dict)
+    warnings: list = field(default_factory=list)
+
+
+def _make_solver(o: FitOptions):
+    if o.solver == "levenberg_marquardt":
+        return optx.LevenbergMarquardt(rtol=o.rtol, atol=o.atol)
+    if o.solver == "dogleg":
+        return optx.Dogleg(rtol=o.rtol, atol=o.atol)
+    if o.solver == "gauss_newton":
+        return optx.GaussNewton(rtol=o.rtol, atol=o.atol)
+    return optx.BFGS(rtol=o.rtol, atol=o.atol)
+
+
+class Problem(eqx.Module):
+    """The residual function's data (arrays) and structure (static)."""
+
+    spec: ModelSpec = eqx.field(static=True)
+    lobe_T: jax.Array | None
+    lobe_db: jax.Array | None
+    lobe_sigma: jax.Array | None
+    lobe_floor: float | None = eqx.field(static=True)
+    wave_T: jax.Array | None
+    wave_phase: jax.Array | None
+    wave_sigma: jax.Array | None
+    w_lobe: float = eqx.field(static=True)
+    w_wave: float = eqx.field(static=True)
+
+    def residuals(self, params):
+        parts = []
+        if self.lobe_T is not None:
+            m = lobe_model_db(self.spec, params, self.lobe_T)
+            r = (soft_floor_db(m, self.lobe_floor) - soft_floor_db(self.lobe_db, self.lobe_floor)) / self.lobe_sigma
+            parts.append(math.sqrt(self.w_lobe) * r)
+        if self.wave_T is not None:
+            d = wave_model_phase(self.spec, params, self.wave_T) - self.wave_phase
+            parts.append(math.sqrt(self.w_wave) * jnp.sin(d) / self.wave_sigma)
+            parts.append(math.sqrt(self.w_wave) * (1 - jnp.cos(d)) / self.wave_sigma)
+        return jnp.concatenate(parts)
+
+
+def build_problem(spec: ModelSpec, transfer: Transfer, lobe: LobeData | None, wave: WaveData | None, o: FitOptions) -> Problem:
+    if lobe is None and wave is None:
+        raise ValueError("nothing to fit: give lobe data, wavefront data or both")
+    if transfer.n_cells != spec.n_cells:
+        raise ValueError(f"transfer has {transfer.n_cells} cells but the model {spec.n_cells}")
+    return Problem(
+        spec=spec,
+        lobe_T=None if lobe is None else jnp.asarray(transfer.lobe),
+        lobe_db=None if lobe is None else jnp.asarray(lobe.level_db),
+        lobe_sigma=None if lobe is None else jnp.asarray(lobe.sigma_db),
+        lobe_floor=None if lobe is None else float(np.max(lobe.level_db) - o.floor_db),
+        wave_T=None if wave is None else jnp.asarray(transfer.wave),
+        wave_phase=None if wave is None else jnp.asarray(wave.phase_rad),
+        wave_sigma=None if wave is None else jnp.asarray(wave.sigma_rad),
+        w_lobe=o.lobe_weight,
+        w_wave=o.wave_weight,
+    )
+
+
+def initial_params(problem: Problem, params=None) -> dict:
+    """Start from the model's initial parameters with the gain and phase offset set in closed form,
+    and (when it is fitted) the diameter chosen by a scan over 0.5-1 x the modelled line: the
+    lobe's null angles scale with 1/D, so the cost in D has many local minima."""
+    spec = problem.spec
+    p = dict(spec.init_params() if params is None else params)
+    if "diam" in p and params is None:
+        best = None
+        for frac in np.linspace(0.5, 0.98, 25):
+            q = _with_offsets(problem, {**p, "diam": jnp.asarray(math.log(frac / (1 - frac)))})
+            c = float(jnp.sum(problem.residuals(q) ** 2))
+            if np.isfinite(c) and (best is None or c < best[0]):
+                best = (c, q)
+        return best[1]
+    return _with_offsets(problem, p)
+
+
+def _with_offsets(problem: Problem, p: dict) -> dict:
+    spec = problem.spec
+    p = dict(p)
+    if problem.lobe_T is not None:
+        m = np.asarray(lobe_model_db(spec, {**p, "gain_db": jnp.asarray(0.0)}, problem.lobe_T))
+        data = np.asarray(problem.lobe_db)
+        top = data > data.max() - 10
+        p["gain_db"] = jnp.asarray(float(np.median(data[top] - m[top])))
+    if problem.wave_T is not None:
+        m = np.asarray(wave_model_phase(spec, {**p, "phase0": jnp.asarray(0.0)}, problem.wave_T))
+        d = np.asarray(problem.wave_phase) - m
+        p["phase0"] = jnp.asarray(float(np.angle(np.mean(np.exp(1j * d)))))
+    return p
+
+
+def fit(
+    spec: ModelSpec,
+    transfer: Transfer,
+    lobe: LobeData | None = None,
+    wave: WaveData | None = None,
+    options: FitOptions = FitOptions(),
+    *,
+    params0: dict | None = None,
+) -> FitResult:
+    """Fit `spec` to the data. Never raises on non-convergence: the result says so (`converged`,
+    `result_code`, `warnings`)."""
+    problem = build_problem(spec, transfer, lobe, wave, options)
+    p0 = initial_params(problem, params0)
+    flat0, unravel = ravel_pytree(p0)
+    trace: list[tuple[float, float]] = []
+    t_start = [0.0]
+
+    def record(cost):
+        trace.append((time.perf_counter() - t_start[0], float(cost)))
+
+    def fn(y, args):
+        r = problem.residuals(unravel(y))
+        jax.debug.callback(record, 0.5 * jnp.sum(r * r))
+        return r
+
+    solver = _make_solver(options)
+    t_start[0] = time.perf_counter()
+    sol = optx.least_squares(fn, solver, flat0, max_steps=options.max_steps, throw=False)
+    y = jax.block_until_ready(sol.value)
+    wall = time.perf_counter() - t_start[0]
+    params = unravel(y)
+    result_code = _result_name(sol.result)
+    warnings = []
+    finite = bool(np.all(np.isfinite(np.asarray(y))))
+    r = np.asarray(problem.residuals(params))
+    if not finite or not np.all(np.isfinite(r)):
+        warnings.append("NON-FINITE parameters or residuals: the fit failed; check the data and the start point")
+        converged = False
+    else:
+        converged = sol.result == optx.RESULTS.successful
+    if not converged:
+        warnings.append(f"FIT DID NOT CONVERGE ({result_code} after {int(sol.stats['num_steps'])} steps): "
+                        "results below are the last iterate, not an optimum")
+
+    # uncertainties
+    J = np.asarray(jax.jacfwd(lambda yy: problem.residuals(unravel(yy)))(y))
+    m, npar = J.shape
+    cost = 0.5 * float(np.sum(r * r))
+    dof = max(m - npar, 1)
+    chi2 = 2 * cost / dof
+    finite = finite and bool(np.all(np.isfinite(J)))
+    s = np.linalg.svd(J, compute_uv=False) if finite else np.array([1.0, 0.0])
+    cond = float(s[0] / s[-1]) if s[-1] > 0 else math.inf
+    rank_def = not (cond < 1e8)
+    if rank_def:
+        warnings.append(f"ill-conditioned: Jacobian condition number {cond:.3g}; some parameters are not "
+                        "determined by the data (e.g. mirror-symmetric pairs): their errors are unreliable")
+    jtj_pinv = np.linalg.pinv(J.T @ J, rcond=1e-12) if finite else np.full((npar, npar), np.nan)
+    cov_raw = max(chi2, 1.0) * jtj_pinv
+    phys_vec, labels = _physical_vector(spec, params)
+    G = np.asarray(jax.jacfwd(lambda yy: _physical_vector(spec, unravel(yy))[0])(y))
+    cov = G @ cov_raw @ G.T
+    se = np.sqrt(np.clip(np.diag(cov), 0, None))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.outer(se, se)
+    stderr = {lab: float(v) for lab, v in zip(labels, se)}
+
+    phys = {k: np.asarray(v) for k, v in spec.physical(params).items()}
+    rms = {}
+    curves = {}
+    if lobe is not None:
+        mdb = np.asarray(lobe_model_db(spec, params, problem.lobe_T))
+        curves["lobe_db"] = mdb
+        above = lobe.level_db > problem.lobe_floor
+        rms["lobe_db"] = float(np.sqrt(np.mean((mdb[above] - lobe.level_db[above]) ** 2)))
+        rms["lobe_db_all_points_soft_floor"] = float(np.sqrt(np.mean(
+            (np.asarray(soft_floor_db(mdb, problem.lobe_floor)) - np.asarray(soft_floor_db(lobe.level_db, problem.lobe_floor))) ** 2)))
+        rms["lobe_normalised"] = float(np.sqrt(np.mean(((np.asarray(soft_floor_db(mdb, problem.lobe_floor)) - np.asarray(soft_floor_db(lobe.level_db, problem.lobe_floor))) / lobe.sigma_db) ** 2)))
+    if wave is not None:
+        mph = np.asarray(wave_model_phase(spec, params, problem.wave_T))
+        curves["wave_phase_rad"] = mph
+        d = np.angle(np.exp(1j * (mph - wave.phase_rad)))
+        rms["wave_phase_deg"] = float(np.degrees(np.sqrt(np.mean(d**2))))
+        rms["wave_normalised"] = float(np.sqrt(np.mean((d / wave.sigma_rad) ** 2)))
+    return FitResult(
+        spec=spec, params=params, physical=phys, converged=converged, result_code=result_code,
+        n_steps=int(sol.stats["num_steps"]), wall_time_s=wall, cost=cost, chi2_reduced=chi2, rms=rms,
+        stderr=stderr, correlation=corr, correlation_labels=labels, condition_number=cond,
+        rank_deficient=rank_def, trace=trace, model_curves=curves, warnings=warnings,
+    )
+
+
+def _physical_vector(spec: ModelSpec, params: dict):
+    ph = spec.physical(params)
+    n = spec.n_cells
+    vec = jnp.concatenate([
+        ph["weights"], ph["lags_s"] * 1e6, jnp.atleast_1d(ph["diameter_m"] * 1e3),
+        jnp.atleast_1d(ph["gain_db"]), jnp.atleast_1d(jnp.degrees(ph["phase0_rad"])),
+    ])
+    labels = [f"w[{k}]" for k in range(n)] + [f"lag_us[{k}]" for k in range(n)] + ["diameter_mm", "gain_db", "phase0_deg"]
+    return vec, labels
+
+
+def _result_name(result) -> str:
+    for name in ("successful", "max_steps_reached", "nonlinear_max_steps_reached", "nonlinear_divergence",
+                 "singular", "breakdown", "nonfinite"):
+        v = getattr(optx.RESULTS, name, None)
+        if v is not None and result == v:
+            return name
+    return str(result)

@@ -26,7 +26,6 @@ FREQ_HZ = 40_000
 META = {
     "transducer_id": "EMULATED-piston-38.4mm",
     "microphone": "EMULATED-ideal",
-    "range_m": 1.0,
     "temperature_c": 21.0,
     "humidity_pct": 45.0,
     "pressure_hpa": 1013.25,
@@ -60,7 +59,8 @@ def _run(tmp: Path, name: str, capture, scan: dict, faults: dict | None = None, 
     out = _fresh(name)
     with start_emulator(link_path=tmp / "rig", transducer=PISTON, rig=RIG, faults=faults, seed=seed) as rig:
         t0 = time.perf_counter()
-        capture(str(rig.path), out, **scan, metadata=META)
+        meta = META | ({"range_m": RIG["range_m"]} if capture is capture_lobe else {})
+        capture(str(rig.path), out, **scan, metadata=meta)
         elapsed = time.perf_counter() - t0
     cap = load_capture(out)
     print(f"{name}: {len(cap.seq)} of {cap.metadata['n_points']} points in {elapsed:.2f} s, {len(cap.events)} events")

@@ -18,7 +18,7 @@ FAST_RIG = {
     "drift_c_per_h": 0.0,
     "wobble_c": 0.0,
 }
-TIMEOUT_S = 0.4
+TIMEOUT_S = 0.6
 """Host link-down silence in tests (heartbeats every 0.1 s); other host timeouts scale from it."""
 META = {"temperature_c": 21.0, "range_m": 1.0, "transducer_id": "T-38", "operator": "pytest"}
 
@@ -35,7 +35,15 @@ def assert_exact(capture: Capture, handle: EmulatorHandle) -> None:
         )
     else:
         cmd = P.Wave(
-            meta["scan_id"], 0, n, meta["x0_um"], meta["dx_um"], meta["z_um"], meta["n_avg"], meta["cycles"], meta["freq_hz"]
+            meta["scan_id"],
+            0,
+            n,
+            meta["x0_um"],
+            meta["dx_um"],
+            meta["z_um"],
+            meta["n_avg"],
+            meta["cycles"],
+            meta["freq_hz"],
         )
     model = RigModel(handle.config)
     temperature = handle.config.rig.temperature_c

@@ -35,7 +35,9 @@ def test_capture_imports_no_jax() -> None:
 def test_register_adds_the_commands() -> None:
     parser = argparse.ArgumentParser(prog="difflattice")
     register(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(["capture", "lobe", "x.csv", "--port", "/dev/null", "--freq-hz", "40000", "--step-deg", "2"])
+    args = parser.parse_args(
+        ["capture", "lobe", "x.csv", "--port", "/dev/null", "--freq-hz", "40000", "--step-deg", "2"]
+    )
     assert callable(args.func) and args.step_deg == 2.0 and args.n_avg == 8
     args = parser.parse_args(["capture", "wave", "x.csv", "--port", "p", "--freq-hz", "4e4", "--z-mm", "20"])
     assert callable(args.func) and args.z_mm == 20.0
@@ -50,7 +52,8 @@ def test_metadata_file_and_options(tmp_path: Path, start_rig: Callable[..., Emul
     rig = start_rig()
     out = tmp_path / "lobe.csv"
     argv = ["capture", "lobe", str(out), "--port", str(rig.path), "--freq-hz", "40000", "--start-deg", "-5",
-            "--stop-deg", "5", "--meta", str(meta), "--operator", "bob", "--timeout-s", str(TIMEOUT_S), "--no-progress"]  # fmt: skip
+            "--stop-deg", "5", "--meta", str(meta), "--operator", "bob", "--timeout-s", str(TIMEOUT_S),
+            "--no-progress"]  # fmt: skip
     assert main(argv) == 0
     cap = load_capture(out)
     assert cap.metadata["operator"] == "bob" and cap.metadata["temperature_c"] == 19.5
@@ -89,7 +92,17 @@ def test_sigkill_mid_scan_then_rerun(start_rig: Callable[..., EmulatorHandle], t
 def test_rig_emulate_command(tmp_path: Path) -> None:
     link = tmp_path / "rig"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "difflattice.capture.cli", "rig", "emulate", "--link", str(link), "--heartbeat-s", "0.1"],
+        [
+            sys.executable,
+            "-m",
+            "difflattice.capture.cli",
+            "rig",
+            "emulate",
+            "--link",
+            str(link),
+            "--heartbeat-s",
+            "0.1",
+        ],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
@@ -99,8 +112,11 @@ def test_rig_emulate_command(tmp_path: Path) -> None:
         assert proc.stdout.readline().strip() == str(link.absolute())
         assert link.is_symlink() and link.exists()
     finally:
-        proc.send_signal(signal.SIGINT)
-        _, err = proc.communicate(timeout=10)
+        proc.send_signal(signal.SIGINT)  # Ctrl-C
+        try:
+            _, err = proc.communicate(timeout=10)
+        finally:
+            proc.kill()
     assert proc.returncode == 0 and "capture with --port" in err
     assert not link.exists()
 
@@ -108,6 +124,9 @@ def test_rig_emulate_command(tmp_path: Path) -> None:
 def test_emulator_options_are_checked() -> None:
     with pytest.raises(ValueError, match="unknown fault key"):
         make_config(link_path="/tmp/x", transducer={"kind": "piston", "diameter_m": 0.01}, faults={"nope": 1})
-    assert json.loads(
-        make_config(link_path="/tmp/x", transducer={"kind": "piston", "diameter_m": 0.01}).to_json()
-    )["rig"]["heartbeat_s"] == 1.0
+    assert (
+        json.loads(make_config(link_path="/tmp/x", transducer={"kind": "piston", "diameter_m": 0.01}).to_json())["rig"][
+            "heartbeat_s"
+        ]
+        == 1.0
+    )

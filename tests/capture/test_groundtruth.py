@@ -29,7 +29,14 @@ def test_speed_of_sound() -> None:
 def test_rayleigh_integral_on_axis_matches_closed_form(z_m: float) -> None:
     c = speed_of_sound(21.0)
     k, a = 2 * np.pi * F / c, PISTON.radius_m
-    exact = 50_000.0 * (-1j / (np.pi * a**2)) * 2 * np.pi * (np.exp(1j * k * np.hypot(z_m, a)) - np.exp(1j * k * z_m)) / (1j * k)
+    exact = (
+        50_000.0
+        * (-1j / (np.pi * a**2))
+        * 2
+        * np.pi
+        * (np.exp(1j * k * np.hypot(z_m, a)) - np.exp(1j * k * z_m))
+        / (1j * k)
+    )
     assert PISTON.near_field(np.array([0.0]), z_m, F, c)[0] == pytest.approx(exact, rel=1e-9)
 
 
@@ -37,7 +44,7 @@ def test_near_field_tends_to_lobe_in_far_field() -> None:
     c, r = speed_of_sound(21.0), 5.0
     angles = np.array([0.0, 10.0, 25.0])
     x, z = r * np.sin(np.deg2rad(angles)), r * np.cos(np.deg2rad(angles))
-    near = np.array([PISTON.near_field(np.array([xi]), zi, F, c)[0] for xi, zi in zip(x, z)])
+    near = np.array([PISTON.near_field(np.array([xi]), zi, F, c)[0] for xi, zi in zip(x, z, strict=True)])
     amp, tof = lobe_truth(PISTON, angles, range_m=r, freq_hz=F, temperature_c=21.0)
     np.testing.assert_allclose(np.abs(near), amp, rtol=2e-3)
     assert tof == pytest.approx(r / c)
@@ -81,7 +88,7 @@ def test_table_round_trip_and_interpolation(tmp_path: Path) -> None:
     a_p, _ = lobe_truth(PISTON, angles, range_m=1.0, freq_hz=F, temperature_c=21.0)
     np.testing.assert_allclose(a_t, a_p, atol=1e-6)
     w_t, w_p = (wave_truth(t, x, z_m=0.0165, freq_hz=F, temperature_c=21.0) for t in (loaded, PISTON))
-    for got, want in zip(w_t, w_p):
+    for got, want in zip(w_t, w_p, strict=True):
         np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9)
     with pytest.raises(ValueError, match="z = 0.0165"):
         wave_truth(loaded, x, z_m=0.02, freq_hz=F, temperature_c=21.0)

@@ -11,7 +11,14 @@ import pytest
 import serial
 
 from difflattice.capture.emulator import EmulatorHandle
-from difflattice.capture.errors import CaptureFileError, PortBusy, PortNotFound, ProtocolVersionError, RigError, RigTimeout
+from difflattice.capture.errors import (
+    CaptureFileError,
+    PortBusy,
+    PortNotFound,
+    ProtocolVersionError,
+    RigError,
+    RigTimeout,
+)
 from difflattice.capture.files import load_capture
 from difflattice.capture.host import capture_lobe, capture_wave
 
@@ -22,12 +29,16 @@ FAULTS: dict[str, dict[str, Any]] = {
     "garbage": {"garbage": 0.15},
     "bad_crc": {"bad_crc": 0.15},
     "truncate": {"truncate": 0.15},
-    "pause": {"pause_at": [10], "pause_s": 0.6},  # heartbeats go on: longer than the link-down silence
-    "freeze": {"freeze_at": [12], "freeze_s": 0.6},  # total silence: the link is declared down
+    "pause": {"pause_at": [10], "pause_s": 0.8},  # heartbeats go on: longer than the link-down silence
+    "freeze": {"freeze_at": [12], "freeze_s": 0.8},  # total silence: the link is declared down
     "reset": {"reset_at": [20]},
     "unplug": {"unplug_at": [25], "unplug_s": 0.3},
 }
-ALL = {k: v for fault in FAULTS.values() for k, v in fault.items()} | {"garbage": 0.05, "bad_crc": 0.05, "truncate": 0.05}
+ALL = {k: v for fault in FAULTS.values() for k, v in fault.items()} | {
+    "garbage": 0.05,
+    "bad_crc": 0.05,
+    "truncate": 0.05,
+}
 
 
 def _lobe(handle: EmulatorHandle, out: Path, **kw: Any) -> Path:
@@ -71,7 +82,7 @@ def test_resume_with_other_parameters_is_refused(start_rig: Callable[..., Emulat
         capture_lobe(str(rig.path), path, **LOBE, metadata=META, timeout_s=TIMEOUT_S, reconnect_s=0.5)
     with pytest.warns(UserWarning, match="5 of 41 points, seq 5-40 missing"):
         assert load_capture(path, allow_incomplete=True).seq.tolist() == [0, 1, 2, 3, 4]
-    with pytest.raises(CaptureFileError, match=r"other parameters \(n_avg: file 8, now 4"):
+    with pytest.raises(CaptureFileError, match=r"a scan with other parameters \(n_avg: file 8, now 4"):
         capture_lobe(str(rig.path), path, **{**LOBE, "n_avg": 4}, metadata=META, timeout_s=TIMEOUT_S)
 
 
@@ -79,7 +90,7 @@ def test_port_does_not_exist(tmp_path: Path) -> None:
     t0 = time.monotonic()
     with pytest.raises(PortNotFound, match="no such serial port"):
         capture_lobe(str(tmp_path / "nothing"), tmp_path / "x.csv", **LOBE, metadata=META)
-    assert time.monotonic() - t0 < 1.0
+    assert time.monotonic() - t0 < 2.0
     assert not list(tmp_path.iterdir())  # no file, no log
 
 
@@ -89,7 +100,7 @@ def test_port_busy(start_rig: Callable[..., EmulatorHandle], tmp_path: Path) -> 
         t0 = time.monotonic()
         with pytest.raises(PortBusy, match="in use by another process"):
             _lobe(rig, tmp_path / "x.csv")
-        assert time.monotonic() - t0 < 1.0
+        assert time.monotonic() - t0 < 2.0
 
 
 def test_rig_never_answers(start_rig: Callable[..., EmulatorHandle], tmp_path: Path) -> None:
@@ -97,7 +108,7 @@ def test_rig_never_answers(start_rig: Callable[..., EmulatorHandle], tmp_path: P
     t0 = time.monotonic()
     with pytest.raises(RigTimeout, match=r"no answer from the rig \(3 HELLO sent, nothing received\)"):
         _lobe(rig, tmp_path / "x.csv")
-    assert time.monotonic() - t0 < 1.0
+    assert time.monotonic() - t0 < 2.0
 
 
 def test_rig_speaks_another_version(start_rig: Callable[..., EmulatorHandle], tmp_path: Path) -> None:
@@ -105,7 +116,7 @@ def test_rig_speaks_another_version(start_rig: Callable[..., EmulatorHandle], tm
     t0 = time.monotonic()
     with pytest.raises(ProtocolVersionError, match="speaks protocol 2 .*this host speaks protocol 1"):
         _lobe(rig, tmp_path / "x.csv")
-    assert time.monotonic() - t0 < 1.0
+    assert time.monotonic() - t0 < 2.0
 
 
 def test_rig_refuses_out_of_range_scan(start_rig: Callable[..., EmulatorHandle], tmp_path: Path) -> None:

@@ -21,7 +21,9 @@ SPEC_LINES = [  # the example exchange of rig-protocol.md
     b"$LOB,7,80,-10000,58267,300,2906203,2151*06FA\n",
 ]
 
-TEXT = st.text(alphabet=st.characters(min_codepoint=0x20, max_codepoint=0x7E, exclude_characters="$*,"), min_size=1, max_size=10)
+TEXT = st.text(
+    alphabet=st.characters(min_codepoint=0x20, max_codepoint=0x7E, exclude_characters="$*,"), min_size=1, max_size=10
+)
 
 
 def _field(kind: object) -> st.SearchStrategy[object]:
@@ -120,7 +122,7 @@ def test_chunking_does_not_matter(msgs: list[P.Message], junk: bytes, data: st.D
     stream = junk + b"\n" + b"".join(P.encode(m) for m in msgs)
     cuts = sorted(data.draw(st.lists(st.integers(0, len(stream)), max_size=8)))
     buf, items = P.LineBuffer(), []
-    for a, b in zip([0, *cuts], [*cuts, len(stream)]):
+    for a, b in zip([0, *cuts], [*cuts, len(stream)], strict=True):
         items += buf.feed(stream[a:b])
     assert [P.parse_body(i.body) for i in items if isinstance(i, P.Frame)] == msgs
 

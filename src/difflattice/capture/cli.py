@@ -97,7 +97,9 @@ def _run_capture(args: argparse.Namespace, scan: dict[str, Any]) -> int:
         )
         capture = load_capture(path)
     except KeyboardInterrupt:
-        print(f"\ninterrupted: {args.out} keeps every point so far; re-run the same command to continue", file=sys.stderr)
+        print(
+            f"\ninterrupted: {args.out} keeps every point so far; re-run the same command to continue", file=sys.stderr
+        )
         return 130
     except RigError as exc:
         print(f"difflattice capture: error: {exc}", file=sys.stderr)

@@ -221,7 +221,11 @@ class RigModel:
         if isinstance(cmd, P.Lobe):
             angle_mdeg = cmd.start_mdeg + seq * cmd.step_mdeg
             amp, tof_s = lobe_truth(
-                self.transducer, angle_mdeg / 1000, range_m=self.rig.range_m, freq_hz=cmd.freq_hz, temperature_c=temperature_c
+                self.transducer,
+                angle_mdeg / 1000,
+                range_m=self.rig.range_m,
+                freq_hz=cmd.freq_hz,
+                temperature_c=temperature_c,
             )
             amp_uV, amp_sd_uV = self._bursts(rng, float(amp[0]), cmd.n_avg)
             tof_ns = round(tof_s * 1e9 + self.noise.tof_ns * jitter * rng.standard_normal())
@@ -270,14 +274,15 @@ class Emulator:
         self.pending = {
             name: set(getattr(cfg.faults, name)) for name in ("pause_at", "freeze_at", "reset_at", "unplug_at")
         }
-        self.boot_count = 0
+        self.boot_id = 0
         self._boot("POR", self.t0)
 
     # firmware state -------------------------------------------------------------------------
 
     def _boot(self, reason: str, now: float) -> None:
-        self.boot_count += 1
-        self.boot_id = self.rng.randrange(1, 65536)
+        old = self.boot_id
+        while self.boot_id == old:  # a new boot id at every boot
+            self.boot_id = self.rng.randrange(1, 65536)
         self.t_boot = now
         self.homed = False
         self.homing_until: float | None = None
@@ -556,7 +561,7 @@ def _add_options(parser: argparse.ArgumentParser, cls: type, helps: dict[str, st
         elif isinstance(f.default, tuple):
             group.add_argument(flag, type=int, nargs="+", metavar="SEQ", **kw)
         else:
-            group.add_argument(flag, type=type(f.default), **kw)
+            group.add_argument(flag, type=type(f.default), metavar=type(f.default).__name__.upper(), **kw)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -564,7 +569,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--link", default=DEFAULT_LINK, help=f"stable path to publish (default {DEFAULT_LINK})")
     truth = parser.add_mutually_exclusive_group()
     truth.add_argument("--piston-diameter-mm", type=float, default=38.4, help="ground truth: circular piston [mm]")
-    truth.add_argument("--table", type=Path, help="ground truth: transducer table JSON (see groundtruth.TableTransducer)")
+    truth.add_argument(
+        "--table", type=Path, help="ground truth: transducer table JSON (see groundtruth.TableTransducer)"
+    )
     parser.add_argument("--sensitivity-uV", type=float, help="on-axis amplitude at 1 m [uV] (piston) or table scale")
     parser.add_argument("--seed", type=int, default=0, help="seed of noise and faults")
     parser.add_argument("--no-noise", action="store_true", help="report noise-free values")
@@ -588,14 +595,15 @@ def config_from_args(args: argparse.Namespace) -> EmulatorConfig:
         group, _, name = dest.partition(".")
         if group in groups and name:
             groups[group][name] = value
-    return make_config(
-        link_path=args.link, transducer=transducer, seed=args.seed, noise=not args.no_noise, **groups
-    )
+    return make_config(link_path=args.link, transducer=transducer, seed=args.seed, noise=not args.no_noise, **groups)
 
 
 def serve(cfg: EmulatorConfig, *, announce: bool = True) -> None:
     """Run the emulator in this process until SIGTERM or Ctrl-C; print the link path when ready."""
+    import scipy.special  # noqa: F401 - loaded now, so that the first scan does not wait for it
+
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(0))
+    signal.signal(signal.SIGINT, signal.default_int_handler)  # Ctrl-C stops it, even if started in background
     emulator = Emulator(cfg)
     emulator.open_port()
     try:
@@ -664,13 +672,17 @@ def start_emulator(
     if not line:
         process.kill()
         process.wait()
-        raise RuntimeError(f"the rig emulator did not start within {startup_timeout_s} s (exit code {process.returncode})")
+        raise RuntimeError(
+            f"the rig emulator did not start within {startup_timeout_s} s (exit code {process.returncode})"
+        )
     return EmulatorHandle(process, Path(line), cfg)
 
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m difflattice.capture.emulator``: run an emulator, print its link path."""
-    parser = argparse.ArgumentParser(prog="python -m difflattice.capture.emulator", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(
+        prog="python -m difflattice.capture.emulator", description=__doc__.split("\n\n")[0]
+    )
     add_arguments(parser)
     serve(config_from_args(parser.parse_args(argv)))
     return 0

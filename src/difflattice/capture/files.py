@@ -27,7 +27,7 @@ import re
 import warnings
 import zlib
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -82,7 +82,8 @@ COMMON_REQUIRED = (
     "n_points", "n_avg", "cycles", "freq_hz", "temperature_c", "speed_of_sound_m_s",
 )  # fmt: skip
 
-_KEY = re.compile(r"[a-z][a-z0-9_]*\Z")
+HEADER_KEY = re.compile(r"[a-z][a-z0-9_]*\Z")
+"""What a header key looks like (lower_snake_case)."""
 _INT = re.compile(r"-?[0-9]+\Z")
 _TIME = re.compile(r"[0-9]+\.[0-9]{3}\Z")
 _TRAILER = re.compile(r"# complete: n_points=([0-9]+) crc32=([0-9A-F]{8})\Z")
@@ -90,7 +91,7 @@ _TRAILER = re.compile(r"# complete: n_points=([0-9]+) crc32=([0-9A-F]{8})\Z")
 
 def utc_now() -> str:
     """The current UTC time, ISO 8601 with milliseconds."""
-    return datetime.now(timezone.utc).isoformat(timespec="milliseconds").replace("+00:00", "Z")
+    return datetime.now(UTC).isoformat(timespec="milliseconds").replace("+00:00", "Z")
 
 
 def format_header(header: dict[str, Any]) -> bytes:
@@ -101,7 +102,7 @@ def format_header(header: dict[str, Any]) -> bytes:
     lines = []
     for key, value in {"format": FORMAT, **header}.items():
         text = str(value)
-        if not _KEY.match(key) or "\n" in text or "\r" in text:
+        if not HEADER_KEY.match(key) or "\n" in text or "\r" in text:
             raise ValueError(f"header key {key!r} must be lower_snake_case and its value one line")
         lines.append(f"# {key}: {text}\n")
     return ("".join(lines) + ",".join(COLUMNS[kind]) + "\n").encode()
@@ -132,7 +133,9 @@ class CaptureWriter:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
             os.close(fd)
-            raise CaptureFileError(f"{path}: another capture is writing this file; wait for it or use another path")
+            raise CaptureFileError(
+                f"{path}: another capture is writing this file; wait for it or use another path"
+            ) from None
         return fd
 
     @classmethod
@@ -306,7 +309,7 @@ def load_capture(path: str | Path, *, allow_incomplete: bool = False) -> LobeCap
     i = 0
     while i < len(lines) and lines[i].startswith("#"):
         key, sep, value = lines[i][2:].partition(": ")
-        if not (lines[i].startswith("# ") and sep and _KEY.match(key)):
+        if not (lines[i].startswith("# ") and sep and HEADER_KEY.match(key)):
             raise fail(i + 1, f"header lines are '# key: value', got {lines[i]!r}")
         if key in meta:
             raise fail(i + 1, f"header key {key!r} given twice")
@@ -351,7 +354,7 @@ def load_capture(path: str | Path, *, allow_incomplete: bool = False) -> LobeCap
         expected = _position(meta, kind, seq)
         if tuple(values[1 : 1 + len(expected)]) != expected:
             names = ",".join(columns[1 : 1 + len(expected)])
-            raise fail(lineno, f"seq {seq}: {names} should be {expected}, got {tuple(values[1:1 + len(expected)])}")
+            raise fail(lineno, f"seq {seq}: {names} should be {expected}, got {tuple(values[1 : 1 + len(expected)])}")
         rows[seq], first_line[seq], times[seq] = values, lineno, float(fields[-1])
         crc = zlib.crc32((line + "\n").encode(), crc)
     missing = tuple(s for s in range(n_points) if s not in rows)

@@ -64,9 +64,7 @@ class Transducer(Protocol):
         """Far-field pressure referred to 1 m [uV m] at ``angle_deg`` (0 = on axis)."""
         ...
 
-    def near_field(
-        self, x_m: NDArray[np.float64], z_m: float, freq_hz: float, c_m_s: float
-    ) -> NDArray[np.complex128]:
+    def near_field(self, x_m: NDArray[np.float64], z_m: float, freq_hz: float, c_m_s: float) -> NDArray[np.complex128]:
         """Complex pressure [uV] at lateral offsets ``x_m`` and distance ``z_m`` from the face."""
         ...
 
@@ -106,9 +104,7 @@ class Piston:
         front = np.cos(theta) > 1e-12
         return (self.sensitivity_uV * d * front).astype(complex)
 
-    def near_field(
-        self, x_m: NDArray[np.float64], z_m: float, freq_hz: float, c_m_s: float
-    ) -> NDArray[np.complex128]:
+    def near_field(self, x_m: NDArray[np.float64], z_m: float, freq_hz: float, c_m_s: float) -> NDArray[np.complex128]:
         if not z_m > 0:
             raise ValueError(f"z_m must be > 0 (in front of the face), got {z_m}")
         a, k = self.radius_m, 2 * np.pi * freq_hz / c_m_s
@@ -211,9 +207,7 @@ class TableTransducer:
         self._check_freq(freq_hz)
         return self.sensitivity_uV * _interp_complex(angle_deg, self.lobe_angle_deg, self.lobe, "angle")
 
-    def near_field(
-        self, x_m: NDArray[np.float64], z_m: float, freq_hz: float, c_m_s: float
-    ) -> NDArray[np.complex128]:
+    def near_field(self, x_m: NDArray[np.float64], z_m: float, freq_hz: float, c_m_s: float) -> NDArray[np.complex128]:
         self._check_z(z_m)
         self._check_freq(freq_hz)
         return self.sensitivity_uV * _interp_complex(x_m, self.near_x_m, self.near, "x")

@@ -27,7 +27,7 @@ import serial
 
 from . import protocol as P
 from .errors import CaptureFileError, PortBusy, PortNotFound, ProtocolVersionError, RigError, RigTimeout
-from .files import COLUMNS, HEADER_KEYS, CaptureWriter, describe_seqs, utc_now
+from .files import COLUMNS, HEADER_KEY, HEADER_KEYS, CaptureWriter, describe_seqs, utc_now
 from .groundtruth import speed_of_sound
 
 BAUD = 115_200
@@ -326,7 +326,7 @@ class RigHost:
             sent += 1
             msg = self._wait(
                 min(deadline, time.monotonic() + self.t.reply_s),
-                lambda m: isinstance(m, (P.Idn, P.Err)),
+                lambda m: isinstance(m, P.Idn) or (isinstance(m, P.Err) and m.detail == "HELLO"),
                 watch_silence=False,
                 boot_resets=False,
             )
@@ -449,7 +449,8 @@ class RigHost:
     def _version_error(self, proto: str, fw: str) -> None:
         raise ProtocolVersionError(
             f"{self.port}: the rig speaks protocol {proto} (firmware {fw}); this host speaks protocol "
-            f"{P.PROTOCOL_VERSION}. Use difflattice for protocol {proto}, or firmware for protocol {P.PROTOCOL_VERSION}."
+            f"{P.PROTOCOL_VERSION}. Use difflattice for protocol {proto}, or firmware for protocol "
+            f"{P.PROTOCOL_VERSION}."
         )
 
     def _point(self, msg: P.Lob | P.Wav) -> None:
@@ -479,20 +480,23 @@ class RigHost:
             if isinstance(hbt, P.Hbt) and hbt.state == "IDLE":
                 break
             if isinstance(hbt, P.Hbt):
-                self._link.send(P.Abort(hbt.scan))
+                running = hbt.scan
+                self._link.send(P.Abort(running))
                 end = self._wait(
                     time.monotonic() + self.t.reply_s,
-                    lambda m: (isinstance(m, P.End) and m.scan == hbt.scan) or (isinstance(m, P.Hbt) and m.state == "IDLE"),
+                    lambda m: (
+                        (isinstance(m, P.End) and m.scan == running) or (isinstance(m, P.Hbt) and m.state == "IDLE")  # noqa: B023
+                    ),
                 )
                 if end is not None:
-                    self._event(f"aborted the rig's running scan {hbt.scan}")
+                    self._event(f"aborted the rig's running scan {running}")
                     break
         else:
-            raise RigTimeout(f"{self.port}: the rig does not stop its running scan (STAT/ABORT unanswered)")
+            raise _LinkDown("no answer to STAT/ABORT")
         assert self.info is not None
         self.info = dataclasses.replace(self.info, state="IDLE")
 
-    def home(self) -> None:
+    def _home(self) -> None:
         """Home the axis (``HOME`` until ``ACK,HOME,0``; IDN's homed flag covers a lost ACK)."""
         assert self.info is not None
         deadline = time.monotonic() + self.t.home_s
@@ -500,15 +504,19 @@ class RigHost:
         while True:
             msg = self._wait(
                 min(deadline, time.monotonic() + self.t.reply_s),
-                lambda m: (isinstance(m, P.Ack) and m.command == "HOME")
-                or (isinstance(m, P.Err) and m.detail in ("HOME", "-"))
-                or isinstance(m, P.Idn),
+                lambda m: (
+                    (isinstance(m, P.Ack) and m.command == "HOME")
+                    or (isinstance(m, P.Err) and m.detail in ("HOME", "-"))
+                    or isinstance(m, P.Idn)
+                ),
             )
             if isinstance(msg, P.Ack) or (isinstance(msg, P.Idn) and msg.homed):
                 break
             if isinstance(msg, P.Err):
                 if msg.code == "LIMIT":
-                    raise RigError(f"{self.port}: homing failed (ERR,LIMIT,HOME): the axis did not find its home switch")
+                    raise RigError(
+                        f"{self.port}: homing failed (ERR,LIMIT,HOME): the axis did not find its home switch"
+                    )
                 if msg.code == "BUSY":
                     self._abort_running()
                 self._link.send(P.Home())
@@ -548,12 +556,13 @@ class RigHost:
                 )
             break
         else:
-            raise RigTimeout(f"{self.port}: the rig does not acknowledge {cmd.TYPE} ({self.t.retries} sent)")
+            raise _LinkDown(f"no answer to {cmd.TYPE} ({self.t.retries} sent)")
         progress = time.monotonic()
         next_seq = -1
         while True:
             msg = self._wait(
-                time.monotonic() + self.t.reply_s, lambda m: isinstance(m, P.Hbt) or (isinstance(m, P.End) and m.scan == ours)
+                time.monotonic() + self.t.reply_s,
+                lambda m: isinstance(m, P.Hbt) or (isinstance(m, P.End) and m.scan == ours),
             )
             progress = max(progress, self._last_point)
             if isinstance(msg, P.End):
@@ -570,9 +579,7 @@ class RigHost:
             if time.monotonic() - progress > self.t.point_s:
                 raise RigTimeout(f"{self.port}: the rig reports scanning but sent no point for {self.t.point_s:g} s")
 
-    def run_scan(
-        self, plan: ScanPlan, scan_id: int, have: set[int], on_point: Callable[[P.Lob | P.Wav], None]
-    ) -> None:
+    def run_scan(self, plan: ScanPlan, scan_id: int, have: set[int], on_point: Callable[[P.Lob | P.Wav], None]) -> None:
         """Collect every point of ``plan`` not in ``have`` (updated), calling ``on_point`` for each.
 
         Interrupted commands are resumed from the first missing point, lost points re-requested,
@@ -594,7 +601,10 @@ class RigHost:
                 requests.update(todo)
                 self.stats.rerequested = sum(1 for c in requests.values() if c > 1)
                 if requests[first] > MAX_REQUESTS_PER_POINT:
-                    raise RigError(f"{self.port}: point {first} requested {MAX_REQUESTS_PER_POINT} times without success")
+                    raise RigError(
+                        f"{self.port}: point {first} requested {MAX_REQUESTS_PER_POINT} times without success; "
+                        f"the raw log {self.log.path if self.log else ''} shows what the rig answered"
+                    )
                 try:
                     if sync:
                         self._handshake(time.monotonic() + self.t.reconnect_s)
@@ -602,7 +612,7 @@ class RigHost:
                     if self.info.state == "SCAN":
                         self._abort_running()
                     if not self.info.homed:
-                        self.home()
+                        self._home()
                     self._run_command(plan.command(scan_id, first, n))
                 except _LinkDown as exc:
                     self._reconnect(str(exc))
@@ -642,6 +652,8 @@ def normalise_metadata(kind: str, metadata: dict[str, Any]) -> dict[str, Any]:
             continue
         if key in _SYSTEM_KEYS or key in _SCAN_KEYS or key in _DERIVED_KEYS:
             raise ValueError(f"metadata key {key!r} is set by the capture itself")
+        if not HEADER_KEY.match(key) or "\n" in str(value) or "\r" in str(value):
+            raise ValueError(f"metadata key {key!r} must be lower_snake_case and its value one line")
         kind_of = HEADER_KEYS.get(key, (str, ""))[0]
         try:
             meta[key] = kind_of(value)
@@ -657,13 +669,17 @@ def normalise_metadata(kind: str, metadata: dict[str, Any]) -> dict[str, Any]:
 
 def _check_resume(path: Path, existing: dict[str, Any], wanted: dict[str, Any]) -> None:
     keys = (set(existing) | set(wanted)) - set(_SYSTEM_KEYS) - set(_LOADER_KEYS)
-    diffs = [f"{k}: file {existing.get(k)!r}, now {wanted.get(k)!r}" for k in sorted(keys) if existing.get(k) != wanted.get(k)]
+    diffs = [
+        f"{k}: file {existing.get(k)!r}, now {wanted.get(k)!r}"
+        for k in sorted(keys)
+        if existing.get(k) != wanted.get(k)
+    ]
     if existing["kind"] != wanted["kind"]:
         diffs.insert(0, f"kind: file {existing['kind']!r}, now {wanted['kind']!r}")
     if diffs:
         raise CaptureFileError(
-            f"{path}: holds an unfinished scan with other parameters ({'; '.join(diffs)}). Re-run with the "
-            f"same options to continue it, or capture to another file."
+            f"{path}: holds a scan with other parameters ({'; '.join(diffs)}). Re-run with the same options "
+            f"to continue it, or capture to another file."
         )
 
 
@@ -685,10 +701,14 @@ def _capture(
     scan_id, rig_id = 0, ""
     if path.exists():
         writer, existing = CaptureWriter.resume(path)
+        try:
+            _check_resume(path, existing.metadata, wanted)
+        except CaptureFileError:
+            writer.close()
+            raise
         if existing.complete:
             writer.close()
             return path
-        _check_resume(path, existing.metadata, wanted)
         have = set(existing.seq.tolist())
         scan_id, rig_id = existing.metadata["scan_id"], existing.metadata["rig_id"]
     log_path = path.with_suffix(".log")
@@ -720,7 +740,9 @@ def _capture(
             if progress:
                 from tqdm import tqdm
 
-                bar = tqdm(total=plan.n, initial=len(have), desc=path.name, unit="pt", file=sys.stderr, dynamic_ncols=True)
+                bar = tqdm(
+                    total=plan.n, initial=len(have), desc=path.name, unit="pt", file=sys.stderr, dynamic_ncols=True
+                )
             w = writer
 
             def on_point(msg: P.Lob | P.Wav) -> None:
@@ -738,9 +760,10 @@ def _capture(
                 writer.event("interrupted by the operator")
                 raise
             writer.finish()
+            s = host.stats
             log.note(
-                f"complete: {plan.n} points; {host.stats.rerequested} re-requested, {host.stats.bad_lines} bad lines, "
-                f"{host.stats.resets} resets, {host.stats.reconnects} reconnects"
+                f"complete: {plan.n} points; {s.rerequested} re-requested, {s.bad_lines} bad lines, {s.junk} junk, "
+                f"{s.duplicates} duplicates ignored, {s.resets} resets, {s.reconnects} reconnects"
             )
     finally:
         if bar is not None:

@@ -21,7 +21,7 @@ import binascii
 import dataclasses
 import re
 from dataclasses import dataclass
-from typing import ClassVar, Literal, Union, get_args, get_origin, get_type_hints
+from typing import ClassVar, Literal, get_args, get_origin, get_type_hints
 
 PROTOCOL_VERSION = 1
 MAX_LINE_BYTES = 120
@@ -223,16 +223,14 @@ class Ack(Message):
 
 
 MESSAGE_TYPES: dict[str, type[Message]] = {
-    cls.TYPE: cls
-    for cls in (Hello, Stat, Home, Lobe, Wave, Abort, Idn, Boot, Hbt, Lob, Wav, End, Err, Ack)
+    cls.TYPE: cls for cls in (Hello, Stat, Home, Lobe, Wave, Abort, Idn, Boot, Hbt, Lob, Wav, End, Err, Ack)
 }
 """Every message class of protocol v1, by TYPE."""
 
-AnyMessage = Union[Hello, Stat, Home, Lobe, Wave, Abort, Idn, Boot, Hbt, Lob, Wav, End, Err, Ack]
+AnyMessage = Hello | Stat | Home | Lobe | Wave | Abort | Idn | Boot | Hbt | Lob | Wav | End | Err | Ack
 
 _FIELD_TYPES: dict[type[Message], tuple[tuple[str, object], ...]] = {
-    cls: tuple((f.name, get_type_hints(cls)[f.name]) for f in dataclasses.fields(cls))
-    for cls in MESSAGE_TYPES.values()
+    cls: tuple((f.name, get_type_hints(cls)[f.name]) for f in dataclasses.fields(cls)) for cls in MESSAGE_TYPES.values()
 }
 
 
@@ -323,7 +321,7 @@ def parse_body(body: bytes) -> AnyMessage:
     spec = _FIELD_TYPES[cls]
     if len(fields) != len(spec):
         raise FrameError("BADARG", f"{kind} takes {len(spec)} fields, got {len(fields)}")
-    values = {name: _parse_field(raw, t, name) for raw, (name, t) in zip(fields, spec)}
+    values = {name: _parse_field(raw, t, name) for raw, (name, t) in zip(fields, spec, strict=True)}
     return cls(**values)  # type: ignore[return-value]
 
 

@@ -132,8 +132,8 @@ class ModelSpec:
             "weights_raw": w,
             "lags_s": lag,
             "diameter_m": diam,
-            "gain_db": params["gain_db"],
-            "phase0_rad": params["phase0"],
+            "gain_db": params.get("gain_db", jnp.asarray(0.0)),
+            "phase0_rad": params.get("phase0", jnp.asarray(0.0)),
         }
 
     def amplitudes(self, params: dict):
@@ -150,11 +150,11 @@ def soft_floor_db(level_db, floor_db):
 def lobe_model_db(spec: ModelSpec, params: dict, lobe_transfer):
     a = spec.amplitudes(params)
     p = jnp.asarray(lobe_transfer) @ a
-    return 10 * jnp.log10(jnp.abs(p) ** 2 + 1e-300) + params["gain_db"]
+    return 10 * jnp.log10(jnp.abs(p) ** 2 + 1e-300) + params.get("gain_db", 0.0)
 
 
 def wave_model_phase(spec: ModelSpec, params: dict, wave_transfer):
     """Model carrier phase in the rig's convention (-arg p) plus the fitted offset, radians."""
     a = spec.amplitudes(params)
     p = jnp.asarray(wave_transfer) @ a
-    return -jnp.angle(p) + params["phase0"]
+    return -jnp.angle(p) + params.get("phase0", 0.0)

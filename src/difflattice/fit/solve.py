@@ -134,6 +134,11 @@ def initial_params(problem: Problem, params=None) -> dict:
     lobe's null angles scale with 1/D, so the cost in D has many local minima."""
     spec = problem.spec
     p = dict(spec.init_params() if params is None else params)
+    # offsets the data cannot see are not parameters (they would make J singular)
+    if problem.lobe_T is None:
+        p.pop("gain_db", None)
+    if problem.wave_T is None:
+        p.pop("phase0", None)
     if "diam" in p and params is None:
         best = None
         for frac in np.linspace(0.5, 0.98, 25):
@@ -148,16 +153,52 @@ def initial_params(problem: Problem, params=None) -> dict:
 def _with_offsets(problem: Problem, p: dict) -> dict:
     spec = problem.spec
     p = dict(p)
-    if problem.lobe_T is not None:
+    if "gain_db" in p:
         m = np.asarray(lobe_model_db(spec, {**p, "gain_db": jnp.asarray(0.0)}, problem.lobe_T))
         data = np.asarray(problem.lobe_db)
         top = data > data.max() - 10
         p["gain_db"] = jnp.asarray(float(np.median(data[top] - m[top])))
-    if problem.wave_T is not None:
+    if "phase0" in p:
         m = np.asarray(wave_model_phase(spec, {**p, "phase0": jnp.asarray(0.0)}, problem.wave_T))
         d = np.asarray(problem.wave_phase) - m
         p["phase0"] = jnp.asarray(float(np.angle(np.mean(np.exp(1j * d)))))
     return p
+
+
+_TRACE: list[tuple[float, float]] = []
+_T0 = [0.0]
+
+
+def _record(cost) -> None:
+    _TRACE.append((time.perf_counter() - _T0[0], float(cost)))
+
+
+def _residual_fn(y, args):
+    problem, fixed = args
+    r = problem.residuals({**fixed, **y})
+    jax.debug.callback(_record, 0.5 * jnp.sum(r * r))
+    return r
+
+
+def _solve(problem: Problem, y0: dict, options: FitOptions, fixed: dict | None = None):
+    # module-level residual function and the problem as `args`: repeated fits of the same
+    # structure reuse one compiled solver. `fixed`: parameters held at their values.
+    return optx.least_squares(_residual_fn, _make_solver(options), y0, args=(problem, fixed or {}),
+                              max_steps=options.max_steps, throw=False)
+
+
+def _relaxed(problem: Problem, lobe_sigma_db: float = 1.0, wave_sigma_rad: float = math.radians(5.0)) -> Problem:
+    """The same problem with sigmas floored: a smoother cost for the first stage of the fit."""
+    out = problem
+    if problem.lobe_sigma is not None:
+        out = eqx.tree_at(lambda q: q.lobe_sigma, out, jnp.maximum(problem.lobe_sigma, lobe_sigma_db))
+    if problem.wave_sigma is not None:
+        out = eqx.tree_at(lambda q: q.wave_sigma, out, jnp.maximum(problem.wave_sigma, wave_sigma_rad))
+    return out
+
+
+def _finite(tree) -> bool:
+    return bool(np.all(np.isfinite(np.asarray(ravel_pytree(tree)[0]))))
 
 
 def fit(
@@ -170,27 +211,34 @@ def fit(
     params0: dict | None = None,
 ) -> FitResult:
     """Fit `spec` to the data. Never raises on non-convergence: the result says so (`converged`,
-    `result_code`, `warnings`)."""
+    `result_code`, `warnings`).
+
+    Continuation in three stages, each from the previous one's result: (1) only the diameter and
+    the offsets, the profiles held uniform; (2) everything, with the sigmas floored at 1 dB and
+    5 deg (a smoother cost: with 0.05 dB sigmas the first long steps of a free profile can jump
+    to a far local minimum, e.g. an aperture dominated by its edges); (3) everything with the
+    measured sigmas. The reported convergence is that of the last stage."""
     problem = build_problem(spec, transfer, lobe, wave, options)
     p0 = initial_params(problem, params0)
-    flat0, unravel = ravel_pytree(p0)
-    trace: list[tuple[float, float]] = []
-    t_start = [0.0]
-
-    def record(cost):
-        trace.append((time.perf_counter() - t_start[0], float(cost)))
-
-    def fn(y, args):
-        r = problem.residuals(unravel(y))
-        jax.debug.callback(record, 0.5 * jnp.sum(r * r))
-        return r
-
-    solver = _make_solver(options)
-    t_start[0] = time.perf_counter()
-    sol = optx.least_squares(fn, solver, flat0, max_steps=options.max_steps, throw=False)
-    y = jax.block_until_ready(sol.value)
-    wall = time.perf_counter() - t_start[0]
-    params = unravel(y)
+    _TRACE.clear()
+    _T0[0] = time.perf_counter()
+    start = p0
+    n_pre = 0
+    profiles = {k: v for k, v in p0.items() if k in ("w", "lag")}
+    if profiles and params0 is None:
+        coarse = {k: v for k, v in p0.items() if k not in profiles}
+        sol0 = _solve(_relaxed(problem), coarse, options, fixed=profiles)
+        n_pre += int(sol0.stats["num_steps"])
+        if _finite(sol0.value):
+            start = {**profiles, **sol0.value}
+    sol1 = _solve(_relaxed(problem), start, options)
+    n_pre += int(sol1.stats["num_steps"])
+    start = sol1.value if _finite(sol1.value) else start
+    sol = _solve(problem, start, options)
+    params = jax.block_until_ready(sol.value)
+    wall = time.perf_counter() - _T0[0]
+    trace = list(_TRACE)
+    y, unravel = ravel_pytree(params)
     result_code = _result_name(sol.result)
     warnings = []
     finite = bool(np.all(np.isfinite(np.asarray(y))))
@@ -199,9 +247,10 @@ def fit(
         warnings.append("NON-FINITE parameters or residuals: the fit failed; check the data and the start point")
         converged = False
     else:
-        converged = sol.result == optx.RESULTS.successful
+        converged = bool(sol.result == optx.RESULTS.successful)
+    n_steps = n_pre + int(sol.stats["num_steps"])
     if not converged:
-        warnings.append(f"FIT DID NOT CONVERGE ({result_code} after {int(sol.stats['num_steps'])} steps): "
+        warnings.append(f"FIT DID NOT CONVERGE ({result_code} after {n_steps} steps): "
                         "results below are the last iterate, not an optimum")
 
     # uncertainties
@@ -246,7 +295,7 @@ def fit(
         rms["wave_normalised"] = float(np.sqrt(np.mean((d / wave.sigma_rad) ** 2)))
     return FitResult(
         spec=spec, params=params, physical=phys, converged=converged, result_code=result_code,
-        n_steps=int(sol.stats["num_steps"]), wall_time_s=wall, cost=cost, chi2_reduced=chi2, rms=rms,
+        n_steps=n_steps, wall_time_s=wall, cost=cost, chi2_reduced=chi2, rms=rms,
         stderr=stderr, correlation=corr, correlation_labels=labels, condition_number=cond,
         rank_deficient=rank_def, trace=trace, model_curves=curves, warnings=warnings,
     )

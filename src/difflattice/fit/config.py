@@ -37,6 +37,8 @@ SCHEMA = {
         "n_basis": (int, 4, "number of smooth basis functions per profile"),
         "symmetric": (bool, True, "smooth profiles use even polynomials only"),
         "fit_diameter": (bool, True, "fit the active diameter"),
+        "lobe_range_m": (NUM, None, "range at which the lobe is modelled, m (default: the file's range_m; "
+                                    "use e.g. 1000 for data that are a Fraunhofer pattern)"),
     },
     "solver": {
         "name": (str, "levenberg_marquardt", "levenberg_marquardt, dogleg, gauss_newton or bfgs"),
@@ -140,7 +142,7 @@ def run_fit(cfg: dict, *, out: str | Path | None = None, quick: bool = False, ve
     t0 = time.perf_counter()
     transfer = free_field_transfer(
         frequency_hz=f, c_m_s=c, n_cells=n_cells, cells_per_wavelength=ppw,
-        lobe_angle_deg=None if lobe is None else lobe.angle_deg, lobe_range_m=None if lobe is None else lobe.range_m,
+        lobe_angle_deg=None if lobe is None else lobe.angle_deg, lobe_range_m=None if lobe is None else (m["lobe_range_m"] or lobe.range_m),
         wave_x_m=None if wave is None else wave.x_m, wave_z_m=None if wave is None else wave.z_m,
     )
     t_transfer = time.perf_counter() - t0

@@ -90,6 +90,10 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.command in ("simulate", "gallery", "demo", "fit"):
+        from .jaxconfig import configure
+
+        configure()
     from .schema import ConfigError
 
     try:

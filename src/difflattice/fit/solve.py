@@ -42,6 +42,7 @@ class FitOptions:
     floor_db: float = 40.0  # below the measured peak
     lobe_weight: float = 1.0
     wave_weight: float = 1.0
+    smoothness_sigma: float = 0.05  # free/symmetric profiles: allowed second difference per cell
 
     def __post_init__(self):
         if self.solver not in SOLVERS:
@@ -95,9 +96,10 @@ class Problem(eqx.Module):
     wave_sigma: jax.Array | None
     w_lobe: float = eqx.field(static=True)
     w_wave: float = eqx.field(static=True)
+    smoothness_sigma: float = eqx.field(static=True, default=0.05)
 
     def residuals(self, params):
-        parts = []
+        parts = self._smoothness(params)
         if self.lobe_T is not None:
             m = lobe_model_db(self.spec, params, self.lobe_T)
             r = (soft_floor_db(m, self.lobe_floor) - soft_floor_db(self.lobe_db, self.lobe_floor)) / self.lobe_sigma
@@ -107,6 +109,18 @@ class Problem(eqx.Module):
             parts.append(math.sqrt(self.w_wave) * jnp.sin(d) / self.wave_sigma)
             parts.append(math.sqrt(self.w_wave) * (1 - jnp.cos(d)) / self.wave_sigma)
         return jnp.concatenate(parts)
+
+    def _smoothness(self, params) -> list:
+        """Per-cell profiles have components that do not radiate (cell-to-cell oscillations
+        beyond the wavenumber k): a weak prior on second differences of log-weight and lag phase
+        (`smoothness_sigma` per cell) removes that null space, so free fits converge."""
+        spec, out = self.spec, []
+        for key, profile in (("w", spec.weights), ("lag", spec.lags)):
+            if key in params and profile in ("free", "symmetric"):
+                ph = spec.physical(params)
+                v = jnp.log(ph["weights_raw"]) if key == "w" else 2 * math.pi * spec.frequency_hz * ph["lags_s"]
+                out.append((v[2:] - 2 * v[1:-1] + v[:-2]) / self.smoothness_sigma)
+        return out
 
 
 def build_problem(spec: ModelSpec, transfer: Transfer, lobe: LobeData | None, wave: WaveData | None, o: FitOptions) -> Problem:
@@ -125,7 +139,14 @@ def build_problem(spec: ModelSpec, transfer: Transfer, lobe: LobeData | None, wa
         wave_sigma=None if wave is None else jnp.asarray(wave.sigma_rad),
         w_lobe=o.lobe_weight,
         w_wave=o.wave_weight,
+        smoothness_sigma=o.smoothness_sigma,
     )
+
+
+@eqx.filter_jit
+def _cost(problem: Problem, params: dict):
+    r = problem.residuals(params)
+    return jnp.sum(r * r)
 
 
 def initial_params(problem: Problem, params=None) -> dict:
@@ -143,7 +164,7 @@ def initial_params(problem: Problem, params=None) -> dict:
         best = None
         for frac in np.linspace(0.5, 0.98, 25):
             q = _with_offsets(problem, {**p, "diam": jnp.asarray(math.log(frac / (1 - frac)))})
-            c = float(jnp.sum(problem.residuals(q) ** 2))
+            c = float(_cost(problem, q))
             if np.isfinite(c) and (best is None or c < best[0]):
                 best = (c, q)
         return best[1]
@@ -213,8 +234,8 @@ def fit(
     """Fit `spec` to the data. Never raises on non-convergence: the result says so (`converged`,
     `result_code`, `warnings`).
 
-    Continuation in three stages, each from the previous one's result: (1) only the diameter and
-    the offsets, the profiles held uniform; (2) everything, with the sigmas floored at 1 dB and
+    Continuation in three stages, each from the previous one's result: (1) when the diameter is
+    fitted, only the diameter and the offsets, the profiles held uniform; (2) everything, with the sigmas floored at 1 dB and
     5 deg (a smoother cost: with 0.05 dB sigmas the first long steps of a free profile can jump
     to a far local minimum, e.g. an aperture dominated by its edges); (3) everything with the
     measured sigmas. The reported convergence is that of the last stage."""
@@ -225,7 +246,7 @@ def fit(
     start = p0
     n_pre = 0
     profiles = {k: v for k, v in p0.items() if k in ("w", "lag")}
-    if profiles and params0 is None:
+    if profiles and params0 is None and "diam" in p0:
         coarse = {k: v for k, v in p0.items() if k not in profiles}
         sol0 = _solve(_relaxed(problem), coarse, options, fixed=profiles)
         n_pre += int(sol0.stats["num_steps"])
@@ -242,7 +263,7 @@ def fit(
     result_code = _result_name(sol.result)
     warnings = []
     finite = bool(np.all(np.isfinite(np.asarray(y))))
-    r = np.asarray(problem.residuals(params))
+    r = np.asarray(eqx.filter_jit(Problem.residuals)(problem, params))
     if not finite or not np.all(np.isfinite(r)):
         warnings.append("NON-FINITE parameters or residuals: the fit failed; check the data and the start point")
         converged = False
@@ -254,7 +275,7 @@ def fit(
                         "results below are the last iterate, not an optimum")
 
     # uncertainties
-    J = np.asarray(jax.jacfwd(lambda yy: problem.residuals(unravel(yy)))(y))
+    J = np.asarray(_jacobian(problem, y, unravel))
     m, npar = J.shape
     cost = 0.5 * float(np.sum(r * r))
     dof = max(m - npar, 1)
@@ -269,7 +290,7 @@ def fit(
     jtj_pinv = np.linalg.pinv(J.T @ J, rcond=1e-12) if finite else np.full((npar, npar), np.nan)
     cov_raw = max(chi2, 1.0) * jtj_pinv
     phys_vec, labels = _physical_vector(spec, params)
-    G = np.asarray(jax.jacfwd(lambda yy: _physical_vector(spec, unravel(yy))[0])(y))
+    G = np.asarray(_physical_jacobian(spec, y, unravel))
     cov = G @ cov_raw @ G.T
     se = np.sqrt(np.clip(np.diag(cov), 0, None))
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -299,6 +320,16 @@ def fit(
         stderr=stderr, correlation=corr, correlation_labels=labels, condition_number=cond,
         rank_deficient=rank_def, trace=trace, model_curves=curves, warnings=warnings,
     )
+
+
+@eqx.filter_jit
+def _jacobian(problem: Problem, y, unravel):
+    return jax.jacfwd(lambda yy: problem.residuals(unravel(yy)))(y)
+
+
+@eqx.filter_jit
+def _physical_jacobian(spec: ModelSpec, y, unravel):
+    return jax.jacfwd(lambda yy: _physical_vector(spec, unravel(yy))[0])(y)
 
 
 def _physical_vector(spec: ModelSpec, params: dict):

@@ -1,0 +1,27 @@
+"""Process-wide JAX settings for the command line and scripts (not applied on import of the
+library): float64 available, and a persistent compilation cache so that a re-run of a fit or a
+scene in a new process does not compile again.
+
+The cache lives in ``$DIFFLATTICE_CACHE_DIR`` (default ``~/.cache/difflattice/xla``); set it to
+``0`` to disable.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+
+def configure(*, x64: bool = True) -> None:
+    import jax
+
+    if x64:
+        jax.config.update("jax_enable_x64", True)
+    where = os.environ.get("DIFFLATTICE_CACHE_DIR", str(Path.home() / ".cache" / "difflattice" / "xla"))
+    if where != "0":
+        try:
+            Path(where).mkdir(parents=True, exist_ok=True)
+            jax.config.update("jax_compilation_cache_dir", where)
+            jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
+        except OSError:  # read-only home: run without the cache
+            pass

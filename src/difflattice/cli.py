@@ -49,6 +49,15 @@ def _fit(args) -> int:
     return run_fit_config(args.config, out=args.out, quick=args.quick)
 
 
+def _accuracy(args) -> int:
+    from .accuracy import sweep, write
+
+    res = sweep(tuple(args.cells_per_wavelength), tuple(args.dtype), repeats=args.repeats)
+    write(res, args.out)
+    print(f"wrote {args.out}/accuracy.json, accuracy_table.md, accuracy.png")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="difflattice", description="Differentiable lattice-gas ultrasound simulator")
     sub = p.add_subparsers(dest="command", required=True)
@@ -78,6 +87,13 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--quick", action="store_true", help="coarse settings (for tests)")
     f.set_defaults(func=_fit)
 
+    a = sub.add_parser("accuracy", help="error against run time over a resolution sweep (built-in Polaroid line case)")
+    a.add_argument("--cells-per-wavelength", type=float, nargs="+", default=[6, 8, 10, 14, 20, 28, 40])
+    a.add_argument("--dtype", nargs="+", default=["float32", "float64"], choices=["float32", "float64"])
+    a.add_argument("--repeats", type=int, default=3, help="timed repeats after a compiling run (median)")
+    a.add_argument("--out", type=Path, default=Path("out/accuracy"))
+    a.set_defaults(func=_accuracy)
+
     try:
         from .capture.cli import register
     except ImportError:  # pragma: no cover - capture is part of the package
@@ -90,7 +106,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    if args.command in ("simulate", "gallery", "demo", "fit"):
+    if args.command in ("simulate", "gallery", "demo", "fit", "accuracy"):
         from .jaxconfig import configure
 
         configure()

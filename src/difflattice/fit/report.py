@@ -36,6 +36,11 @@ def _summary(r: FitResult) -> dict:
             "lags_s": ph["lags_s"].tolist(),
             "lags_stderr_s": [r.stderr[f"lag_us[{k}]"] * 1e-6 for k in range(len(ph["lags_s"]))],
         },
+        "correlation": {
+            "labels": r.correlation_labels,
+            "matrix": np.round(np.nan_to_num(r.correlation), 4).tolist(),
+            "note": "from the Jacobian at the solution; |r| near 1 marks parameters the data cannot separate",
+        },
         "model": {
             "n_cells": r.spec.n_cells, "dx_m": r.spec.dx_m, "weights": r.spec.weights, "lags": r.spec.lags,
             "n_basis": r.spec.n_basis, "symmetric": r.spec.symmetric, "fit_diameter": r.spec.fit_diameter,
@@ -156,6 +161,7 @@ def _markdown(rep: dict, fitted: FitResult, uniform: FitResult | None) -> str:
         f"- reduced chi-square: {f['chi2_reduced']:.3g} (1 = residuals at the noise level)",
         f"- active diameter: {p['diameter_m'] * 1e3:.3f} ± {p['diameter_stderr_m'] * 1e3:.3f} mm",
         f"- Jacobian condition number: {f['condition_number']:.3g}",
+        f"- strongest correlations: {_top_correlations(fitted)}",
         "",
         "| observable | fitted model RMS | untuned uniform model RMS |",
         "|---|---|---|",
@@ -169,6 +175,15 @@ def _markdown(rep: dict, fitted: FitResult, uniform: FitResult | None) -> str:
     prov = rep["provenance"]
     lines += ["## Provenance", "", "```json", json.dumps(prov, indent=2, default=_default), "```", ""]
     return "\n".join(lines)
+
+
+def _top_correlations(r: FitResult, k: int = 3) -> str:
+    c = np.nan_to_num(np.asarray(r.correlation))
+    labels = r.correlation_labels
+    pairs = [(abs(c[i, j]), labels[i], labels[j], c[i, j]) for i in range(len(labels)) for j in range(i + 1, len(labels))
+             if np.isfinite(c[i, j]) and r.stderr.get(labels[i], 0) > 0 and r.stderr.get(labels[j], 0) > 0]
+    pairs.sort(reverse=True)
+    return ", ".join(f"{a}/{b} {v:+.2f}" for _, a, b, v in pairs[:k]) or "n/a"
 
 
 def _default(o):

@@ -28,6 +28,8 @@ class Shape(eqx.Module):
 
 
 class Circle(Shape):
+    """A disc of `radius_m` around `centre_m` (x, y), metres."""
+
     centre_m: Float[Array, "2"]
     radius_m: Float[Array, ""]
 
@@ -95,6 +97,8 @@ class Polyline(Shape):
 
 
 class Union(Shape):
+    """The union of `shapes` (minimum of their signed distances)."""
+
     shapes: tuple[Shape, ...]
 
     def sdf(self, x, y):

@@ -148,6 +148,7 @@ def soft_floor_db(level_db, floor_db):
 
 
 def lobe_model_db(spec: ModelSpec, params: dict, lobe_transfer):
+    """Model lobe level in dB (re the transfer's units, plus the fitted gain) at the measured angles."""
     a = spec.amplitudes(params)
     p = jnp.asarray(lobe_transfer) @ a
     return 10 * jnp.log10(jnp.abs(p) ** 2 + 1e-300) + params.get("gain_db", 0.0)

@@ -35,6 +35,10 @@ SOLVERS = ("levenberg_marquardt", "dogleg", "gauss_newton", "bfgs")
 
 @dataclass(frozen=True)
 class FitOptions:
+    """Solver settings: `solver` (levenberg_marquardt, dogleg, gauss_newton, bfgs), tolerances,
+    `max_steps`, the lobe floor `floor_db` below the measured peak (dB), observable weights and the
+    smoothness prior of per-cell profiles (second difference per cell)."""
+
     solver: Solver = "levenberg_marquardt"
     rtol: float = 1e-7
     atol: float = 1e-7
@@ -53,6 +57,10 @@ class FitOptions:
 
 @dataclass
 class FitResult:
+    """A fit's outcome: raw and physical parameters, convergence (`converged`, `result_code`,
+    `warnings`), residual statistics, standard errors and correlations, the convergence trace
+    and the model curves at the solution."""
+
     spec: ModelSpec
     params: dict
     physical: dict
@@ -124,6 +132,7 @@ class Problem(eqx.Module):
 
 
 def build_problem(spec: ModelSpec, transfer: Transfer, lobe: LobeData | None, wave: WaveData | None, o: FitOptions) -> Problem:
+    """Bundle the data, transfer matrices and options into the residual function's `Problem`."""
     if lobe is None and wave is None:
         raise ValueError("nothing to fit: give lobe data, wavefront data or both")
     if transfer.n_cells != spec.n_cells:

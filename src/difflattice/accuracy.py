@@ -124,3 +124,28 @@ def write(results: dict, out_dir: str | Path) -> None:
         lines.append(f"| {r['cells_per_wavelength']} | {r['dtype']} | {r['farfield_dispersion']} | {r['n_cells']} | {r['wall_time_s']:.2f} | "
                      f"{r['lobe_db_max_error']:.3f} | {r['first_null_error_deg']:.3f} | {r['arrival_error_periods']:.4f} |")
     (out / "accuracy_table.md").write_text("\n".join(lines) + "\n")
+
+
+def fit_sweep(config_path, cells_per_wavelength=(8, 10, 14, 20, 28, 40)) -> dict:
+    """Run one fit config at a sweep of resolutions: fitted parameters, residuals and time, so a
+    user sees the cheapest resolution at which the answer stops changing."""
+    import copy
+
+    from .fit.config import load_config, run_fit
+
+    base = load_config(config_path)
+    rows = []
+    for ppw in cells_per_wavelength:
+        cfg = copy.deepcopy(base)
+        cfg["model"]["cells_per_wavelength"] = float(ppw)
+        cfg["output"]["field_image"] = False
+        t0 = time.perf_counter()
+        rep = run_fit(cfg, out=Path("out") / "fit_sweep" / f"ppw{ppw}", verbose=False)
+        f = rep["fit"]
+        rows.append({"cells_per_wavelength": ppw, "wall_time_s": time.perf_counter() - t0,
+                     "transfer_s": rep["provenance"]["timing_s"]["transfer_simulation"], "converged": f["converged"],
+                     "chi2_reduced": f["chi2_reduced"], "rms": f["rms"], "diameter_m": f["parameters"]["diameter_m"],
+                     "diameter_stderr_m": f["parameters"]["diameter_stderr_m"],
+                     "edge_lag_s": max(f["parameters"]["lags_s"], key=abs)})
+        print(rows[-1])
+    return {"config": str(config_path), "rows": rows}

@@ -1,0 +1,37 @@
+#!/usr/bin/env bash
+# Build the documentation site with warnings as errors.
+#
+#   bash docs/build.sh                 # site in /tmp/difflattice-site
+#   SITE_DIR=out/site bash docs/build.sh
+#
+# The docs tools live in their own virtual environment (.venv-docs), not in .venv.
+set -euo pipefail
+
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+cd "$ROOT"
+
+PY="${PY:-python3}"
+DOCS_VENV="$ROOT/.venv-docs"
+SITE_DIR="${SITE_DIR:-/tmp/difflattice-site}"
+export NO_MKDOCS_2_WARNING=1  # silence Material's end-of-life banner (not a build warning)
+
+# 1. Docs tools (installed once; delete .venv-docs to reinstall).
+if [[ ! -x "$DOCS_VENV/bin/mkdocs" ]] || ! "$DOCS_VENV/bin/python" -c "import mkdocstrings_handlers.python, material, mdx_breakless_lists" 2>/dev/null; then
+    "$PY" -m venv "$DOCS_VENV"
+    "$DOCS_VENV/bin/python" -m pip install -q mkdocs-material "mkdocstrings[python]" mdx-breakless-lists
+fi
+
+# 2. Regenerate the CLI reference from the argparse parser. gen_cli.py puts src/ on sys.path,
+#    so any Python >= 3.11 with the capture dependencies works; prefer the project's .venv.
+if [[ -x "$ROOT/.venv/bin/python" ]]; then
+    CLI_PY="$ROOT/.venv/bin/python"
+else
+    CLI_PY="$PY"
+fi
+"$CLI_PY" docs/gen_cli.py
+
+# 3. Build (mkdocs.yml has strict: true; --strict makes it explicit).
+start=$(date +%s.%N)
+"$DOCS_VENV/bin/mkdocs" build --strict --clean --config-file "$ROOT/mkdocs.yml" --site-dir "$SITE_DIR"
+end=$(date +%s.%N)
+awk -v s="$start" -v e="$end" -v d="$SITE_DIR" 'BEGIN { printf "site in %s (mkdocs build %.1f s)\n", d, e - s }'

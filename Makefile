@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test venv clean
+.PHONY: demo test docs venv clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -21,6 +21,10 @@ demo: $(STAMP)
 ## Test suite
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
+
+## Documentation site (mkdocs, warnings as errors; its own .venv-docs)
+docs: $(STAMP)
+	bash docs/build.sh
 
 clean:
 	rm -rf $(VENV) out

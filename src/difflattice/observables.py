@@ -1,7 +1,5 @@
-"""Observables derived from sensor data: lobe metrics, arrival times, wavefront phase.
-
-Pure NumPy helpers for reports (lobe metrics) and JAX functions for fits (differentiable).
-"""
+"""Observables derived from sensor data: lobe metrics for reports (NumPy). The fits' differentiable
+observables (lobe level, wavefront phase) are in `fit/model.py`."""
 
 from __future__ import annotations
 
@@ -53,9 +51,3 @@ def lobe_metrics(angles_deg, level_db) -> dict:
         out["first_null_deg"] = None
         out["first_sidelobe_db"] = None
     return out
-
-
-def phase_to_arrival_s(phase_rad, frequency_hz: float):
-    """Relative arrival time (s) from an unwrapped carrier phase (exp(-i omega t) convention:
-    a later arrival has a larger phase k r)."""
-    return np.unwrap(np.asarray(phase_rad)) / (2 * math.pi * frequency_hz)

@@ -136,8 +136,7 @@ def run_scene(scene: Scene, *, progress: bool = True) -> SceneRun:
         angles = np.arange(a0, a1 + da / 2, da)
         src = sources[extras["farfield_source"]]
         centre = tuple(src.cells_array.mean(0))
-        theta0 = 0.0
-        p = far_field(result.phasors, contour, grid, angles + theta0, ff["range_m"], centre)
+        p = far_field(result.phasors, contour, grid, angles, ff["range_m"], centre)
         lv = np.asarray(level_db(p, floor_db=-100))
         lobe = (angles, lv)
         summary["farfield"] = {"range_m": ff["range_m"], **lobe_metrics(angles, lv)}

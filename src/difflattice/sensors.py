@@ -75,10 +75,3 @@ def segment_cells(grid: Grid, start_m, stop_m, n: int) -> np.ndarray:
     t = np.linspace(0.0, 1.0, n)[:, None]
     pts = np.asarray(start_m, float)[None] * (1 - t) + np.asarray(stop_m, float)[None] * t
     return probe_cells(grid, pts)
-
-
-def phasor_scale(n_steps: int) -> float:
-    """Factor turning the accumulated DFT of a steady sine into its amplitude (2 / n_steps)."""
-    return 2.0 / max(n_steps, 1)
-
-

@@ -202,7 +202,6 @@ class Stepper(eqx.Module):
 
     def step(self, state: State) -> tuple[State, Float[Array, " n_probes"] | None]:
         """Advance one step; returns the new state and the probe pressures at the new step."""
-        lat = self.lattice
         n_next = state.n + 1
         values = self._source_values(n_next)
         if self.staggered:

@@ -154,7 +154,7 @@ def run_fit(cfg: dict, *, out: str | Path | None = None, quick: bool = False, ve
                           lobe_weight=s["lobe_weight"], wave_weight=s["wave_weight"])
     except ValueError as e:
         raise ConfigError(f"{cfg['_path']}: {e}") from None
-    fitted = fit(spec, transfer, lobe, wave, opts)
+    fitted = fit(spec, transfer, lobe, wave, opts, progress=verbose)
     uspec = ModelSpec(n_cells=n_cells, dx_m=dx, frequency_hz=f, weights="uniform", lags="uniform", fit_diameter=False,
                       diameter_m=m["diameter_m"] or m["line_length_m"])
     uniform = fit(uspec, transfer, lobe, wave, opts)

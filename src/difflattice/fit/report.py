@@ -67,7 +67,7 @@ def write_report(
     rep = {"fit": _summary(fitted), "provenance": provenance, "transfer": transfer.info}
     if uniform is not None:
         rep["untuned_uniform_model"] = {"rms": uniform.rms, "chi2_reduced": uniform.chi2_reduced, "converged": uniform.converged}
-    rep["trace"] = [{"t_s": t, "cost": c} for t, c in fitted.trace]
+    rep["trace"] = [{"t_s": t, "cost": c, "stage": st} for t, c, st in fitted.trace]
     figs = {}
     if lobe is not None:
         ref = float(np.max(lobe.level_db))
@@ -103,16 +103,22 @@ def write_report(
 
 
 def _trace_plot(trace):
+    """Cost against wall time and evaluation, per stage (1: diameter and offsets; 2: all, floored
+    sigmas; 3: all, measured sigmas; costs of different stages are on different scales)."""
     import matplotlib.pyplot as plt
 
     fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 3.5))
     if trace:
-        t, c = np.array(trace).T
-        best = np.minimum.accumulate(c)
-        a1.semilogy(t, best, "-o", ms=3)
-        a2.semilogy(np.arange(1, len(c) + 1), c, ".", label="evaluated")
-        a2.semilogy(np.arange(1, len(c) + 1), best, "-", label="best so far")
-        a2.legend()
+        t, c, st = (np.array(v) for v in zip(*trace))
+        k = np.arange(1, len(c) + 1)
+        for s in np.unique(st):
+            m = st == s
+            best = np.minimum.accumulate(c[m])
+            a1.semilogy(t[m], best, "-o", ms=3, label=f"stage {s}")
+            a2.semilogy(k[m], c[m], ".", ms=3)
+            a2.semilogy(k[m], best, "-", label=f"stage {s} best so far")
+        a1.legend()
+        a2.legend(fontsize=7)
     a1.set_xlabel("wall time (s)")
     a1.set_ylabel("cost (half sum of squared residuals)")
     a2.set_xlabel("residual evaluation")

@@ -195,12 +195,18 @@ def _with_offsets(problem: Problem, p: dict) -> dict:
     return p
 
 
-_TRACE: list[tuple[float, float]] = []
+_TRACE: list[tuple[float, float, int]] = []  # (wall time s, cost, stage)
 _T0 = [0.0]
+_STAGE = [0]
+_BAR: list = [None]  # a tqdm bar while a fit with progress=True runs
 
 
 def _record(cost) -> None:
-    _TRACE.append((time.perf_counter() - _T0[0], float(cost)))
+    _TRACE.append((time.perf_counter() - _T0[0], float(cost), _STAGE[0]))
+    bar = _BAR[0]
+    if bar is not None:
+        bar.update(1)
+        bar.set_postfix(stage=_STAGE[0], cost=f"{float(cost):.4g}")
 
 
 def _residual_fn(y, args):
@@ -210,9 +216,10 @@ def _residual_fn(y, args):
     return r
 
 
-def _solve(problem: Problem, y0: dict, options: FitOptions, fixed: dict | None = None):
+def _solve(problem: Problem, y0: dict, options: FitOptions, fixed: dict | None = None, stage: int = 0):
     # module-level residual function and the problem as `args`: repeated fits of the same
     # structure reuse one compiled solver. `fixed`: parameters held at their values.
+    _STAGE[0] = stage
     return optx.least_squares(_residual_fn, _make_solver(options), y0, args=(problem, fixed or {}),
                               max_steps=options.max_steps, throw=False)
 
@@ -239,9 +246,10 @@ def fit(
     options: FitOptions = FitOptions(),
     *,
     params0: dict | None = None,
+    progress: bool = False,
 ) -> FitResult:
     """Fit `spec` to the data. Never raises on non-convergence: the result says so (`converged`,
-    `result_code`, `warnings`).
+    `result_code`, `warnings`). `progress` shows a bar of residual evaluations with the cost.
 
     Continuation in three stages, each from the previous one's result: (1) when the diameter is
     fitted, only the diameter and the offsets, the profiles held uniform; (2) everything, with the sigmas floored at 1 dB and
@@ -252,19 +260,32 @@ def fit(
     p0 = initial_params(problem, params0)
     _TRACE.clear()
     _T0[0] = time.perf_counter()
+    if progress:
+        from tqdm import tqdm
+
+        _BAR[0] = tqdm(desc="fit", unit="eval")
+    try:
+        return _fit_stages(problem, spec, p0, options, params0, lobe, wave)
+    finally:
+        if _BAR[0] is not None:
+            _BAR[0].close()
+            _BAR[0] = None
+
+
+def _fit_stages(problem, spec, p0, options, params0, lobe, wave) -> FitResult:
     start = p0
     n_pre = 0
     profiles = {k: v for k, v in p0.items() if k in ("w", "lag")}
     if profiles and params0 is None and "diam" in p0:
         coarse = {k: v for k, v in p0.items() if k not in profiles}
-        sol0 = _solve(_relaxed(problem), coarse, options, fixed=profiles)
+        sol0 = _solve(_relaxed(problem), coarse, options, fixed=profiles, stage=1)
         n_pre += int(sol0.stats["num_steps"])
         if _finite(sol0.value):
             start = {**profiles, **sol0.value}
-    sol1 = _solve(_relaxed(problem), start, options)
+    sol1 = _solve(_relaxed(problem), start, options, stage=2)
     n_pre += int(sol1.stats["num_steps"])
     start = sol1.value if _finite(sol1.value) else start
-    sol = _solve(problem, start, options)
+    sol = _solve(problem, start, options, stage=3)
     params = jax.block_until_ready(sol.value)
     wall = time.perf_counter() - _T0[0]
     trace = list(_TRACE)

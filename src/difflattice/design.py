@@ -80,3 +80,28 @@ def horn_problem(*, frequency_hz: float = 50e3, cells_per_wavelength: float = 8.
     reach = math.hypot(nx, ny) / g.courant
     n_steps = int(reach + 8 * g.steps_per_period)
     return HornProblem(g, face_m, x0, y0, wall, contour, n_steps, tuple(float(a) for a in np.linspace(-90.0, 90.0, 91)))
+
+
+def optimise_horn(problem: HornProblem, *, half_angle_deg: float, length_m: float, max_half_angle_deg: float = 20.0,
+                  min_length_m: float = 0.010, max_length_m: float = 0.040, max_steps: int = 30):
+    """Maximise the directivity index over the half-angle and length with optimistix BFGS; ranges
+    by reparameterisation (sigmoids). Returns (angle_deg, length_m, DI_start_db, DI_end_db, solution)."""
+    import jax
+    import optimistix as optx
+
+    span = max_length_m - min_length_m
+
+    def unpack(u):
+        return max_half_angle_deg * jax.nn.sigmoid(u[0]), min_length_m + span * jax.nn.sigmoid(u[1])
+
+    def loss(u, args):
+        return -problem.directivity_db(*unpack(u))
+
+    def logit(p):
+        return math.log(p / (1 - p))
+
+    u0 = jnp.array([logit(half_angle_deg / max_half_angle_deg), logit((length_m - min_length_m) / span)])
+    start = -float(loss(u0, None))
+    sol = optx.minimise(loss, optx.BFGS(rtol=1e-4, atol=1e-4), u0, max_steps=max_steps, throw=False)
+    a, L = unpack(sol.value)
+    return float(a), float(L), start, -float(loss(sol.value, None)), sol

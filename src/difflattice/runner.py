@@ -73,11 +73,15 @@ def run_chunked(stepper: Stepper, n_steps: int, *, segments: int = 20, progress:
             bar.close()
             raise FloatingPointError(f"{INSTABILITY_MESSAGE} (detected by step {done})")
     bar.close()
-    merged = eqx.tree_at(
-        lambda r: (r.probes, r.peak_history),
+    import dataclasses
+
+    # the merged record covers all n_steps: probes and peaks concatenated, RMS over the whole run
+    merged = dataclasses.replace(
         res,
-        (np.concatenate(probes) if probes else None, np.concatenate(peaks)),
-        is_leaf=lambda x: x is None,
+        probes=np.concatenate(probes) if probes else None,
+        peak_history=np.concatenate(peaks),
+        p_rms=None if res.final.p_sq is None else np.sqrt(np.asarray(res.final.p_sq) / n_steps),
+        n_steps=n_steps,
     )
     return merged, snaps, snap_steps, first_time
 

@@ -17,7 +17,6 @@ import pytest  # noqa: E402
 from difflattice import plots  # noqa: E402
 from difflattice.gallery import (  # noqa: E402
     COMPARISONS,
-    SHOW_STEPS,
     load_scaled_scene,
     render_gallery,
     scale_scene_data,
@@ -76,6 +75,9 @@ def test_scaling_keeps_physical_sizes():
     d = {"grid": {"frequency_hz": 5e4, "shape": [840, 630]}, "transducers": [{"centre_m": [0.01, 0.1], "n_cells": 104}]}
     s = scale_scene_data(d, 0.25)
     assert s["grid"]["shape"] == [210, 158] and s["transducers"][0]["n_cells"] == 26
+    # moments in steps scale with the grid, moments in seconds stay
+    d2 = d | {"output": {"show_steps": [1030, 1300], "show_times_s": [1e-4]}}
+    assert scale_scene_data(d2, 0.25)["output"] == {"show_steps": [258, 325], "show_times_s": [1e-4]}
     assert d["grid"]["shape"] == [840, 630]
     assert scale_scene_data(d, 1.0) == d
 
@@ -99,8 +101,13 @@ def test_gallery_renders_every_scene(gallery):
         assert np.isfinite(summ["stability"]["peak_pa"]) and summ["stability"]["peak_pa"] > 0
         assert summ["grid"]["cells_per_wavelength"] == pytest.approx(20 * SCALE)
         nx, ny = summ["grid"]["shape"]
-        # figure.png: one 600-pixel panel per shown moment, 600 * ny / nx + 105 pixels high
-        n_panels = len(SHOW_STEPS.get(e["name"], (None,)))
+        # figure.png: one 600-pixel panel per moment of the scene's [output] show_steps (else the
+        # last step), 600 * ny / nx + 105 pixels high; each moment also has its own image
+        shown = load_scene(e["scene_file"]).output["show_steps"]
+        n_panels = len(shown) or 1
+        assert e["shown_steps"] == ([round(s * SCALE) for s in shown] or [e["n_steps"]])
+        assert len(list(d.glob("moment_*.png"))) == len(shown)
+        assert not (d / "frames").exists()  # no per-snapshot frames below scale 1
         img = mpimg.imread(d / "figure.png")
         assert img.shape[:2] == (round(600 * ny / nx) + 105, 600 * n_panels), e["name"]
         assert img[..., :3].std() > 0.02  # not blank
@@ -111,10 +118,9 @@ def test_gallery_renders_every_scene(gallery):
         # the run ended where the scene file says (scaled)
         assert e["n_steps"] == summ["run"]["n_steps"]
         assert (out / e["files"]["figure"]).is_file()
-    # the paper's two moments of Fig. 6 are both shown (nearest snapshots to 1030 and 1300, scaled)
+    # the paper's two moments of Fig. 6 are both shown, at exactly steps 1030 and 1300 (scaled)
     e6 = next(e for e in entries if e["name"] == "fig06_concave_corner")
-    assert len(e6["shown_steps"]) == 2
-    assert abs(e6["shown_steps"][0] - 1030 * SCALE) <= 26 * SCALE + 1 and e6["shown_steps"][1] == round(1300 * SCALE)
+    assert e6["shown_steps"] == [round(1030 * SCALE), round(1300 * SCALE)]
     # Fig. 3 records arrivals on its probe line -> a wavefront plot
     assert (out / "fig03_nearfield" / "wavefront.png").is_file()
 

@@ -16,8 +16,11 @@ def _simulate(args) -> int:
     from .scene import load_scene
 
     scene = load_scene(args.scene)
+    if args.render_every is not None:
+        scene.output["render_every_cells"] = args.render_every
     sr = run_scene(scene, progress=not args.quiet)
-    files = write_outputs(sr, args.out, animate=not args.no_animation)
+    files = write_outputs(sr, args.out, frames=False if args.no_frames else None,
+                          animation="none" if args.no_animation else args.animation)
     s = sr.summary
     print(f"{scene.path}: {s['run']['n_steps']} steps on {s['grid']['shape'][0]} x {s['grid']['shape'][1]} cells "
           f"in {s['run']['wall_time_s']:.2f} s ({s['run']['mlups']:.0f} MLUPS); "
@@ -50,11 +53,27 @@ def _fit(args) -> int:
 
 
 def _accuracy(args) -> int:
-    from .accuracy import sweep, write
+    from . import accuracy as acc
 
-    res = sweep(tuple(args.cells_per_wavelength), tuple(args.dtype), repeats=args.repeats)
-    write(res, args.out)
-    print(f"wrote {args.out}/accuracy.json, accuracy_table.md, accuracy.png")
+    cpw = tuple(args.cells_per_wavelength) if args.cells_per_wavelength else None
+    if cpw is not None and min(cpw) < 4:
+        print(f"error: --cells-per-wavelength {min(cpw):g}: give resolutions >= 4 cells per wavelength", file=sys.stderr)
+        return 2
+    if min(args.thickness_cells) < 1 or args.repeats < 0:
+        print("error: --thickness-cells must be >= 1 cell and --repeats >= 0", file=sys.stderr)
+        return 2
+    if args.case == "polaroid":
+        res = acc.sweep(cpw or (6, 8, 10, 14, 20, 28, 40), tuple(args.dtype), repeats=args.repeats)
+        acc.write(res, args.out)
+        print(f"wrote {args.out}/accuracy.json, accuracy_table.md, accuracy.png")
+    elif args.case == "wall":
+        res = acc.wall_sweep(cpw or (6, 8, 10, 14, 20, 30), tuple(args.dtype), repeats=args.repeats)
+        acc.write_wall(res, args.out)
+        print(f"wrote {args.out}/accuracy_wall.json, accuracy_wall_table.md, accuracy_wall.png")
+    else:
+        res = acc.edge_sweep(cpw or (10, 20), tuple(args.thickness_cells), args.dtype[0], repeats=args.repeats)
+        acc.write_edges(res, args.out)
+        print(f"wrote {args.out}/accuracy_edges.json, accuracy_edges_table.md, accuracy_edges.png")
     return 0
 
 
@@ -66,7 +85,13 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("scene", type=Path, help="scene file (TOML, see docs/scene-files.md)")
     s.add_argument("--out", type=Path, required=True, help="output directory")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
-    s.add_argument("--no-animation", action="store_true", help="do not write animation.gif")
+    s.add_argument("--no-animation", action="store_true", help="do not write an animation (same as --animation none)")
+    s.add_argument("--animation", choices=["gif", "mp4", "none"], default=None,
+                   help="animation of the snapshots (default: the scene's [output] animation, gif); mp4 needs ffmpeg, else gif")
+    s.add_argument("--no-frames", action="store_true", help="do not write a PNG per snapshot (frames/)")
+    s.add_argument("--render-every", type=int, default=None, metavar="CELLS",
+                   help="render every CELLS-th cell in field images (default: 3 at 20 cells per wavelength, "
+                        "at least 6.7 pixels per wavelength)")
     s.set_defaults(func=_simulate)
 
     g = sub.add_parser("gallery", help="render the paper's figures (data/scenes/*.toml)")
@@ -87,10 +112,18 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--quick", action="store_true", help="coarse settings (for tests)")
     f.set_defaults(func=_fit)
 
-    a = sub.add_parser("accuracy", help="error against run time over a resolution sweep (built-in Polaroid line case)")
-    a.add_argument("--cells-per-wavelength", type=float, nargs="+", default=[6, 8, 10, 14, 20, 28, 40])
-    a.add_argument("--dtype", nargs="+", default=["float32", "float64"], choices=["float32", "float64"])
-    a.add_argument("--repeats", type=int, default=3, help="timed repeats after a compiling run (median)")
+    a = sub.add_parser("accuracy", help="error against run time over a resolution sweep (built-in cases, analytic references)")
+    a.add_argument("--case", choices=["polaroid", "wall", "edges"], default="polaroid",
+                   help="polaroid: the Polaroid line's lobe and wavefront vs the continuous line; wall: a point "
+                        "source's echo from a rigid and a soft wall vs the image-source solution; edges: the "
+                        "reflection of pml/sponge/mur edges vs a window too large to reach")
+    a.add_argument("--cells-per-wavelength", type=float, nargs="+", default=None,
+                   help="resolutions (default: polaroid 6 8 10 14 20 28 40; wall 6 8 10 14 20 30; edges 10 20)")
+    a.add_argument("--thickness-cells", type=int, nargs="+", default=[5, 10, 20, 40],
+                   help="edges case: pml and sponge thicknesses, cells")
+    a.add_argument("--dtype", nargs="+", default=["float32", "float64"], choices=["float32", "float64"],
+                   help="precisions (the edges case uses the first)")
+    a.add_argument("--repeats", type=int, default=3, help="timed repeats after a compiling run (polaroid: their median; wall, edges: the fastest)")
     a.add_argument("--out", type=Path, default=Path("out/accuracy"))
     a.set_defaults(func=_accuracy)
 

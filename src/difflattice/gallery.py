@@ -3,47 +3,43 @@
 `render_gallery(out_dir)` loads each scene file, optionally shrinks the grid (``scale`` multiplies
 the cells per wavelength and keeps every physical size, so 0.25 gives 5 cells per wavelength: a
 quick, coarse look), runs it with `runner.run_scene`, writes the usual outputs with
-`runner.write_outputs` into ``out_dir/<name>/`` (below scale 1, a quick look: no animation, and
-only the snapshot frames the figure shows), and adds:
+`runner.write_outputs` into ``out_dir/<name>/`` (below scale 1, a quick look: no animation and no
+per-snapshot frames), and adds:
 
-- ``<name>/figure.png``: the field at the moment(s) the paper shows (`SHOW_STEPS`, else the last
-  step), one panel per moment, ``PANEL_PX`` pixels wide each (see `figure_size_px`);
+- ``<name>/figure.png``: the field at the moment(s) the paper shows (the scene file's
+  ``[output] show_steps``, else the last step), one panel per moment, ``PANEL_PX`` pixels wide
+  each (see `figure_size_px`);
 - ``<name>/wavefront.png`` for scenes recording arrival times at probes (Fig. 3);
 - ``compare_*.png`` for the figures the paper compares (`COMPARISONS`: Figs. 4, 7, 8, 9);
 - ``index.md`` (a Markdown page: each figure's image and what the paper shows, taken from the
   comment block at the top of its scene file) and ``gallery.json`` (per scene: steps, wall
   times, files, relative to ``out_dir``).
 
-The scene files live beside the package in the repository (``data/scenes``); pass ``scenes_dir``
-when running from elsewhere.
+The scene files live in the repository's ``data/scenes`` and are installed with the package
+(``difflattice/scenes``); pass ``scenes_dir`` to render other files.
 """
 
 from __future__ import annotations
 
 import copy
-import dataclasses
 import json
 import re
 import time
 import tomllib
+import warnings
 from pathlib import Path
 
 import numpy as np
 
-DEFAULT_SCENES_DIR = Path(__file__).resolve().parents[2] / "data" / "scenes"
+def _default_scenes_dir() -> Path:
+    """The repository's data/scenes when running from a checkout, else the copy installed with
+    the package (difflattice/scenes: in the repository a symlink to data/scenes, packaged as
+    package data)."""
+    repo = Path(__file__).resolve().parents[2] / "data" / "scenes"
+    return repo if repo.is_dir() else Path(__file__).resolve().parent / "scenes"
 
-# The moments the paper shows, in steps of the scene file as written (scaled with the grid).
-# Scenes not listed show their last step. A moment must be a snapshot step of the scene (or close
-# to one: the nearest snapshot is used).
-SHOW_STEPS: dict[str, tuple[int, ...]] = {
-    "fig02_polaroid": (1000,),
-    "fig04a_wall_speed_zero": (1100,),
-    "fig04b_wall_rigid": (1100,),
-    "fig06_concave_corner": (1030, 1300),
-    "fig07a_convex_edge_sharp": (1000,),
-    "fig07b_convex_edge_rounded": (1000,),
-    "fig08_stepped_wall": (1100,),
-}
+
+DEFAULT_SCENES_DIR = _default_scenes_dir()
 
 # Figures the paper compares. kind "probe": probe 0's signal of each scene on one plot (from
 # `start_step`, in scene-file steps); kind "beam": peak |p| on an arc `radius_m` from the first
@@ -151,8 +147,8 @@ def scale_scene_data(data: dict, scale: float) -> dict:
     """A copy of a parsed scene dict with the grid `scale` times as fine (physical sizes kept).
 
     cells_per_wavelength, a grid shape in cells, transducer n_cells, per-cell weights and lags
-    (resampled along the line), edge thickness, far-field gap, snapshot interval and n_steps all
-    scale; sizes and positions in metres and duration_s stay. scale = 1 returns an unchanged copy.
+    (resampled along the line), edge thickness, far-field gap, snapshot interval, show_steps and
+    n_steps all scale; sizes and positions in metres, duration_s and show_times_s stay. scale = 1 returns an unchanged copy.
     """
     if not scale > 0:
         raise ValueError(f"scale = {scale} must be > 0")
@@ -182,6 +178,9 @@ def scale_scene_data(data: dict, scale: float) -> dict:
         for key in ("weights", "lags_s"):
             if t.get(key) is not None and n is not None:
                 t[key] = _resample(t[key], n)
+    o = d.get("output", {})
+    if o.get("show_steps"):
+        o["show_steps"] = [sc(v) for v in o["show_steps"]]
     s = d.get("sensors", {})
     if s.get("snapshot_every_steps") is not None:
         s["snapshot_every_steps"] = sc(s["snapshot_every_steps"])
@@ -213,33 +212,16 @@ def load_scaled_scene(path: str | Path, scale: float = 1.0):
 # pictures
 
 
-def _obstacles(stepper):
-    from .runner import _closed_cells
-
-    lat = stepper.lattice
-    if lat.keep is not None:
-        return 1 - np.asarray(lat.keep)
-    if lat.bx is not None:
-        return _closed_cells(lat)
-    return None
-
-
-def _render_every(cells_per_wavelength: float) -> int:
-    """Render every 3rd cell at 20 cells per wavelength (as the paper), never fewer than about
-    6.7 samples per wavelength (every cell below 13.3 cells per wavelength)."""
-    return max(1, int(3 * cells_per_wavelength / 20 + 1e-9))
-
-
 def _pick_frames(sr, wanted_steps):
-    """(field, step) pairs for the wanted steps: the nearest snapshot, or the final field."""
+    """(field, step) pairs for the wanted steps: the field kept at that moment (`[output]
+    show_steps`), else the final field."""
     n = sr.summary["run"]["n_steps"]
-    frames = list(zip(sr.snapshots, sr.snapshot_steps))
-    if not any(s == n for _, s in frames):
-        frames.append((np.asarray(sr.result.final.pressure), n))
     out = []
     for w in wanted_steps:
-        f, s = min(frames, key=lambda fs: abs(fs[1] - w))
-        out.append((np.asarray(f), int(s)))
+        if w in sr.moments:
+            out.append((np.asarray(sr.moments[w]), int(w)))
+        else:
+            out.append((np.asarray(sr.result.final.pressure), n))
     return out
 
 
@@ -253,10 +235,12 @@ def write_figure(sr, path: Path, wanted_steps, *, title: str = "") -> Path:
     frames = _pick_frames(sr, wanted_steps)
     w, h = figure_size_px(g.shape, len(frames))
     fig = plt.figure(figsize=(w / FIG_DPI, h / FIG_DPI), dpi=FIG_DPI)
-    obst = _obstacles(sr.stepper)
+    from .runner import obstacle_map
+
+    obst = obstacle_map(sr.stepper)
     src = [s.cells_array for s in sr.stepper.sources]
     probes = np.asarray(sr.stepper.sensors.probes).reshape(-1, 2)
-    every = _render_every(g.cells_per_wavelength)
+    every = sr.render_every
     top = 1 - 55 / h
     bottom = 48 / h
     for i, (f, s) in enumerate(frames):
@@ -381,23 +365,23 @@ def render_scene(path: str | Path, out_dir: str | Path, *, scale: float = 1.0, p
                  animate: bool | None = None) -> dict:
     """Render one scene file into ``out_dir`` (its own folder); returns its gallery entry with
     file paths relative to ``out_dir``'s parent."""
+    from .medium import ResolutionWarning
     from .runner import run_scene, write_outputs
 
     path, out = Path(path), Path(out_dir)
     name = path.stem
     t0 = time.perf_counter()
     scene = load_scaled_scene(path, scale)
-    sr = run_scene(scene, progress=progress)
+    with warnings.catch_warnings():
+        if scale < 1:  # a deliberately coarse preview (its label says so): no resolution warnings
+            warnings.simplefilter("ignore", ResolutionWarning)
+        sr = run_scene(scene, progress=progress)
     t_sim = time.perf_counter() - t0
-    wanted = [int(round(s * scale)) for s in SHOW_STEPS.get(name, ())] or [sr.summary["run"]["n_steps"]]
+    wanted = sorted(sr.moments) or [sr.summary["run"]["n_steps"]]
     quick = scale < 1
-    written = sr
-    if quick and sr.snapshots:
-        # a quick look writes only the frames it shows (PNG frames dominate the time at small scales)
-        keep = {s for _, s in _pick_frames(sr, wanted)}
-        pairs = [(f, s) for f, s in zip(sr.snapshots, sr.snapshot_steps) if s in keep]
-        written = dataclasses.replace(sr, snapshots=[f for f, _ in pairs], snapshot_steps=[s for _, s in pairs])
-    files = write_outputs(written, out, animate=(not quick) if animate is None else animate)
+    # a quick look writes no per-snapshot frames (PNG frames dominate the time at small scales)
+    files = write_outputs(sr, out, frames=False if quick else None,
+                          animation=("none" if quick else None) if animate is None else (None if animate else "none"))
     desc = describe_scene(path)
     short = desc["title"].split(":")[0] if ":" in desc["title"] else ""
     label = f"{short}: {name}" if short else name
@@ -410,7 +394,12 @@ def render_scene(path: str | Path, out_dir: str | Path, *, scale: float = 1.0, p
     frames = _pick_frames(sr, wanted)
     s = sr.summary
     root = out.parent
-    rel = {k: str(Path(v).relative_to(root)) if Path(v).is_relative_to(root) else v for k, v in files.items()}
+    def _rel(v):
+        if isinstance(v, list):
+            return [_rel(x) for x in v]
+        return str(Path(v).relative_to(root)) if Path(v).is_relative_to(root) else v
+
+    rel = {k: _rel(v) for k, v in files.items()}
     entry = {
         "name": name,
         "scene_file": str(path),

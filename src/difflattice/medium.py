@@ -13,6 +13,7 @@ obstacles ("rigid": R = +1, "soft": R = -1), and the static choice of boundary m
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from typing import Literal
 
@@ -85,6 +86,51 @@ def material(name_or_material: str | Material) -> Material:
         raise ValueError(
             f"unknown material {name_or_material!r}; known: {', '.join(sorted(MATERIALS))}"
         ) from None
+
+
+MIN_CELLS_PER_WAVELENGTH = 8.0
+"""Below this many cells per wavelength a medium's waves are not resolved (phase-speed error
+above ~2 % and growing fast; at 2 cells per wavelength a wave cannot propagate at all)."""
+
+
+class ResolutionWarning(UserWarning):
+    """A medium of a scene is resolved with too few cells per wavelength."""
+
+
+def cells_per_wavelength_in(speed_m_s: float, frequency_hz: float, dx_m: float) -> float:
+    """Cells per wavelength of a wave of `frequency_hz` in a medium of speed `speed_m_s` on cells of
+    `dx_m`."""
+    return speed_m_s / (frequency_hz * dx_m)
+
+
+def warn_if_under_resolved(
+    name: str,
+    speed_m_s: float,
+    frequency_hz: float,
+    dx_m: float,
+    *,
+    fastest: str | None = None,
+    minimum: float = MIN_CELLS_PER_WAVELENGTH,
+    stacklevel: int = 3,
+) -> float:
+    """Warn (`ResolutionWarning`) if medium `name` gets fewer than `minimum` cells per wavelength;
+    returns its cells per wavelength. `fastest` names the material the grid was scaled to."""
+    cpw = cells_per_wavelength_in(speed_m_s, frequency_hz, dx_m)
+    if cpw < minimum:
+        why = f" because the cell is sized for the fastest fluid, {fastest}" if fastest and fastest != name else ""
+        need = minimum / cpw
+        warnings.warn(
+            f"difflattice: medium {name!r} ({speed_m_s:.0f} m/s) gets only {cpw:.2f} cells per "
+            f"wavelength at {frequency_hz:.4g} Hz (cell {dx_m * 1e3:.4g} mm){why}; below "
+            f"{minimum:g} its waves are not resolved (at ~2 they cannot propagate and the medium "
+            f"reflects almost totally, silently). Fix: raise grid.cells_per_wavelength by x{need:.1f} "
+            f"or more"
+            + (f", or model the {fastest} object as material = \"rigid\" (nothing simulated inside)."
+               if why else "."),
+            ResolutionWarning,
+            stacklevel=stacklevel,
+        )
+    return cpw
 
 
 def reflection_coefficient(z1: float, z2: float) -> float:

@@ -14,6 +14,8 @@ matplotlib.use("Agg") if matplotlib.get_backend().lower() not in ("agg", "pdf", 
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from .scene import MIN_PIXELS_PER_WAVELENGTH, PAPER_RENDER_EVERY, render_stride  # noqa: E402,F401
+
 
 def field_image(
     p,
@@ -27,18 +29,24 @@ def field_image(
     clip: float = 0.5,
     title: str | None = None,
     ax=None,
+    size_m: tuple[float, float] | None = None,
 ):
     """Grayscale pressure image with a symmetric scale (white = +, black = -), rendering every
-    `every`-th cell (the paper used every third), obstacle outlines, transducer cells, axes in mm
-    and a time stamp in steps and microseconds. `clip` sets the scale as a fraction of max |p|."""
+    `every`-th cell (the paper used every third; `render_stride` picks it from the resolution),
+    obstacle outlines, transducer cells, axes in mm and a time stamp in steps and microseconds.
+    `clip` sets the scale as a fraction of max |p|. `dx_m` is the simulation's cell (obstacles and
+    source cells are in its cells); `size_m` is the window's size, default `p.shape * dx_m` (give
+    it when `p` was already thinned, e.g. a snapshot kept at every n-th cell, with `every=1`)."""
     p = np.asarray(p)
+    if isinstance(every, bool) or int(every) != every or every < 1:
+        raise ValueError(f"every = {every!r}: render every n-th cell, n a whole number >= 1")
     sub = p[::every, ::every]
     vmax = float(np.abs(p).max()) * clip or 1.0
     fig = None
+    w_m, h_m = size_m if size_m is not None else (p.shape[0] * dx_m, p.shape[1] * dx_m)
     if ax is None:
-        nx, ny = p.shape
-        fig, ax = plt.subplots(figsize=(7, 7 * ny / nx + 0.6))
-    ext_mm = [0, p.shape[0] * dx_m * 1e3, 0, p.shape[1] * dx_m * 1e3]
+        fig, ax = plt.subplots(figsize=(7, 7 * h_m / w_m + 0.6))
+    ext_mm = [0, w_m * 1e3, 0, h_m * 1e3]
     ax.imshow(sub.T, origin="lower", cmap="gray", vmin=-vmax, vmax=vmax, extent=ext_mm, interpolation="nearest")
     if obstacles is not None:
         occ = np.asarray(obstacles)
@@ -139,13 +147,30 @@ def aperture_plot(y_m, weights, lags_s, *, labels=("fitted",), title="aperture")
     return fig
 
 
+MAX_LEGEND_ENTRIES = 8
+"""Probe time series: a legend up to this many probes, a colour bar (probe index) beyond."""
+
+
 def time_series_plot(t_s, series, labels):
+    """Pressure against time (µs), one curve per column of `series`. Up to `MAX_LEGEND_ENTRIES`
+    curves get a legend entry each; more are coloured by their index with a colour bar."""
+    series = np.asarray(series).reshape(len(np.asarray(t_s)), -1)
+    n = series.shape[1]
     fig, ax = plt.subplots(figsize=(8, 4))
-    for s, lab in zip(np.asarray(series).T, labels):
-        ax.plot(np.asarray(t_s) * 1e6, s, label=lab)
+    if n <= MAX_LEGEND_ENTRIES:
+        for s, lab in zip(series.T, labels):
+            ax.plot(np.asarray(t_s) * 1e6, s, label=lab)
+        if n:
+            ax.legend()
+    else:
+        cmap = plt.get_cmap("viridis")
+        norm = matplotlib.colors.Normalize(vmin=0, vmax=n - 1)
+        for i, s in enumerate(series.T):
+            ax.plot(np.asarray(t_s) * 1e6, s, color=cmap(norm(i)), lw=0.8)
+        sm = matplotlib.cm.ScalarMappable(norm=norm, cmap=cmap)
+        fig.colorbar(sm, ax=ax, label=f"probe index ({n} probes)")
     ax.set_xlabel("time (µs)")
     ax.set_ylabel("pressure (Pa)")
-    ax.legend()
     ax.grid(True, alpha=0.3)
     return fig
 
@@ -157,7 +182,9 @@ def animate(frames, steps, dx_m: float, dt_s: float, path: str | Path, *, every:
 
     path = Path(path)
     frames = np.asarray(frames)
-    fig, ax = plt.subplots(figsize=(6, 6 * frames.shape[2] / frames.shape[1] + 0.6))
+    size_m = kw.get("size_m")
+    aspect = size_m[1] / size_m[0] if size_m is not None else frames.shape[2] / frames.shape[1]
+    fig, ax = plt.subplots(figsize=(6, 6 * aspect + 0.6))
     vmax = float(np.abs(frames).max()) * 0.5 or 1.0
 
     def draw(i):

@@ -9,7 +9,7 @@ import json
 import math
 import platform
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import equinox as eqx
@@ -27,6 +27,10 @@ from .solver import INSTABILITY_MESSAGE, Result, Stepper, run
 
 @dataclass
 class SceneRun:
+    """A finished scene run. `snapshots` are the fields every `snapshot_every_steps`, already
+    thinned to every `render_every`-th cell (what the images show; no full-resolution history is
+    kept); `moments` maps each `[output]` show step to the full-resolution field at that step."""
+
     scene: Scene
     grid: object
     stepper: Stepper
@@ -35,26 +39,51 @@ class SceneRun:
     lobe: tuple[np.ndarray, np.ndarray] | None
     snapshots: list
     snapshot_steps: list
+    moments: dict = field(default_factory=dict)
+    render_every: int = 1
 
 
-def run_chunked(stepper: Stepper, n_steps: int, *, segments: int = 20, progress: bool = True, checkpoint=None):
+def _piece_ends(n_steps: int, seg: int, snapshot_every: int | None, moments) -> list[int]:
+    """Steps at which the chunked run stops: every `seg` steps, at n_steps, at each moment, and
+    (after a moment) at the next snapshot step, so that snapshots stay on multiples of
+    `snapshot_every`."""
+    ends = set(range(seg, n_steps, seg)) | {n_steps}
+    for m in moments:
+        ends.add(int(m))
+        if snapshot_every:
+            ends.add(min(n_steps, -(-int(m) // snapshot_every) * snapshot_every))
+    return sorted(e for e in ends if 1 <= e <= n_steps)
+
+
+def run_chunked(stepper: Stepper, n_steps: int, *, segments: int = 20, progress: bool = True, checkpoint=None,
+                moments=(), render_every: int = 1):
     """Run in `segments` compiled pieces so a progress bar can update between them (the kernel
-    itself is untouched). Returns (result of the last piece with merged probes, snapshots, steps,
-    compile+first-segment time)."""
+    itself is untouched). Pieces also end at each step of `moments`, whose full-resolution fields
+    are kept. Snapshots are thinned to every `render_every`-th cell as they arrive.
+
+    Returns (result of the last piece with merged probes, snapshots, their steps,
+    compile+first-segment time, {moment step: field})."""
     from tqdm import tqdm
 
+    if render_every < 1:
+        raise ValueError(f"render_every = {render_every} must be >= 1 cell")
     seg = max(1, math.ceil(n_steps / segments))
-    if stepper.sensors.snapshot_every:
-        k = stepper.sensors.snapshot_every
+    k = stepper.sensors.snapshot_every
+    if k:
         seg = max(k, (seg // k) * k)
+    wanted = set(int(m) for m in moments)
+    bad = [m for m in wanted if not 1 <= m <= n_steps]
+    if bad:
+        raise ValueError(f"moments {sorted(bad)} lie outside steps 1..{n_steps}")
     runner = eqx.filter_jit(lambda st, s, n: run(s, n, state=st, checkpoint=checkpoint))
     state = stepper.init()
     probes, snaps, snap_steps, peaks = [], [], [], []
+    kept = {}
     done = 0
     first_time = None
     bar = tqdm(total=n_steps, unit="step", disable=not progress, desc="simulate")
-    while done < n_steps:
-        n = min(seg, n_steps - done)
+    for end in _piece_ends(n_steps, seg, k, wanted):
+        n = end - done
         t0 = time.perf_counter()
         res = runner(state, stepper, n)
         jax.block_until_ready(res.peak_history)
@@ -64,10 +93,15 @@ def run_chunked(stepper: Stepper, n_steps: int, *, segments: int = 20, progress:
         if res.probes is not None:
             probes.append(np.asarray(res.probes))
         if res.snapshots is not None:
-            snaps += list(np.asarray(res.snapshots))
-            snap_steps += [done + s for s in res.chunk_steps]
+            for f, s in zip(np.asarray(res.snapshots), res.chunk_steps):
+                step = done + s
+                if step % k == 0 or step == n_steps:  # not the extra frame a moment's piece ends with
+                    snaps.append(np.array(f[::render_every, ::render_every]))
+                    snap_steps.append(step)
         peaks.append(np.asarray(res.peak_history))
-        done += n
+        done = end
+        if end in wanted:
+            kept[end] = np.asarray(state.pressure)
         bar.update(n)
         if not np.all(np.isfinite(peaks[-1])):
             bar.close()
@@ -83,7 +117,7 @@ def run_chunked(stepper: Stepper, n_steps: int, *, segments: int = 20, progress:
         p_rms=None if res.final.p_sq is None else np.sqrt(np.asarray(res.final.p_sq) / n_steps),
         n_steps=n_steps,
     )
-    return merged, snaps, snap_steps, first_time
+    return merged, snaps, snap_steps, first_time, kept
 
 
 def run_scene(scene: Scene, *, progress: bool = True) -> SceneRun:
@@ -93,7 +127,9 @@ def run_scene(scene: Scene, *, progress: bool = True) -> SceneRun:
     stepper = Stepper.build(grid, medium, sources, sensors, edges)
     checkpoint = None if scene.run["checkpoint"] == "none" else "sqrt"
     t0 = time.perf_counter()
-    result, snaps, snap_steps, first = run_chunked(stepper, n_steps, progress=progress, checkpoint=checkpoint)
+    every = extras["render_every"]
+    result, snaps, snap_steps, first, moments = run_chunked(
+        stepper, n_steps, progress=progress, checkpoint=checkpoint, moments=extras["show_steps"], render_every=every)
     wall = time.perf_counter() - t0
     nx, ny = grid.shape
     dist_cells = min(grid.courant * n_steps, math.hypot(nx, ny))
@@ -144,18 +180,38 @@ def run_scene(scene: Scene, *, progress: bool = True) -> SceneRun:
         lv = np.asarray(level_db(p, floor_db=-100))
         lobe = (angles, lv)
         summary["farfield"] = {"range_m": ff["range_m"], **lobe_metrics(angles, lv)}
-    return SceneRun(scene, grid, stepper, result, summary, lobe, snaps, snap_steps)
+    summary["output"] = {"render_every_cells": every, "pixels_per_wavelength": grid.cells_per_wavelength / every,
+                         "show_steps": sorted(moments)}
+    return SceneRun(scene, grid, stepper, result, summary, lobe, snaps, snap_steps, moments, every)
 
 
-def write_outputs(sr: SceneRun, out_dir: str | Path, *, animate: bool = True) -> dict:
-    """Write summary.json, sensors.npz and images (PNG, GIF) into `out_dir`; returns the paths."""
+def write_outputs(sr: SceneRun, out_dir: str | Path, *, animate: bool = True, frames: bool | None = None,
+                  animation: str | None = None) -> dict:
+    """Write summary.json, sensors.npz and images into `out_dir`; returns the paths.
+
+    Images: field.png (last step), moment_<step>.png per `[output]` show step, peak_level.png,
+    lobe.png, probes.png, and for snapshots frames/frame_NNNN.png (unless `frames` is False) and
+    an animation (`animation`: "gif", "mp4" or "none"; `animate=False` is "none"). `frames` and
+    `animation` default to the scene's `[output]` section. Field images render every
+    `sr.render_every`-th cell."""
     from . import plots
+    from .scene import ANIMATION_KINDS
 
+    out_cfg = getattr(sr.scene, "output", None) or {}
+    if frames is None:
+        frames = out_cfg.get("frames", True)
+    if animation is None:
+        animation = out_cfg.get("animation", "gif")
+    if animation not in ANIMATION_KINDS:
+        raise ValueError(f"animation = {animation!r}; allowed: {', '.join(ANIMATION_KINDS)}")
+    if not animate:
+        animation = "none"
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     g = sr.grid
     res = sr.result
     st = sr.stepper
+    every = sr.render_every
     files = {}
     arrays = {"peak_history_pa": np.asarray(res.peak_history), "final_field_pa": np.asarray(res.final.pressure)}
     if res.probes is not None:
@@ -172,16 +228,17 @@ def write_outputs(sr: SceneRun, out_dir: str | Path, *, animate: bool = True) ->
     np.savez_compressed(out / "sensors.npz", **arrays)
     files["sensors"] = str(out / "sensors.npz")
 
-    lat = st.lattice
-    obst = None
-    if lat.keep is not None:
-        obst = 1 - np.asarray(lat.keep)
-    elif lat.bx is not None:
-        obst = _closed_cells(lat)
+    obst = obstacle_map(st)
     src_cells = [s.cells_array for s in st.sources]
-    fig = plots.field_image(res.final.pressure, g.dx_m, step=res.n_steps if not sr.snapshot_steps else sr.summary["run"]["n_steps"],
-                            dt_s=g.dt_s, obstacles=obst, sources=src_cells)
+    n_steps = sr.summary["run"]["n_steps"]
+    fig = plots.field_image(res.final.pressure, g.dx_m, every=every, step=n_steps, dt_s=g.dt_s,
+                            obstacles=obst, sources=src_cells)
     files["field"] = str(plots.save(fig, out / "field.png"))
+    if sr.moments:
+        files["moments"] = []
+        for step, f in sorted(sr.moments.items()):
+            fig = plots.field_image(f, g.dx_m, every=every, step=step, dt_s=g.dt_s, obstacles=obst, sources=src_cells)
+            files["moments"].append(str(plots.save(fig, out / f"moment_{step:06d}.png")))
     if res.p_max is not None:
         files["peak_level"] = str(plots.save(plots.level_image(res.p_max, g.dx_m, sources=src_cells), out / "peak_level.png"))
     if sr.lobe is not None:
@@ -192,15 +249,30 @@ def write_outputs(sr: SceneRun, out_dir: str | Path, *, animate: bool = True) ->
         fig = plots.time_series_plot(t, res.probes, [f"probe {i}" for i in range(len(st.sensors.probes))])
         files["probes"] = str(plots.save(fig, out / "probes.png"))
     if sr.snapshots:
-        for k, (f, s) in enumerate(zip(sr.snapshots, sr.snapshot_steps)):
-            plots.save(plots.field_image(f, g.dx_m, step=s, dt_s=g.dt_s, obstacles=obst, sources=src_cells), out / "frames" / f"frame_{k:04d}.png")
-        files["frames"] = str(out / "frames")
-        if animate:
-            files["animation"] = str(plots.animate(sr.snapshots, sr.snapshot_steps, g.dx_m, g.dt_s, out / "animation.gif", obstacles=obst, sources=src_cells))
+        # snapshots are already thinned to every `every`-th cell: draw each as one pixel per sample
+        if frames:
+            for k, (f, s) in enumerate(zip(sr.snapshots, sr.snapshot_steps)):
+                plots.save(plots.field_image(f, g.dx_m, every=1, step=s, dt_s=g.dt_s, obstacles=obst,
+                                             sources=src_cells, size_m=g.size_m), out / "frames" / f"frame_{k:04d}.png")
+            files["frames"] = str(out / "frames")
+        if animation != "none":
+            files["animation"] = str(plots.animate(sr.snapshots, sr.snapshot_steps, g.dx_m, g.dt_s,
+                                                   out / f"animation.{animation}", every=1, obstacles=obst,
+                                                   sources=src_cells, size_m=g.size_m))
     sr.summary["files"] = files
     (out / "summary.json").write_text(json.dumps(sr.summary, indent=2, default=_json_default))
     files["summary"] = str(out / "summary.json")
     return files
+
+
+def obstacle_map(stepper) -> np.ndarray | None:
+    """Occupancy of the obstacles (1 inside) for outlines in images, or None."""
+    lat = stepper.lattice
+    if lat.keep is not None:
+        return 1 - np.asarray(lat.keep)
+    if lat.bx is not None:
+        return _closed_cells(lat)
+    return None
 
 
 def _closed_cells(lat) -> np.ndarray:

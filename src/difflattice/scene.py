@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import tomllib
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -97,7 +98,35 @@ SCHEMA: dict[str, dict[str, tuple]] = {
         "duration_s": (NUM, None, "simulated time, s"),
         "checkpoint": (str, "none", "none or sqrt (memory-bounded gradients)"),
     },
+    "output": {
+        "show_steps": (list, [], "steps at which to save a field image (moment_NNNNNN.png), e.g. [1030, 1300]"),
+        "show_times_s": (list, [], "times at which to save a field image, s (rounded to the nearest step)"),
+        "render_every_cells": (int, None, "render every n-th cell in field images (default: 3 at 20 cells/wavelength, >= 6.7 pixels per wavelength)"),
+        "frames": (bool, True, "write a PNG per snapshot (frames/frame_NNNN.png)"),
+        "animation": (str, "gif", "animation of the snapshots: gif, mp4 (needs ffmpeg, else gif) or none"),
+    },
 }
+ANIMATION_KINDS = ("gif", "mp4", "none")
+
+PAPER_RENDER_EVERY = 3
+"""The paper rendered every third cell of its 20-cells-per-wavelength grid (6.7 pixels per
+wavelength)."""
+MIN_PIXELS_PER_WAVELENGTH = 20 / PAPER_RENDER_EVERY
+
+
+def render_stride(cells_per_wavelength: float, override: int | None = None) -> int:
+    """Render every n-th cell: the paper's 3 at 20 cells per wavelength, never fewer than
+    `MIN_PIXELS_PER_WAVELENGTH` (6.7) rendered pixels per wavelength (so every cell below
+    13.3 cells per wavelength, where a fixed stride of 3 would alias the wave). `override`
+    (cells, >= 1) replaces the automatic choice."""
+    if override is not None:
+        if isinstance(override, bool) or not isinstance(override, (int, np.integer)) or override < 1:
+            raise ValueError(f"render stride = {override!r}: give a whole number of cells >= 1")
+        return int(override)
+    if not cells_per_wavelength > 0:
+        raise ValueError(f"cells_per_wavelength = {cells_per_wavelength} must be > 0")
+    return max(1, int(cells_per_wavelength / MIN_PIXELS_PER_WAVELENGTH + 1e-9))
+
 ARRAY_SECTIONS = ("transducers", "objects")
 
 
@@ -122,6 +151,7 @@ class Scene:
     sensors: dict
     farfield: dict | None
     run: dict
+    output: dict = field(default_factory=dict)
     raw: dict = field(default_factory=dict)
 
     # ---------------------------------------------------------------------------------------
@@ -131,7 +161,7 @@ class Scene:
         from .farfield import box_around
         from .grid import make_grid
         from .lattice import Edges
-        from .medium import Medium, air, material
+        from .medium import Medium, air, material, warn_if_under_resolved
         from .sensors import Sensors, probe_cells
         from .source import ContinuousWave, ToneBurst, line_transducer
 
@@ -142,6 +172,19 @@ class Scene:
             _fail(p, "medium.background", f"must be a fluid material, got {bg.name} ({bg.kind})")
         mats = [bg] + [_material(p, f"objects[{i}].material", o["material"], material) for i, o in enumerate(self.objects)]
         if med["boundary_model"] == "speed_zero":
+            for i, (o, m) in enumerate(zip(self.objects, mats[1:])):
+                given = "material" in (self.raw.get("objects", [{}] * len(self.objects))[i] or {})
+                if m.kind == "fluid" or (given and m.kind == "rigid"):
+                    warnings.warn(
+                        f"{p}: [objects[{i}].material] = {m.name!r} is ignored under "
+                        f"boundary_model = \"speed_zero\": every object is a speed-zero "
+                        f"(pressure-release, R = -1) region, its speed "
+                        f"{'and density ' if m.kind == 'fluid' else ''}not used. Use "
+                        f"material = \"soft\" to say so, or boundary_model = \"conservative\" to "
+                        f"simulate {m.name!r}.",
+                        UserWarning,
+                        stacklevel=2,
+                    )
             mats = [bg]
         c_max = max(m.speed_m_s for m in mats if m.kind == "fluid")
         g = self.grid
@@ -159,6 +202,14 @@ class Scene:
             )
         except ValueError as e:
             _fail(p, "grid", str(e))
+
+        # every simulated fluid must be resolved: the cell is sized for the fastest one
+        fastest = max((m for m in mats if m.kind == "fluid"), key=lambda m: m.speed_m_s).name
+        seen = set()
+        for m in mats:
+            if m.kind == "fluid" and m.name not in seen:
+                seen.add(m.name)
+                warn_if_under_resolved(m.name, m.speed_m_s, grid.frequency_hz, grid.dx_m, fastest=fastest)
 
         # medium maps
         rigid, soft = [], []
@@ -265,8 +316,38 @@ class Scene:
             _fail(p, "run", f"n_steps = {n_steps} must be >= 1")
         if r["checkpoint"] not in ("none", "sqrt"):
             _fail(p, "run.checkpoint", f"= {r['checkpoint']!r}; allowed: none, sqrt")
-        extras = {"contour": contour, "farfield_source": ff_index, "shapes": self.objects}
+        extras = {"contour": contour, "farfield_source": ff_index, "shapes": self.objects,
+                  "show_steps": self.show_steps(grid, n_steps), "render_every": self.render_every(grid)}
         return grid, medium, tuple(sources), sensors, edges, n_steps, extras
+
+
+    # ---------------------------------------------------------------------------------------
+    def show_steps(self, grid, n_steps: int) -> list[int]:
+        """The steps of `[output] show_steps` and `show_times_s` (nearest step), sorted, unique;
+        each must lie in 1..n_steps."""
+        o = self.output
+        steps = []
+        for i, v in enumerate(o["show_steps"]):
+            if isinstance(v, bool) or not isinstance(v, int):
+                _fail(self.path, f"output.show_steps[{i}]", f"= {v!r} must be a whole number of steps")
+            steps.append(v)
+        for i, v in enumerate(o["show_times_s"]):
+            if isinstance(v, bool) or not isinstance(v, (int, float)):
+                _fail(self.path, f"output.show_times_s[{i}]", f"= {v!r} must be a time in seconds")
+            steps.append(int(round(grid.s_to_steps(float(v)))))
+        for s in steps:
+            if not 1 <= s <= n_steps:
+                t_s = s * grid.dt_s
+                _fail(self.path, "output", f"moment at step {s} ({t_s * 1e6:.1f} µs) lies outside the run "
+                      f"(steps 1..{n_steps}, up to {n_steps * grid.dt_s * 1e6:.1f} µs)")
+        return sorted(set(steps))
+
+    def render_every(self, grid) -> int:
+        """Render stride in cells: `[output] render_every_cells`, else `plots.render_stride`."""
+        try:
+            return render_stride(grid.cells_per_wavelength, self.output["render_every_cells"])
+        except ValueError as e:
+            _fail(self.path, "output.render_every_cells", str(e))
 
 
 def _material(path, key, name, lookup):

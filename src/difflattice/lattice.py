@@ -222,6 +222,13 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
             )
 
     ghosts = tuple(edges.ghost(s) for s in Edges.sides)
+    # A rigid (Neumann) window side is a closed outer face: fold it into the face conductances
+    # (or the paper model's per-cell factors) so the step pads with zeros only (one fused loop).
+    closed = tuple(g == "neumann" for g in ghosts)
+    if bx is not None:
+        bx, by = _close_faces(bx, by, closed)
+    elif a["ax_lo"] is not None:
+        a = _close_cells(a, closed)
     mur = tuple(getattr(edges, s) == "mur" for s in Edges.sides)
     sponge = _sponge(grid, edges, dtype) if "sponge" in edges.kinds() else None
     pml = _pml(grid, edges, dtype) if edges.uses_pml else None
@@ -229,6 +236,33 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
         K=K, q_scale=q_scale, bx=bx, by=by, keep=keep, c=c, sponge=sponge, pml=pml,
         eta=eta, ghosts=ghosts, mur=mur, **a,
     )
+
+
+def _close_faces(bx, by, closed):
+    x_lo, x_hi, y_lo, y_hi = closed
+    if x_lo:
+        bx = bx.at[0].set(0.0)
+    if x_hi:
+        bx = bx.at[-1].set(0.0)
+    if y_lo:
+        by = by.at[:, 0].set(0.0)
+    if y_hi:
+        by = by.at[:, -1].set(0.0)
+    return bx, by
+
+
+def _close_cells(a, closed):
+    x_lo, x_hi, y_lo, y_hi = closed
+    a = dict(a)
+    if x_lo:
+        a["ax_lo"] = a["ax_lo"].at[0].set(0.0)
+    if x_hi:
+        a["ax_hi"] = a["ax_hi"].at[-1].set(0.0)
+    if y_lo:
+        a["ay_lo"] = a["ay_lo"].at[:, 0].set(0.0)
+    if y_hi:
+        a["ay_hi"] = a["ay_hi"].at[:, -1].set(0.0)
+    return a
 
 
 def _faces_pair(r_lh, pr, ps, axis, *, from_low: bool):

@@ -16,11 +16,14 @@ import equinox as eqx
 import numpy as np
 
 from .grid import Grid
-from .source import _as_static_cells
+from jaxtyping import Array, Int
+
+from .source import as_cells
 
 
 class Sensors(eqx.Module):
-    """What to record. Cell lists are static (they fix output shapes).
+    """What to record. The number of cells fixes output shapes; their positions are data (moving a
+    sensor does not recompile).
 
     **Arguments:**
     - `probes`: (n, 2) cell indices recorded every step.
@@ -31,10 +34,8 @@ class Sensors(eqx.Module):
     - `snapshot_every`: if set, return the field every that many steps.
     """
 
-    probes: tuple[tuple[int, int], ...] = eqx.field(static=True, default=(), converter=_as_static_cells)
-    phasor_cells: tuple[tuple[int, int], ...] = eqx.field(
-        static=True, default=(), converter=_as_static_cells
-    )
+    probes: Int[Array, "n 2"] = eqx.field(default=(), converter=as_cells)
+    phasor_cells: Int[Array, "m 2"] = eqx.field(default=(), converter=as_cells)
     phasor_frequency_hz: float | None = eqx.field(static=True, default=None)
     p_max: bool = eqx.field(static=True, default=False)
     p_rms: bool = eqx.field(static=True, default=False)
@@ -47,9 +48,19 @@ class Sensors(eqx.Module):
         if self.arrival_threshold_pa is not None and not self.arrival_threshold_pa > 0:
             raise ValueError(f"arrival_threshold_pa = {self.arrival_threshold_pa} must be > 0")
 
+    @property
+    def n_probes(self) -> int:
+        return int(self.probes.shape[0])
+
+    @property
+    def n_phasors(self) -> int:
+        return int(self.phasor_cells.shape[0])
+
     def check_inside(self, grid: Grid) -> None:
         nx, ny = grid.shape
         for name, cells in (("probes", self.probes), ("phasor_cells", self.phasor_cells)):
+            if not isinstance(cells, np.ndarray):
+                continue  # traced positions: not checkable here
             for ix, iy in cells:
                 if not (0 <= ix < nx and 0 <= iy < ny):
                     raise ValueError(

@@ -24,7 +24,7 @@ import numpy as np
 from jaxtyping import Array, Complex, Float, Int
 
 from .grid import Grid, MAX_COURANT
-from .lattice import Edges, Lattice, build_lattice, _edge
+from .lattice import Edges, Lattice, build_lattice
 from .medium import Medium
 from .sensors import Sensors
 from .source import PointSources
@@ -82,18 +82,38 @@ class Result(eqx.Module):
 # spatial operator
 
 
-def _padded(q, axis: int, lo: str, hi: str):
-    glo = _edge(q, axis, False) if lo == "neumann" else jnp.zeros_like(_edge(q, axis, False))
-    ghi = _edge(q, axis, True) if hi == "neumann" else jnp.zeros_like(_edge(q, axis, True))
-    return jnp.concatenate([glo, q, ghi], axis=axis)
+def _open_masks(lat: Lattice, shape):
+    """Static 0/1 face masks closing rigid window sides when no conductance array carries them
+    (homogeneous and speed-zero scenes); None where every face is open."""
+    nx, ny = shape
+    x_lo, x_hi, y_lo, y_hi = (g == "neumann" for g in lat.ghosts)
+    mx = my = None
+    if x_lo or x_hi:
+        mx = np.ones((nx + 1, 1))
+        mx[0], mx[-1] = (0.0 if x_lo else 1.0), (0.0 if x_hi else 1.0)
+    if y_lo or y_hi:
+        my = np.ones((1, ny + 1))
+        my[:, 0], my[:, -1] = (0.0 if y_lo else 1.0), (0.0 if y_hi else 1.0)
+    return mx, my
+
+
+def _face_coefficients(lat: Lattice, shape, dtype):
+    """Conductances of the faces along x (nx+1, ny) and y (nx, ny+1), or broadcastable masks, or
+    None (all faces open with unit conductance). Rigid window sides are closed faces."""
+    if lat.bx is not None:
+        return lat.bx, lat.by
+    if lat.ax_lo is not None:  # paper model: closed sides are folded into the per-cell factors
+        return None, None
+    mx, my = _open_masks(lat, shape)
+    return (None if mx is None else jnp.asarray(mx, dtype)), (None if my is None else jnp.asarray(my, dtype))
 
 
 def face_gradient(lat: Lattice, q, axis: int):
-    """b * (q_hi - q_lo) on every face along `axis`, outer faces included (n+1 faces)."""
-    lo, hi = (lat.ghosts[0], lat.ghosts[1]) if axis == 0 else (lat.ghosts[2], lat.ghosts[3])
-    qp = _padded(q, axis, lo, hi)
-    g = qp[1:] - qp[:-1] if axis == 0 else qp[:, 1:] - qp[:, :-1]
-    b = lat.bx if axis == 0 else lat.by
+    """b * (q_hi - q_lo) on every face along `axis`, outer faces included (n+1 faces); the
+    window's ghost cells are zero and rigid sides are closed faces (b = 0)."""
+    qp = jnp.pad(q, 1)
+    g = qp[1:, 1:-1] - qp[:-1, 1:-1] if axis == 0 else qp[1:-1, 1:] - qp[1:-1, :-1]
+    b = _face_coefficients(lat, q.shape, q.dtype)[axis]
     return g if b is None else b * g
 
 
@@ -110,10 +130,43 @@ def divergence(lat: Lattice, g, axis: int):
 
 
 def operator(lat: Lattice, p):
-    """The spatial operator D(P) of the scene (lattice units)."""
+    """The spatial operator D(P) = K L(q_scale P) of the scene (lattice units).
+
+    Written as one 5-point stencil on a zero-padded copy of q, with the face conductances sliced
+    per cell (``b[1:] (q_E - q) - b[:-1] (q - q_W)``), so XLA compiles it to one fused loop over
+    the grid; forming the face differences as arrays first was 2x slower (memory traffic).
+    """
     q = p if lat.q_scale is None else lat.q_scale * p
-    d = divergence(lat, face_gradient(lat, q, 0), 0) + divergence(lat, face_gradient(lat, q, 1), 1)
-    return lat.K * d
+    return lat.K * stencil(lat, q)
+
+
+def stencil(lat: Lattice, q):
+    """L(q): the flux stencil without the factor K (symmetric unless the paper model's a-factors)."""
+    qp = jnp.pad(q, 1)
+    east, west = qp[2:, 1:-1], qp[:-2, 1:-1]
+    north, south = qp[1:-1, 2:], qp[1:-1, :-2]
+    bx, by = _face_coefficients(lat, q.shape, q.dtype)
+    terms = []
+    for (hi, lo), b, a_hi, a_lo in (
+        ((east, west), bx, lat.ax_hi, lat.ax_lo),
+        ((north, south), by, lat.ay_hi, lat.ay_lo),
+    ):
+        if b is None and a_hi is None:
+            terms.append(hi + lo - 2 * q)
+            continue
+        c_hi = c_lo = 1
+        if b is not None:
+            c_hi, c_lo = (b[1:], b[:-1]) if b is bx else (b[:, 1:], b[:, :-1])
+        if a_hi is not None:
+            c_hi, c_lo = a_hi * c_hi, a_lo * c_lo
+        terms.append(c_hi * (hi - q) - c_lo * (q - lo))
+    return terms[0] + terms[1]
+
+
+def adjoint_operator(lat: Lattice, lam):
+    """D^T(lam) = q_scale L(K lam), valid where L is symmetric (every model but "paper")."""
+    y = stencil(lat, lat.K * lam)
+    return y if lat.q_scale is None else lat.q_scale * y
 
 
 # ------------------------------------------------------------------------------------------
@@ -155,11 +208,15 @@ class Stepper(eqx.Module):
         nx, ny = grid.shape
         L = edges.thickness_cells if (edges.kinds() & {"pml", "sponge"}) else 0
         for s in sources:
+            if not isinstance(s.cells, np.ndarray):
+                continue  # traced positions: not checkable at build time
             cells = s.cells_array
             if cells.size and ((cells < 0).any() or (cells[:, 0] >= nx).any() or (cells[:, 1] >= ny).any()):
                 raise ValueError(f"source cells outside the {nx} x {ny} grid")
         if L:
             for s in sources:
+                if not isinstance(s.cells, np.ndarray):
+                    continue
                 c = s.cells_array
                 inside = _in_layer(c, grid.shape, edges, L)
                 if inside.any():
@@ -175,7 +232,7 @@ class Stepper(eqx.Module):
         dt = self.grid.jnp_dtype
         z = jnp.zeros((nx, ny), dt)
         sens = self.sensors
-        m = len(sens.phasor_cells)
+        m = sens.n_phasors
         lat = self.lattice
         need_prev = (not self.staggered) or lat.eta > 0
         return State(
@@ -210,8 +267,8 @@ class Stepper(eqx.Module):
             state, p_new = self._step_leapfrog(state, values)
         state = self._record(state, p_new, n_next)
         probes = None
-        if self.sensors.probes:
-            c = np.asarray(self.sensors.probes)
+        if self.sensors.n_probes:
+            c = self.sensors.probes
             probes = p_new[c[:, 0], c[:, 1]]
         return state, probes
 
@@ -230,7 +287,7 @@ class Stepper(eqx.Module):
         if lat.keep is not None:
             p_new = lat.keep * p_new
         for src, v in zip(self.sources, values):
-            c = src.cells_array
+            c = src.cells
             if src.injection == "soft":
                 p_new = p_new.at[c[:, 0], c[:, 1]].add(v)
             else:
@@ -273,7 +330,7 @@ class Stepper(eqx.Module):
         acc = list(state.src_acc)
         i_soft = 0
         for src, v in zip(self.sources, values):
-            c = src.cells_array
+            c = src.cells
             if src.injection == "soft":
                 acc[i_soft] = acc[i_soft] + v
                 half = 0.5 * acc[i_soft]
@@ -295,8 +352,8 @@ class Stepper(eqx.Module):
     def _record(self, state: State, p_new, n_next) -> State:
         sens = self.sensors
         updates = {}
-        if sens.phasor_cells:
-            c = np.asarray(sens.phasor_cells)
+        if sens.n_phasors:
+            c = sens.phasor_cells
             f = sens.phasor_frequency_hz or self.grid.frequency_hz
             w = self.grid.hz_to_lattice_omega(f)
             ang = (n_next.astype(self.grid.jnp_dtype) * w) % (2 * math.pi)
@@ -357,19 +414,53 @@ def run(
     *,
     state: State | None = None,
     checkpoint: Checkpoint = None,
-    unroll: int = 1,
+    unroll: int | None = None,
+    sharding: "jax.sharding.Sharding | None" = None,
+    adjoint: Literal["autodiff", "lattice", "auto"] = "autodiff",
 ) -> Result:
-    """Run `n_steps` steps from `state` (default: rest) and collect the sensors. Pure and jittable."""
+    """Run `n_steps` steps from `state` (default: rest) and collect the sensors. Pure and jittable.
+
+    `unroll` (steps per scan iteration): None picks 2 for the leapfrog (it removes the copies of
+    the carried fields that XLA adds to a rolled loop: 2x faster on CPU) and 1 for the staggered
+    PML form (unrolling it made XLA fuse across steps and run up to 10x slower).
+
+    `sharding`: a `jax.sharding.Sharding` of a grid-shaped array (e.g. `grid_sharding()`): the
+    fields are kept split across its devices every step and XLA exchanges the one-cell halos
+    (GPU clusters, or both cores of a CPU run with several host devices).
+
+    `adjoint`: how reverse mode differentiates the run. "autodiff": JAX's reverse mode of the
+    scan (the reference; also the only one with forward mode). "lattice": the adjoint wave
+    equation run backwards (`difflattice.adjoint`): the same gradients at about twice the forward
+    time for sources and bounded memory (`checkpoint` chunks, default sqrt(n_steps)) for medium
+    maps; raises for scenes it does not support. "auto": "lattice" where supported."""
     if not isinstance(n_steps, (int, np.integer)) or n_steps < 1:
         raise ValueError(f"n_steps = {n_steps!r} must be a positive integer")
     n_steps = int(n_steps)
+    if adjoint not in ("autodiff", "lattice", "auto"):
+        raise ValueError(f"adjoint = {adjoint!r}; allowed: 'autodiff', 'lattice', 'auto'")
+    if adjoint != "autodiff":
+        from . import adjoint as adj
+
+        reason = adj.supports(stepper, state)
+        if reason is None and sharding is None:
+            return _run_lattice_adjoint(stepper, n_steps, checkpoint)
+        if adjoint == "lattice":
+            raise ValueError(
+                f"adjoint='lattice' does not support {reason or 'sharding'}: use adjoint='autodiff' "
+                "(or 'auto' to choose per scene)"
+            )
+    if unroll is None:
+        unroll = 1 if stepper.staggered else 2
     sens = stepper.sensors
     chunk = _chunking(n_steps, sens, checkpoint)
     n_chunks, rem = divmod(n_steps, chunk)
     state = stepper.init() if state is None else state
+    constrain = _constrainer(stepper.grid.shape, sharding)
+    state = constrain(state)
 
     def one(st, _):
-        return stepper.step(st)
+        st, ys = stepper.step(st)
+        return constrain(st), ys
 
     def chunk_scan(st, length):
         f = lambda s: jax.lax.scan(one, s, None, length=length, unroll=min(unroll, length))
@@ -415,6 +506,57 @@ def run(
     )
 
 
+def _run_lattice_adjoint(stepper: Stepper, n_steps: int, checkpoint: Checkpoint) -> Result:
+    from .adjoint import linear_run
+
+    chunk = _chunking(n_steps, stepper.sensors, "sqrt" if checkpoint is None else checkpoint)
+    probes, re, im, p, p_prev, peaks = linear_run(stepper, n_steps, chunk)
+    final = eqx.tree_at(
+        lambda s: (s.p, s.p_prev, s.n, s.phasor_re, s.phasor_im),
+        stepper.init(),
+        (p, p_prev, jnp.asarray(n_steps, jnp.int32), re, im),
+        is_leaf=lambda x: x is None,
+    )
+    n_chunks, rem = divmod(n_steps, chunk)
+    steps = [chunk * (i + 1) for i in range(n_chunks)] + ([n_steps] if rem else [])
+    return Result(
+        final=final,
+        probes=probes,
+        phasors=None if re is None else jax.lax.complex(re, im),
+        p_max=None,
+        p_rms=None,
+        arrival=None,
+        snapshots=None,
+        peak_history=peaks,
+        n_steps=n_steps,
+        chunk_steps=tuple(steps),
+    )
+
+
+def _constrainer(shape, sharding):
+    """Apply `sharding` to every grid-shaped field of a State (identity without a sharding)."""
+    if sharding is None:
+        return lambda st: st
+
+    def f(st):
+        return jax.tree_util.tree_map(
+            lambda a: jax.lax.with_sharding_constraint(a, sharding) if a.shape == tuple(shape) else a, st
+        )
+
+    return f
+
+
+def grid_sharding(devices: Sequence | None = None, axis: int = 0) -> "jax.sharding.NamedSharding":
+    """A sharding that splits grid-shaped arrays along `axis` (0 = x) across `devices` (default:
+    all devices). On a CPU, `XLA_FLAGS=--xla_force_host_platform_device_count=N` (set before JAX
+    starts) gives N host devices, one per core."""
+    from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+    devs = np.asarray(jax.devices() if devices is None else list(devices))
+    spec = PartitionSpec("grid", None) if axis == 0 else PartitionSpec(None, "grid")
+    return NamedSharding(Mesh(devs, ("grid",)), spec)
+
+
 INSTABILITY_MESSAGE = (
     "difflattice: the simulation produced non-finite pressure (numerical instability or overflow). "
     "Likely causes: a lattice speed above 1/sqrt(2) cells/step (lower the grid courant), a strong "
@@ -442,7 +584,9 @@ def simulate(
     n_steps: int,
     edges: Edges = Edges(),
     checkpoint: Checkpoint = None,
-    unroll: int = 1,
+    unroll: int | None = None,
+    sharding: "jax.sharding.Sharding | None" = None,
+    adjoint: Literal["autodiff", "lattice", "auto"] = "autodiff",
     throw: bool = True,
 ) -> Result:
     """Simulate `n_steps` time steps of the scene and return what the sensors recorded.
@@ -455,19 +599,23 @@ def simulate(
     - `n_steps`: number of time steps (static).
     - `edges`: window edges (default: 20-cell PML on every side).
     - `checkpoint`: None (plain reverse mode), "sqrt" (memory ~ sqrt(n_steps)) or a chunk length.
+    - `unroll`: steps per scan iteration (None: the fastest per stepper, see `run`).
+    - `sharding`: split the grid across devices (`grid_sharding()`); None: one device.
+    - `adjoint`: reverse-mode method, "autodiff" (JAX's), "lattice" (adjoint wave equation,
+      faster and memory-bounded) or "auto" (see `run`).
     - `throw`: raise on non-finite fields (otherwise inspect `result.peak_history`).
     """
     stepper = Stepper.build(grid, medium, sources, sensors, edges)
-    return _simulate(stepper, n_steps, checkpoint, unroll, throw)
+    return _simulate(stepper, n_steps, checkpoint, unroll, sharding, adjoint, throw)
 
 
 @eqx.filter_jit
-def _simulate(stepper: Stepper, n_steps: int, checkpoint, unroll: int, throw: bool) -> Result:
+def _simulate(stepper: Stepper, n_steps: int, checkpoint, unroll: int | None, sharding, adjoint, throw: bool) -> Result:
     lat = stepper.lattice
     if jnp.ndim(lat.c) != 0 or isinstance(lat.c, jax.core.Tracer):
         # speeds may be traced (e.g. fitted): check the stability limit at run time
         stepper = eqx.error_if(stepper, jnp.max(lat.c) > MAX_COURANT * (1 + 1e-6), SPEED_MESSAGE)
-    result = run(stepper, n_steps, checkpoint=checkpoint, unroll=unroll)
+    result = run(stepper, n_steps, checkpoint=checkpoint, unroll=unroll, sharding=sharding, adjoint=adjoint)
     if throw:
         result = check_result(result, stepper)
     return result

@@ -1,7 +1,8 @@
 """Sources: drive signals and transducers (lines of source cells with per-cell weights and lags).
 
-Per-cell weights (dimensionless) and phase lags (seconds) are arrays, so they can be fitted; the
-cell positions, the signal shape and the injection mode are static structure.
+Per-cell weights (dimensionless) and phase lags (seconds) are arrays, so they can be fitted. Cell
+positions are integer arrays: their number fixes the compiled shapes, their values do not, so a
+moved transducer reuses the compiled simulation. The signal shape and the injection mode are static.
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ import math
 from typing import Literal
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
@@ -89,14 +91,14 @@ class PointSources(eqx.Module):
     - `injection`: "soft" (add to P: transparent to waves) or "hard" (set P: a reflecting source).
     """
 
-    cells: tuple[tuple[int, int], ...] = eqx.field(static=True, converter=lambda c: _as_static_cells(c))
+    cells: Int[Array, "n 2"] = eqx.field(converter=lambda c: as_cells(c))
     signal: Signal
     weights: Float[Array, " n"]
     lags_s: Float[Array, " n"]
     injection: Literal["soft", "hard"] = eqx.field(static=True, default="soft")
 
     def __check_init__(self):
-        n = len(self.cells)
+        n = self.n_cells
         if jnp.shape(self.weights) != (n,) or jnp.shape(self.lags_s) != (n,):
             raise ValueError(
                 f"weights {jnp.shape(self.weights)} and lags_s {jnp.shape(self.lags_s)} must both "
@@ -107,10 +109,11 @@ class PointSources(eqx.Module):
 
     @property
     def n_cells(self) -> int:
-        return len(self.cells)
+        return int(self.cells.shape[0])
 
     @property
     def cells_array(self) -> Int[np.ndarray, "n 2"]:
+        """The cells as a NumPy array (outside jit)."""
         return np.asarray(self.cells, dtype=np.int64).reshape(-1, 2)
 
     def values(self, t_s):
@@ -119,9 +122,21 @@ class PointSources(eqx.Module):
 
 
 
-def _as_static_cells(cells) -> tuple[tuple[int, int], ...]:
-    arr = np.asarray(cells, dtype=np.int64).reshape(-1, 2)
-    return tuple((int(a), int(b)) for a, b in arr)
+def as_cells(cells) -> Int[Array, "n 2"]:
+    """Cell indices as an (n, 2) int32 array: NumPy when given concrete values (traced by
+    `eqx.filter_jit` as data, so new positions do not recompile), left alone when traced."""
+    if isinstance(cells, jax.Array) and not isinstance(cells, np.ndarray):
+        if cells.ndim != 2 or cells.shape[-1] != 2 or not jnp.issubdtype(cells.dtype, jnp.integer):
+            raise ValueError(f"cells must be an (n, 2) integer array, got {cells.shape} {cells.dtype}")
+        return cells
+    arr = np.asarray(cells)
+    if arr.size == 0:
+        return np.zeros((0, 2), np.int32)
+    if not np.issubdtype(arr.dtype, np.integer):
+        if not np.all(np.equal(np.mod(arr, 1), 0)):
+            raise ValueError("cells must be integer cell indices (ix, iy); convert positions in metres "
+                             "with difflattice.sensors.probe_cells or line_cells")
+    return arr.astype(np.int32).reshape(-1, 2)
 
 
 def line_cells(

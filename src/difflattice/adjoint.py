@@ -1,0 +1,278 @@
+"""Reverse mode by the adjoint wave equation: the gradient of a run is a second wave simulation
+run backwards in time (`run(..., adjoint="lattice")`).
+
+JAX's own reverse mode of the scan stores a full field per step for coefficient gradients and
+transposes the stencil into padded copies; here the backward pass is the same fused stencil as
+the forward pass:
+
+- adjoint fields: with ``S(p, p') = keep ((2 p - (1 - s) p' + D p) / (1 + s))`` and
+  ``a = keep g / (1 + s)``, the cotangents of (p(n), p(n-1)) are ``2 a + D^T a + g'`` and
+  ``-(1 - s) a``, where ``D^T a = q_scale L(K a)`` (L is symmetric);
+- source gradients: the adjoint field at the source cells, chained through the drive signal;
+- coefficient gradients (medium maps, shapes): per step, the cotangent of the lattice
+  coefficients at the forward fields, which are recomputed chunk by chunk from states saved
+  every ``chunk`` steps (memory ~ sqrt(n_steps) fields with ``chunk = sqrt(n_steps)``).
+  When no coefficient is differentiated, nothing is saved or recomputed.
+
+Supported: the leapfrog stepper (no PML, no Mur edges, no absorption, not the "paper" model),
+starting at rest, recording probes, phasors and the final fields. `supports` says why not
+otherwise; `run(..., adjoint="auto")` then falls back to JAX's reverse mode. The plain JAX path is
+the reference: tests compare the two.
+"""
+
+from __future__ import annotations
+
+import math
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+
+def supports(stepper, state=None) -> str | None:
+    """None if the adjoint path handles this scene, otherwise the reason it does not."""
+    lat = stepper.lattice
+    sens = stepper.sensors
+    if stepper.staggered:
+        return "a PML edge (staggered split-field step)"
+    if any(lat.mur):
+        return "Mur edges"
+    if lat.eta != 0:
+        return "absorption (viscous term)"
+    if lat.ax_lo is not None:
+        return 'the "paper" boundary model (non-symmetric operator)'
+    if state is not None:
+        return "a start state other than rest"
+    if sens.p_max or sens.p_rms or sens.arrival_threshold_pa or sens.snapshot_every is not None:
+        return "nonlinear or field-history sensors (p_max, p_rms, arrival, snapshots)"
+    return None
+
+
+def _linear_step(lat, p, p_prev):
+    """The source-free leapfrog step S(p, p_prev) (the stepper's, restricted to supported scenes)."""
+    from .solver import operator
+
+    d = operator(lat, p)
+    if lat.sponge is None:
+        new = 2 * p - p_prev + d
+    else:
+        new = (2 * p - (1 - lat.sponge) * p_prev + d) / (1 + lat.sponge)
+    return new if lat.keep is None else lat.keep * new
+
+
+def _angles(grid, sensors, n):
+    f = sensors.phasor_frequency_hz or grid.frequency_hz
+    w = grid.hz_to_lattice_omega(f)
+    return (n.astype(grid.jnp_dtype) * w) % (2 * math.pi)
+
+
+def _forward(stepper, n_steps: int, chunk: int, save: bool):
+    """Run from rest; returns (probes, phasor_re, phasor_im, p, p_prev, peaks, starts)."""
+    n_chunks, rem = divmod(n_steps, chunk)
+
+    def one(st, _):
+        return stepper.step(st)
+
+    def outer(st, _):
+        start = (st.p, st.p_prev) if save else None
+        st, ys = jax.lax.scan(one, st, None, length=chunk, unroll=min(2, chunk))
+        return st, (ys, jnp.max(jnp.abs(st.p)), start)
+
+    st = stepper.init()
+    st, (ys, peaks, starts) = jax.lax.scan(outer, st, None, length=n_chunks)
+    if ys is not None:
+        ys = ys.reshape(n_chunks * chunk, -1)
+    rem_start = None
+    if rem:
+        rem_start = (st.p, st.p_prev) if save else None
+        st, ys_r = jax.lax.scan(one, st, None, length=rem, unroll=min(2, rem))
+        peaks = jnp.concatenate([peaks, jnp.max(jnp.abs(st.p))[None]])
+        if ys is not None:
+            ys = jnp.concatenate([ys, ys_r.reshape(rem, -1)], axis=0)
+    return (ys, st.phasor_re, st.phasor_im, st.p, st.p_prev, peaks), (starts, rem_start)
+
+
+@eqx.filter_custom_vjp
+def linear_run(stepper, n_steps: int, chunk: int):
+    """Outputs (probes, phasor_re, phasor_im, p_final, p_prev_final, peak_history)."""
+    return _forward(stepper, n_steps, chunk, save=False)[0]
+
+
+@linear_run.def_fwd
+def _linear_run_fwd(perturbed, stepper, n_steps, chunk):
+    save = _lattice_perturbed(perturbed)  # coefficient gradients need the forward fields
+    out, starts = _forward(stepper, n_steps, chunk, save=save)
+    return out, starts
+
+
+def _lattice_perturbed(perturbed) -> bool:
+    return any(jax.tree_util.tree_leaves(perturbed.lattice))
+
+
+@linear_run.def_bwd
+def _linear_run_bwd(starts, grads, perturbed, stepper, n_steps, chunk):
+    lat = stepper.lattice
+    grid, sens = stepper.grid, stepper.sensors
+    dtype = grid.jnp_dtype
+    shape = grid.shape
+    g_probes, g_re, g_im, g_p, g_pp, _ = grads
+    zeros = jnp.zeros(shape, dtype)
+    g1 = zeros if g_p is None else g_p.astype(dtype)
+    g0 = zeros if g_pp is None else g_pp.astype(dtype)
+    want_lat = _lattice_perturbed(perturbed)
+    m = sens.n_phasors
+    use_phasors = m and (g_re is not None or g_im is not None)
+    g_re = jnp.zeros(m, dtype) if (m and g_re is None) else g_re
+    g_im = jnp.zeros(m, dtype) if (m and g_im is None) else g_im
+    n_probes = sens.n_probes
+    if n_probes and g_probes is None:
+        g_probes = jnp.zeros((n_steps, n_probes), dtype)
+
+    def inject(g, n_next, probe_row):
+        """Cotangents of the outputs recorded at step n_next, added to that step's field."""
+        if n_probes:
+            c = sens.probes
+            g = g.at[c[:, 0], c[:, 1]].add(probe_row)
+        if use_phasors:
+            c = sens.phasor_cells
+            ang = _angles(grid, sens, n_next)
+            g = g.at[c[:, 0], c[:, 1]].add(g_re * jnp.cos(ang) + g_im * jnp.sin(ang))
+        return g
+
+    from .solver import stencil
+
+    # lattice fields whose gradients are wanted (the step reads K, q_scale, bx, by, keep, sponge)
+    fields_wanted = tuple(
+        f for f in ("K", "q_scale", "bx", "by", "keep", "sponge")
+        if getattr(lat, f) is not None and any(jax.tree_util.tree_leaves(getattr(perturbed.lattice, f)))
+    ) if want_lat else ()
+
+    need_prev = "keep" in fields_wanted or "sponge" in fields_wanted
+
+    def lattice_ct(g, a, ka, p_n, p_nm1):
+        """Cotangents of the step's coefficients at the forward fields (p(n), p(n-1)), by hand:
+        dK = a L(q), dq_scale = p L(K a), db = -grad(q) grad(K a) per face, dkeep = g u,
+        dsponge = a (p(n-1) - u) with u the step before `keep`."""
+        out = {}
+        q = p_n if lat.q_scale is None else lat.q_scale * p_n
+        need_lq = any(f in fields_wanted for f in ("K", "keep", "sponge"))
+        lq = stencil(lat, q) if need_lq else None
+        if "K" in fields_wanted:
+            v = a * lq
+            out["K"] = jnp.sum(v) if jnp.ndim(lat.K) == 0 else v
+        if "q_scale" in fields_wanted:
+            out["q_scale"] = p_n * stencil(lat, ka)
+        for f, axis in (("bx", 0), ("by", 1)):
+            if f in fields_wanted:
+                qp, kp = jnp.pad(q, 1), jnp.pad(ka, 1)
+                if axis == 0:
+                    out[f] = -(qp[1:, 1:-1] - qp[:-1, 1:-1]) * (kp[1:, 1:-1] - kp[:-1, 1:-1])
+                else:
+                    out[f] = -(qp[1:-1, 1:] - qp[1:-1, :-1]) * (kp[1:-1, 1:] - kp[1:-1, :-1])
+        if "keep" in fields_wanted or "sponge" in fields_wanted:
+            s_ = lat.sponge
+            u = 2 * p_n - p_nm1 + lat.K * lq if s_ is None else (2 * p_n - (1 - s_) * p_nm1 + lat.K * lq) / (1 + s_)
+            if "keep" in fields_wanted:
+                out["keep"] = g * u
+            if "sponge" in fields_wanted:
+                out["sponge"] = a * (p_nm1 - u)
+        return out
+
+    def back_step(carry, xs):
+        """From the cotangents of (p(n+1), p(n)) to those of (p(n), p(n-1))."""
+        g1, g0, lat_ct = carry
+        n_next, probe_row, fields = xs
+        g1 = inject(g1, n_next, probe_row)
+        src_ct = []
+        for src in reversed(stepper.sources):
+            c = src.cells
+            src_ct.append(g1[c[:, 0], c[:, 1]])
+            if src.injection == "hard":
+                g1 = g1.at[c[:, 0], c[:, 1]].set(0.0)
+        src_ct = tuple(reversed(src_ct))
+        a = g1 if lat.keep is None else lat.keep * g1
+        if lat.sponge is not None:
+            a = a / (1 + lat.sponge)
+        ka = lat.K * a
+        y = stencil(lat, ka)
+        if fields_wanted:
+            p_n, p_nm1 = fields if need_prev else (fields, None)
+            ct = lattice_ct(g1, a, ka, p_n, p_nm1)
+            lat_ct = {k: lat_ct[k] + ct[k] for k in lat_ct}
+        new_g1 = 2 * a + (y if lat.q_scale is None else lat.q_scale * y) + g0
+        new_g0 = -a if lat.sponge is None else -(1 - lat.sponge) * a
+        return (new_g1, new_g0, lat_ct), src_ct
+
+    lat_ct0 = {f: jnp.zeros(jnp.shape(getattr(lat, f)), dtype) for f in fields_wanted}
+    probes_all = g_probes if n_probes else None
+
+    def segment(carry, n_first, length, start):
+        """Backward over steps n_first+1 .. n_first+length (recomputing their fields if needed)."""
+        ns = n_first + 1 + jnp.arange(length)
+        rows = None if probes_all is None else jax.lax.dynamic_slice_in_dim(probes_all, n_first, length, 0)
+        fields = None
+        if fields_wanted:
+            p_start, pp_start = start
+
+            def fwd_one(c, n_next):
+                p, pp = c
+                new = _linear_step(lat, p, pp)
+                t = n_next.astype(dtype) * grid.dt_s
+                for src in stepper.sources:
+                    cc = src.cells
+                    v = src.values(t)
+                    new = new.at[cc[:, 0], cc[:, 1]].add(v) if src.injection == "soft" else new.at[cc[:, 0], cc[:, 1]].set(v)
+                return (new, p), ((p, pp) if need_prev else p)
+
+            _, fields = jax.lax.scan(fwd_one, (p_start, pp_start), ns, unroll=min(2, length))
+        carry, src_ct = jax.lax.scan(back_step, carry, (ns, rows, fields), reverse=True, unroll=min(2, length))
+        return carry, src_ct
+
+    n_chunks, rem = divmod(n_steps, chunk)
+    full_starts, rem_start = starts
+    carry = (g1, g0, lat_ct0)
+    pieces = []
+    if rem:
+        carry, ct = segment(carry, jnp.asarray(n_chunks * chunk, jnp.int32), rem, rem_start)
+        pieces.append(ct)
+    if n_chunks:
+        def chunk_back(carry, xs):
+            k, start = xs
+            return segment(carry, k * chunk, chunk, start)
+
+        ks = jnp.arange(n_chunks, dtype=jnp.int32)
+        carry, cts = jax.lax.scan(chunk_back, carry, (ks, full_starts), reverse=True)
+        cts = tuple(x.reshape(n_chunks * chunk, -1) for x in cts)
+        pieces.insert(0, cts)
+    src_cts = tuple(jnp.concatenate([pc[i] for pc in pieces], axis=0) for i in range(len(stepper.sources)))
+    _, _, lat_ct = carry
+
+    # chain the per-step source cotangents through the drive signals (weights, lags)
+    t_all = (jnp.arange(1, n_steps + 1)).astype(dtype) * grid.dt_s
+    src_grads = []
+    for src, ct in zip(stepper.sources, src_cts):
+        _, vjp = jax.vjp(lambda s: jax.vmap(s.values)(t_all), src)
+        (g,) = vjp(ct.astype(dtype))
+        src_grads.append(g)
+
+    out = jax.tree_util.tree_map(lambda _: None, stepper)
+    sources_ct = tuple(_mask(g, pt) for g, pt in zip(src_grads, perturbed.sources))
+    out = eqx.tree_at(lambda s: s.sources, out, sources_ct, is_leaf=lambda x: x is None)
+    if fields_wanted:
+        lat_grad = jax.tree_util.tree_map(lambda _: None, lat)
+        names = tuple(lat_ct)
+        lat_grad = eqx.tree_at(lambda L: tuple(getattr(L, f) for f in names), lat_grad,
+                               tuple(lat_ct[f] for f in names), is_leaf=lambda x: x is None)
+        out = eqx.tree_at(lambda s: s.lattice, out, lat_grad, is_leaf=lambda x: x is None)
+    return out
+
+
+def _mask(grad_tree, perturbed_tree):
+    """Keep the gradient leaves whose perturbed flag is True; None elsewhere."""
+    g_leaves, treedef = jax.tree_util.tree_flatten(grad_tree, is_leaf=lambda x: x is None)
+    p_leaves = jax.tree_util.tree_leaves(perturbed_tree, is_leaf=lambda x: x is None)
+    if len(g_leaves) != len(p_leaves):
+        raise AssertionError("internal: gradient and perturbed trees differ")
+    return jax.tree_util.tree_unflatten(
+        treedef, [g if (p is True and g is not None) else None for g, p in zip(g_leaves, p_leaves)]
+    )

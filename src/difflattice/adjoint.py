@@ -128,15 +128,18 @@ def _linear_run_bwd(starts, grads, perturbed, stepper, n_steps, chunk):
     if n_probes and g_probes is None:
         g_probes = jnp.zeros((n_steps, n_probes), dtype)
 
-    def inject(g, n_next, probe_row):
-        """Cotangents of the outputs recorded at step n_next, added to that step's field."""
+    def inject(g, n, probe_row):
+        """Cotangents of the outputs recorded at step n (none at step 0), added to that step's
+        field. Done at the end of each backward step, after the stencil (as the forward step
+        adds its sources last), so XLA keeps the stencil's padded input fused."""
         if n_probes:
             c = sens.probes
             g = g.at[c[:, 0], c[:, 1]].add(probe_row)
         if use_phasors:
             c = sens.phasor_cells
-            ang = _angles(grid, sens, n_next)
-            g = g.at[c[:, 0], c[:, 1]].add(g_re * jnp.cos(ang) + g_im * jnp.sin(ang))
+            ang = _angles(grid, sens, n)
+            w = jnp.where(n > 0, 1.0, 0.0).astype(dtype)
+            g = g.at[c[:, 0], c[:, 1]].add(w * (g_re * jnp.cos(ang) + g_im * jnp.sin(ang)))
         return g
 
     from .solver import stencil
@@ -182,7 +185,6 @@ def _linear_run_bwd(starts, grads, perturbed, stepper, n_steps, chunk):
         """From the cotangents of (p(n+1), p(n)) to those of (p(n), p(n-1))."""
         g1, g0, lat_ct = carry
         n_next, probe_row, fields = xs
-        g1 = inject(g1, n_next, probe_row)
         src_ct = []
         for src in reversed(stepper.sources):
             c = src.cells
@@ -200,11 +202,14 @@ def _linear_run_bwd(starts, grads, perturbed, stepper, n_steps, chunk):
             ct = lattice_ct(g1, a, ka, p_n, p_nm1)
             lat_ct = {k: lat_ct[k] + ct[k] for k in lat_ct}
         new_g1 = 2 * a + (y if lat.q_scale is None else lat.q_scale * y) + g0
+        new_g1 = inject(new_g1, n_next - 1, probe_row)
         new_g0 = -a if lat.sponge is None else -(1 - lat.sponge) * a
         return (new_g1, new_g0, lat_ct), src_ct
 
     lat_ct0 = {f: jnp.zeros(jnp.shape(getattr(lat, f)), dtype) for f in fields_wanted}
-    probes_all = g_probes if n_probes else None
+    # row n of probes_all: the cotangent of the probes recorded at step n (row 0: none)
+    probes_all = jnp.concatenate([jnp.zeros((1, n_probes), dtype), g_probes.astype(dtype)]) if n_probes else None
+    g1 = inject(g1, jnp.asarray(n_steps, jnp.int32), None if probes_all is None else probes_all[n_steps])
 
     def segment(carry, n_first, length, start):
         """Backward over steps n_first+1 .. n_first+length (recomputing their fields if needed)."""

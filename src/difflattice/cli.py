@@ -77,6 +77,19 @@ def _accuracy(args) -> int:
     return 0
 
 
+def _design(args) -> int:
+    from .design import presets
+
+    kw = dict(cells_per_wavelength=args.cells_per_wavelength, wall=args.wall, steps=args.steps,
+              check_gradients=not args.no_gradient_check, progress=not args.quiet)
+    if args.what == "horn":
+        s = presets.design_horn(args.out, target_deg=args.target_deg, **kw)
+    else:
+        s = presets.design_reflector(args.out, **kw)
+    print(f"{presets.one_line(s)}; wrote {args.out}/report.md")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="difflattice", description="Differentiable lattice-gas ultrasound simulator")
     sub = p.add_subparsers(dest="command", required=True)
@@ -127,6 +140,17 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--out", type=Path, default=Path("out/accuracy"))
     a.set_defaults(func=_accuracy)
 
+    z = sub.add_parser("design", help="optimise a horn (target beam width) or a reflector (on-axis gain) from the paper's shapes")
+    z.add_argument("what", choices=["horn", "reflector"])
+    z.add_argument("--out", type=Path, required=True, help="report directory")
+    z.add_argument("--cells-per-wavelength", type=float, default=8.0)
+    z.add_argument("--target-deg", type=float, default=8.0, help="horn: target -6 dB beam width at 1 m, deg")
+    z.add_argument("--wall", default="soft", help="soft (the paper's speed-zero walls), rigid or a fluid material")
+    z.add_argument("--steps", type=int, default=15, help="BFGS steps")
+    z.add_argument("--no-gradient-check", action="store_true")
+    z.add_argument("--quiet", action="store_true")
+    z.set_defaults(func=_design)
+
     try:
         from .capture.cli import register
     except ImportError:  # pragma: no cover - capture is part of the package
@@ -139,7 +163,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    if args.command in ("simulate", "gallery", "demo", "fit", "accuracy"):
+    if args.command in ("simulate", "gallery", "demo", "fit", "accuracy", "design"):
         from .jaxconfig import configure
 
         configure()

@@ -145,3 +145,116 @@ def union_occupancy(occupancies: Sequence[Array]) -> Array:
     for o in occupancies:
         free = free * (1 - o)
     return 1 - free
+
+
+# ------------------------------------------------------------------------------------------
+# Design shapes: a flared horn and a parabolic mirror, smooth in every parameter.
+
+
+def flare_profile(u, flare):
+    """Normalised horn profile f(u) on u in [0, 1]: f(0) = 0, f(1) = 1, monotone for any `flare`.
+
+    ``f = expm1(flare u) / expm1(flare)``: flare = 0 is the cone (f = u), flare > 0 an
+    exponential (tractrix-like) horn that opens fastest at the mouth, flare < 0 one that opens
+    fastest at the throat. Near flare = 0 a series keeps value and gradient finite."""
+    m = jnp.asarray(flare)
+    small = jnp.abs(m) < 1e-4
+    ms = jnp.where(small, 1.0, m)
+    exact = jnp.expm1(ms * u) / jnp.expm1(ms)
+    series = u + 0.5 * m * u * (u - 1) + m * m * u * (u - 1) * (2 * u - 1) / 12
+    return jnp.where(small, series, exact)
+
+
+def flare_slope(u, flare):
+    """df/du of `flare_profile` (for the wall normals)."""
+    m = jnp.asarray(flare)
+    small = jnp.abs(m) < 1e-4
+    ms = jnp.where(small, 1.0, m)
+    exact = ms * jnp.exp(ms * u) / jnp.expm1(ms)
+    series = 1 + 0.5 * m * (2 * u - 1) + m * m * (6 * u * u - 6 * u + 1) / 12
+    return jnp.where(small, series, exact)
+
+
+def polyline_distance(x, y, points):
+    """Distance from (x, y) to an open chain of segments through `points` (n, 2), vectorised over
+    the segments (one broadcast instead of a Python loop: fast to compile and differentiate)."""
+    p = jnp.asarray(points)
+    a, b = p[:-1], p[1:]
+    ax, ay = a[:, 0].reshape((-1,) + (1,) * jnp.ndim(x)), a[:, 1].reshape((-1,) + (1,) * jnp.ndim(x))
+    bx, by = b[:, 0].reshape(ax.shape), b[:, 1].reshape(ax.shape)
+    abx, aby = bx - ax, by - ay
+    apx, apy = x - ax, y - ay
+    t = jnp.clip((apx * abx + apy * aby) / (abx * abx + aby * aby + 1e-30), 0.0, 1.0)
+    return jnp.min(jnp.hypot(apx - t * abx, apy - t * aby), axis=0)
+
+
+class HornWalls(Shape):
+    """Two walls of a 2-D horn (a slot in the plane) along +x from the throat centre `throat_centre_m`.
+
+    The inner faces follow y = ±w(x)/2 with w = throat + (mouth - throat) f(x / length) (see
+    `flare_profile`), so the opening grows monotonically from `throat_m` to `mouth_m` over
+    `length_m`; each wall is `wall_m` thick (its centre line is offset along the local normal, so
+    the inner face is the profile at the sample points). `n_points` (static) samples per wall.
+    """
+
+    throat_centre_m: Float[Array, "2"]
+    throat_m: Float[Array, ""]
+    mouth_m: Float[Array, ""]
+    length_m: Float[Array, ""]
+    wall_m: Float[Array, ""]
+    flare: Float[Array, ""]
+    n_points: int = eqx.field(static=True, default=17)
+
+    def centre_lines(self):
+        """(upper, lower) wall centre lines, each (n_points, 2) in metres."""
+        c = jnp.asarray(self.throat_centre_m)
+        u = jnp.linspace(0.0, 1.0, self.n_points)
+        half = 0.5 * self.throat_m + 0.5 * (self.mouth_m - self.throat_m) * flare_profile(u, self.flare)
+        slope = 0.5 * (self.mouth_m - self.throat_m) * flare_slope(u, self.flare) / self.length_m  # dy/dx
+        norm = jnp.sqrt(1 + slope * slope)
+        x = c[0] + u * self.length_m - 0.5 * self.wall_m * slope / norm
+        dy = half + 0.5 * self.wall_m / norm
+        upper = jnp.stack([x, c[1] + dy], axis=1)
+        lower = jnp.stack([x, c[1] - dy], axis=1)
+        return upper, lower
+
+    def walls(self) -> tuple[Polyline, Polyline]:
+        up, lo = self.centre_lines()
+        t = jnp.asarray(self.wall_m)
+        return Polyline(up, t), Polyline(lo, t)
+
+    def sdf(self, x, y):
+        up, lo = self.centre_lines()
+        d = jnp.minimum(polyline_distance(x, y, up), polyline_distance(x, y, lo))
+        return d - 0.5 * self.wall_m
+
+
+class ParabolicMirror(Shape):
+    """A parabolic reflector with its focus at `focus_m`, opening towards +x.
+
+    The reflecting face is x = x_f - f + y^2 / (4 f) for |y - y_f| <= aperture / 2 (f =
+    `focal_m`, vertex f behind the focus); the wall, `wall_m` thick, lies behind the face (centre
+    line offset along the normal). `n_points` (static) samples of the face.
+    """
+
+    focus_m: Float[Array, "2"]
+    focal_m: Float[Array, ""]
+    aperture_m: Float[Array, ""]
+    wall_m: Float[Array, ""]
+    n_points: int = eqx.field(static=True, default=33)
+
+    def centre_line(self):
+        """The wall's centre line, (n_points, 2) in metres."""
+        c = jnp.asarray(self.focus_m)
+        s = jnp.linspace(-0.5, 0.5, self.n_points) * self.aperture_m
+        x = c[0] - self.focal_m + s * s / (4 * self.focal_m)
+        slope = s / (2 * self.focal_m)  # dx/dy of the face
+        norm = jnp.sqrt(1 + slope * slope)
+        # behind the face: direction -(1, -slope) / norm
+        return jnp.stack([x - 0.5 * self.wall_m / norm, c[1] + s + 0.5 * self.wall_m * slope / norm], axis=1)
+
+    def wall(self) -> Polyline:
+        return Polyline(self.centre_line(), jnp.asarray(self.wall_m))
+
+    def sdf(self, x, y):
+        return polyline_distance(x, y, self.centre_line()) - 0.5 * self.wall_m

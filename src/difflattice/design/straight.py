@@ -16,14 +16,14 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from .farfield import BoxContour, far_field
-from .geometry import Segment, Union, rasterise
-from .grid import Grid, make_grid
-from .lattice import Edges
-from .medium import Medium
-from .sensors import Sensors
-from .solver import simulate
-from .source import ToneBurst, line_transducer
+from ..farfield import BoxContour, far_field
+from ..geometry import Segment, Union, rasterise
+from ..grid import Grid, make_grid
+from ..lattice import Edges
+from ..medium import Medium
+from ..sensors import Sensors
+from ..solver import simulate
+from ..source import ToneBurst, line_transducer
 
 
 class HornProblem(eqx.Module):

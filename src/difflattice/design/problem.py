@@ -1,0 +1,239 @@
+"""A design problem: a line transducer, a shape in front of (or around) it, and its far-field beam.
+
+`DesignProblem` holds only static set-up (grid, transducer, far-field contour, run length, wall
+material, angles, limits); the differentiable design is passed to its methods (`HornParams` or
+`ReflectorParams`). The chain params -> signed distance -> smooth occupancy -> medium ->
+checkpointed simulation -> contour phasors -> Kirchhoff-Helmholtz far field -> beam measures is
+differentiable end to end. The grid and contour are sized from the limits, so every admissible
+design fits inside the contour, away from the absorbing layer.
+
+Build problems with `horn_design` and `reflector_design`.
+"""
+
+from __future__ import annotations
+
+import math
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+
+from ..farfield import BoxContour, far_field
+from ..geometry import rasterise
+from ..grid import Grid, make_grid
+from ..lattice import Edges
+from ..medium import Medium, air, material
+from ..sensors import Sensors
+from ..solver import simulate
+from ..source import ToneBurst, line_transducer
+from .objectives import Goal, pattern_metrics
+from .shapes import HornLimits, HornParams, ReflectorLimits, ReflectorParams
+
+WALLS = ("rigid", "soft")
+"""Ideal wall kinds; any fluid material of `medium.MATERIALS` (e.g. "pine") is also accepted."""
+
+
+class DesignProblem(eqx.Module):
+    """Static set-up of a design (see the module docstring). `kind` is "horn" or "reflector"."""
+
+    kind: str = eqx.field(static=True)
+    grid: Grid
+    limits: HornLimits | ReflectorLimits
+    anchor_m: tuple[float, float] = eqx.field(static=True)
+    n_cells: int = eqx.field(static=True)
+    direction_deg: float = eqx.field(static=True)
+    cycles: float = eqx.field(static=True)
+    wall: str = eqx.field(static=True)
+    contour: BoxContour
+    pml_cells: int = eqx.field(static=True)
+    n_steps: int = eqx.field(static=True)
+    range_m: float = eqx.field(static=True)
+    angles_deg: tuple[float, ...] = eqx.field(static=True)
+    field_of_view_deg: float = eqx.field(static=True)
+    sector_deg: float = eqx.field(static=True)
+    reference_on_axis: float | None = eqx.field(static=True, default=None)
+    ramp_cells: float = eqx.field(static=True, default=1.0)
+
+    # -- pieces --------------------------------------------------------------------------------
+    def source(self):
+        g = self.grid
+        return line_transducer(g, self.anchor_m, n_cells=self.n_cells, direction_deg=self.direction_deg,
+                               signal=ToneBurst(g.frequency_hz, self.cycles))
+
+    @property
+    def edges(self) -> Edges:
+        return Edges(thickness_cells=self.pml_cells)
+
+    def occupancy(self, params):
+        """Smooth occupancy of the design's walls (None for no shape)."""
+        if params is None:
+            return None
+        shape = params.shape(self.anchor_m)
+        if self.ramp_cells == 1.0:
+            return rasterise(shape, self.grid, "smooth")
+        # a wider ramp (`ramp_cells` cells across the boundary) averages the sub-cell position of a
+        # wall over more cells: a smoother objective, at the price of a blurrier wall
+        g = self.grid
+        x, y = (jnp.arange(n, dtype=g.jnp_dtype) * g.dx_m for n in g.shape)
+        d = shape.sdf(x[:, None], y[None, :]) / (g.dx_m * self.ramp_cells)
+        u = jnp.clip(0.5 - d, 0.0, 1.0)
+        return u * u * (3 - 2 * u)
+
+    def medium(self, params) -> Medium:
+        """Air with the design's walls: rigid (R = +1, conservative model), soft (R = -1: the paper's
+        speed-zero walls; the conservative model's soft walls are not stable with fractional
+        occupancy) or a fluid material (speed and density blended by occupancy)."""
+        a = air(20.0)
+        occ = self.occupancy(params)
+        if occ is None:
+            return Medium(a.speed_m_s, a.density_kg_m3)
+        if self.wall == "rigid":
+            return Medium(a.speed_m_s, a.density_kg_m3, rigid=occ)
+        if self.wall == "soft":  # the paper's walls (Figs. 6-10): speed zero inside, R = -1
+            return Medium(a.speed_m_s, a.density_kg_m3, soft=occ, boundary_model="speed_zero")
+        m = material(self.wall)
+        return Medium(a.speed_m_s * (1 - occ) + m.speed_m_s * occ, a.density_kg_m3 * (1 - occ) + m.density_kg_m3 * occ)
+
+    def check(self, params):
+        """Validate explicit design parameters (ValueError naming the parameter)."""
+        return self.limits.check(params)
+
+    # -- the beam ------------------------------------------------------------------------------
+    def pattern(self, params, ranges_m: tuple[float, ...] | None = None):
+        """Complex pressure at `range_m` (or, given `ranges_m`, a tuple of patterns, one per range)
+        from the transducer centre on `angles_deg` (0 = +x, the beam axis); params None = bare
+        transducer. A range must clear the contour by about a wavelength (k R > 30)."""
+        g = self.grid
+        r = simulate(g, self.medium(params), self.source(), Sensors(phasor_cells=self.contour.cells),
+                     n_steps=self.n_steps, edges=self.edges, checkpoint="sqrt")
+        centre = (self.anchor_m[0] / g.dx_m, self.anchor_m[1] / g.dx_m)
+        ff = lambda rng: far_field(r.phasors, self.contour, g, np.asarray(self.angles_deg), rng, centre,
+                                   dispersion="continuum")
+        if ranges_m is None:
+            return ff(self.range_m)
+        return tuple(ff(rng) for rng in ranges_m)
+
+    def metrics_of(self, pattern) -> dict:
+        return pattern_metrics(pattern, self.angles_deg, reference_on_axis=self.reference_on_axis,
+                               field_of_view_deg=self.field_of_view_deg, sector_deg=self.sector_deg)
+
+    def metrics(self, params) -> dict:
+        """Beam measures of a design (see `objectives.pattern_metrics`); on-axis gain re the bare transducer."""
+        return self.metrics_of(self.pattern(params))
+
+    def loss(self, params, goal: Goal):
+        return goal.loss(self.metrics(params))
+
+    def fields(self, params, snapshot_every: int):
+        """A forward run for pictures: (snapshots, snapshot steps, p_max) as numpy arrays."""
+        r = simulate(self.grid, self.medium(params), self.source(), Sensors(p_max=True, snapshot_every=snapshot_every),
+                     n_steps=self.n_steps, edges=self.edges)
+        return np.asarray(r.snapshots), np.asarray(r.snapshot_steps), np.asarray(r.p_max)
+
+
+def _grid(frequency_hz, cells_per_wavelength, wall, shape, dtype) -> Grid:
+    """A grid whose cell size resolves air at `cells_per_wavelength`, whatever the wall material."""
+    c_air = air(20.0).speed_m_s
+    c_max = c_air
+    if wall not in WALLS:
+        m = material(wall)
+        if m.kind != "fluid":
+            raise ValueError(f"wall = {wall!r}: give 'rigid', 'soft' or a fluid material name")
+        c_max = max(c_air, m.speed_m_s)
+    return make_grid(frequency_hz=frequency_hz, cells_per_wavelength=cells_per_wavelength * c_max / c_air,
+                     c_max_m_s=c_max, shape=shape, dtype=dtype)
+
+
+def _dx(frequency_hz, cells_per_wavelength) -> float:
+    return air(20.0).speed_m_s / (frequency_hz * cells_per_wavelength)
+
+
+def _finish(kind, grid, limits, anchor_cells, n_cells, direction_deg, cycles, wall, contour, pml, n_steps,
+            range_m, angle_step_deg, field_of_view_deg, sector_deg, reference) -> DesignProblem:
+    n_a = int(round(360.0 / angle_step_deg))
+    if abs(n_a * angle_step_deg - 360.0) > 1e-9 or n_a % 2:
+        raise ValueError(f"angle_step_deg = {angle_step_deg} must divide 180 deg")
+    angles = tuple(float(a) for a in -180.0 + angle_step_deg * np.arange(n_a))
+    # an even line is centred between two cells: put the anchor (throat / focus) there too
+    anchor = (anchor_cells[0] * grid.dx_m, (anchor_cells[1] + 0.5 * (n_cells % 2 == 0)) * grid.dx_m)
+    contour.check_inside(grid, margin=pml)
+    args = dict(kind=kind, grid=grid, limits=limits, anchor_m=anchor, n_cells=n_cells, direction_deg=direction_deg,
+                cycles=cycles, wall=wall, contour=contour, pml_cells=pml, n_steps=n_steps, range_m=range_m,
+                angles_deg=angles, field_of_view_deg=field_of_view_deg, sector_deg=sector_deg)
+    bare = DesignProblem(**args)
+    if not reference:
+        return bare
+    p0 = bare.pattern(None)
+    ref = float(jnp.abs(p0[angles.index(0.0)]))
+    return DesignProblem(**args, reference_on_axis=ref)
+
+
+def _n_steps(grid: Grid, contour: BoxContour, cycles: float, traversals: float) -> int:
+    diag = math.hypot(contour.ix1 - contour.ix0, contour.iy1 - contour.iy0)
+    return int(math.ceil(traversals * diag / grid.courant + (cycles + 6) * grid.steps_per_period))
+
+
+def horn_design(*, limits: HornLimits, face_m: float, frequency_hz: float = 50e3, cells_per_wavelength: float = 8.0,
+                wall: str = "soft", cycles: float = 5.0, range_m: float = 1.0, angle_step_deg: float = 0.5,
+                field_of_view_deg: float = 90.0, sector_deg: float = 10.0, gap_cells: int = 4, pml_cells: int = 12,
+                traversals: float = 1.5, dtype: str = "float64", reference: bool = True) -> DesignProblem:
+    """A horn problem: a line transducer of diameter `face_m` facing +x at the throat of any horn
+    within `limits`. The run lasts `traversals` crossings of the contour plus the burst and six
+    periods, so the burst has left the contour when the phasors are read. `reference` runs the bare
+    transducer once for the gain's reference (False skips it: `on_axis_db` is then 0 for every design)."""
+    dx = _dx(frequency_hz, cells_per_wavelength)
+    n_cells = max(1, int(round(face_m / dx)))
+    if limits.throat_min_m < n_cells * dx - 1e-12:
+        raise ValueError(f"throat_min_m = {limits.throat_min_m:.6g} m is narrower than the transducer "
+                         f"({n_cells} cells = {n_cells * dx:.6g} m at this resolution): the walls would cover source cells")
+    if limits.wall_min_m < dx - 1e-12:
+        raise ValueError(f"wall_min_m = {limits.wall_min_m:.6g} m is thinner than one cell ({dx:.6g} m): "
+                         "the grid cannot resolve the wall; raise wall_min_m or cells_per_wavelength")
+    back = int(math.ceil(limits.wall_max_m / dx)) + 1
+    fwd = int(math.ceil((limits.length_max_m + limits.wall_max_m) / dx)) + 1
+    half = int(math.ceil((0.5 * limits.mouth_max_m + limits.wall_max_m) / dx)) + 1
+    ix0 = iy0 = pml_cells + 3
+    ix_s = ix0 + gap_cells + back
+    ix1 = ix_s + fwd + gap_cells
+    iy_s = iy0 + gap_cells + half
+    iy1 = iy_s + half + gap_cells
+    grid = _grid(frequency_hz, cells_per_wavelength, wall, (ix1 + 3 + pml_cells, iy1 + 3 + pml_cells), dtype)
+    contour = BoxContour(ix0, ix1, iy0, iy1)
+    return _finish("horn", grid, limits, (ix_s, iy_s), n_cells, 0.0, cycles, wall, contour, pml_cells,
+                   _n_steps(grid, contour, cycles, traversals), range_m, angle_step_deg, field_of_view_deg, sector_deg,
+                   reference)
+
+
+def reflector_design(*, limits: ReflectorLimits, face_m: float, frequency_hz: float = 50e3,
+                     cells_per_wavelength: float = 8.0, wall: str = "soft", cycles: float = 10.0, range_m: float = 1.0,
+                     angle_step_deg: float = 0.5, field_of_view_deg: float = 90.0, sector_deg: float = 10.0,
+                     gap_cells: int = 4, pml_cells: int = 12, traversals: float = 2.0,
+                     dtype: str = "float64", reference: bool = True) -> DesignProblem:
+    """A reflector problem: a line transducer of diameter `face_m` at the focus of a parabolic
+    mirror opening towards +x, facing the vertex (as the paper's Fig. 10)."""
+    dx = _dx(frequency_hz, cells_per_wavelength)
+    n_cells = max(1, int(round(face_m / dx)))
+    if limits.wall_min_m < dx - 1e-12:
+        raise ValueError(f"wall_min_m = {limits.wall_min_m:.6g} m is thinner than one cell ({dx:.6g} m): "
+                         "the grid cannot resolve the wall; raise wall_min_m or cells_per_wavelength")
+    half_face = 0.5 * n_cells * dx
+    f = limits.focal_min_m
+    if f - half_face**2 / (4 * f) < dx - 1e-12:
+        need = 0.5 * (dx + math.sqrt(dx * dx + half_face**2))
+        raise ValueError(f"focal_min_m = {f:.6g} m puts the mirror within a cell of the transducer's ends "
+                         f"(face {n_cells * dx:.6g} m): use focal_min_m >= {need:.6g} m")
+    rim = max(-ff + (a / 2) ** 2 / (4 * ff) for ff in (limits.focal_min_m, limits.focal_max_m)
+              for a in (limits.aperture_min_m, limits.aperture_max_m))
+    back = int(math.ceil((limits.focal_max_m + limits.wall_max_m) / dx)) + 1
+    fwd = max(int(math.ceil((rim + limits.wall_max_m) / dx)) + 1, 1)
+    half = int(math.ceil((0.5 * max(limits.aperture_max_m, n_cells * dx) + limits.wall_max_m) / dx)) + 1
+    ix0 = iy0 = pml_cells + 3
+    ix_s = ix0 + gap_cells + back
+    ix1 = ix_s + fwd + gap_cells
+    iy_s = iy0 + gap_cells + half
+    iy1 = iy_s + half + gap_cells
+    grid = _grid(frequency_hz, cells_per_wavelength, wall, (ix1 + 3 + pml_cells, iy1 + 3 + pml_cells), dtype)
+    contour = BoxContour(ix0, ix1, iy0, iy1)
+    return _finish("reflector", grid, limits, (ix_s, iy_s), n_cells, 180.0, cycles, wall, contour, pml_cells,
+                   _n_steps(grid, contour, cycles, traversals), range_m, angle_step_deg, field_of_view_deg, sector_deg,
+                   reference)

@@ -1,0 +1,72 @@
+"""A whole design study in one call: gradient check at the start, optimisation, pictures, scene
+files and a report (JSON + Markdown + PNGs) in a directory. Used by fitting/design_*.py."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from .export import write_scene
+from .objectives import Goal
+from .optimise import gradient_check, optimise
+from .problem import DesignProblem
+from .report import (fields_plot, fmt_metrics, history_plot, machine_info, patterns_plot, resolution_note,
+                     shape_plot, write_json)
+
+
+def run_study(problem: DesignProblem, start, goal: Goal, out: str | Path, *, title: str, free=None,
+              max_steps: int = 20, check_gradients: bool = True, progress: bool = True) -> dict:
+    """Optimise `start` for `goal` and write the report to `out`; returns the summary dict."""
+    from .. import plots
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    summary = {"title": title, "resolution": resolution_note(problem), "machine": machine_info(),
+               "problem": {"kind": problem.kind, "wall": problem.wall, "grid_shape": list(problem.grid.shape),
+                           "dx_m": problem.grid.dx_m, "n_steps": problem.n_steps, "range_m": problem.range_m,
+                           "transducer_cells": problem.n_cells, "burst_cycles": problem.cycles},
+               "free": list(free or type(start).NAMES)}
+    if check_gradients:
+        rows = gradient_check(problem, start, goal)
+        summary["gradient_check"] = rows
+    res = optimise(problem, start, goal, free=free, max_steps=max_steps, progress=progress)
+    summary["optimisation"] = res.summary()
+    summary["history"] = res.history
+    designs = {"start": start, "optimised": res.best}
+    pats = {"bare transducer": np.asarray(jax.jit(lambda: problem.pattern(None))())}
+    for k, p in designs.items():
+        pats[k] = np.asarray(jax.jit(problem.pattern)(p))
+    plots.save(shape_plot(problem, designs), out / "shapes.png")
+    plots.save(history_plot(res), out / "history.png")
+    plots.save(patterns_plot(problem, pats, title=f"beam at {problem.range_m} m"), out / "patterns.png")
+    plots.save(fields_plot(problem, {"bare transducer": None, **designs}), out / "fields.png")
+    for k, p in designs.items():
+        write_scene(problem, p, out / f"{k}.toml", title=f"{title}: {k} design")
+    write_json(out / "report.json", summary)
+    (out / "report.md").write_text(markdown(summary, problem))
+    return summary
+
+
+def markdown(s: dict, problem: DesignProblem) -> str:
+    o = s["optimisation"]
+    lines = [f"# {s['title']}", "", f"Resolution: {s['resolution']}.", "", f"Goal: {o['goal']} (free: {', '.join(s['free'])}).", "",
+             "| design | " + " | ".join(o["start"]) + " |", "|---|" + "---|" * len(o["start"])]
+    for k in ("start", "best"):
+        lines.append(f"| {k} | " + " | ".join(f"{v:.5g}" for v in o[k].values()) + " |")
+    lines += ["", f"- start: {fmt_metrics(o['metrics_start'], problem.sector_deg)} (loss {o['loss_start']:.4g})",
+              f"- optimised: {fmt_metrics(o['metrics_best'], problem.sector_deg)} (loss {o['loss_best']:.4g})",
+              f"- {o['optimiser_steps']} BFGS steps in {o['wall_s']:.1f} s (compilation included); converged: {o['converged']}",
+              ""]
+    if "gradient_check" in s:
+        lines += ["Gradient of the loss at the start vs central differences (step h; truncation estimate "
+                  "|D(2h) - D(h)| / 3):", "", "| parameter | h | gradient | finite difference | |error| | truncation estimate |",
+                  "|---|---|---|---|---|---|"]
+        for r in s["gradient_check"]:
+            lines.append(f"| {r['parameter']} | {r['step']:.3g} | {r['grad']:.8g} | {r['fd']:.8g} | {r['abs_error']:.2g} | "
+                         f"{r['fd_truncation_estimate']:.2g} |")
+        lines.append("")
+    lines += ["![shapes](shapes.png)", "", "![history](history.png)", "", "![patterns](patterns.png)", "",
+              "![fields](fields.png)", "", "Scene files: `start.toml`, `optimised.toml` (`difflattice simulate optimised.toml --out DIR`).", ""]
+    return "\n".join(lines)

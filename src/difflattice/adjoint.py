@@ -225,7 +225,7 @@ def _linear_run_bwd(starts, grads, perturbed, stepper, n_steps, chunk):
                 t = n_next.astype(dtype) * grid.dt_s
                 for src in stepper.sources:
                     cc = src.cells
-                    v = src.values(t)
+                    v = src.values(t).astype(dtype)
                     new = new.at[cc[:, 0], cc[:, 1]].add(v) if src.injection == "soft" else new.at[cc[:, 0], cc[:, 1]].set(v)
                 return (new, p), ((p, pp) if need_prev else p)
 

@@ -179,7 +179,10 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
                 b = b * _with_outer(openf, 1 - _edge(rigid, axis, False), 1 - _edge(rigid, axis, True), axis)
             if soft is not None:
                 # Dirichlet at the face of a soft cell: the half-cell gap doubles the conductance.
-                dbl = _faces(soft, axis, lambda l, h: 1 + l + h)
+                # Only next to a fully soft cell: a partly soft cell (smooth rasterisation) keeps
+                # unit conductance, its `keep` < 1 does the rest. (Doubling partly soft faces,
+                # 1 + s_l + s_h, made k (2 + d) < -(1 + k) possible: unstable at the Courant limit.)
+                dbl = _faces(soft, axis, lambda l, h: 1 + (l >= 1).astype(l.dtype) + (h >= 1).astype(h.dtype))
                 b = b * _with_outer(dbl, jnp.ones_like(_edge(soft, axis, False)), jnp.ones_like(_edge(soft, axis, True)), axis)
             faces.append(b)
         bx, by = faces
@@ -269,7 +272,10 @@ def _faces_pair(r_lh, pr, ps, axis, *, from_low: bool):
     """Blend the fluid R with ideal obstacles occupying the cell across the face."""
     other = (lambda v: v[1:] if axis == 0 else v[:, 1:]) if from_low else (lambda v: v[:-1] if axis == 0 else v[:, :-1])
     r_o, s_o = other(pr), other(ps)
-    return (1 - r_o - s_o) * r_lh + r_o - s_o
+    # a soft neighbour reflects with R = -1 (a = 1 - R = 2) only when fully soft: a partly soft
+    # cell (smooth rasterisation) doubling its faces made the step unstable at the Courant limit
+    s_full = (s_o >= 1).astype(s_o.dtype)
+    return (1 - r_o - s_o) * r_lh + r_o - s_full
 
 
 def _with_outer_cells(interior_faces, ones, axis, *, high: bool):

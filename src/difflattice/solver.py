@@ -254,8 +254,9 @@ class Stepper(eqx.Module):
         )
 
     def _source_values(self, n_next):
-        t = n_next.astype(self.grid.jnp_dtype) * self.grid.dt_s
-        return [s.values(t) for s in self.sources]
+        dt = self.grid.jnp_dtype
+        t = n_next.astype(dt) * self.grid.dt_s
+        return [s.values(t).astype(dt) for s in self.sources]  # weights given in another dtype
 
     def step(self, state: State) -> tuple[State, Float[Array, " n_probes"] | None]:
         """Advance one step; returns the new state and the probe pressures at the new step."""

@@ -17,7 +17,11 @@ transform / scan-line phasors). References, computed independently of the lattic
 Errors reported: max |dB| difference over the main lobe and first side lobes (reference above
 -20 dB), first-null angle (deg), wavefront arrival (max over |x| <= 10 mm, in periods), and the
 wall time of the transfer computation. The reference line has the modelled length (a whole number
-of cells), so the errors are the scheme's, not those of rounding the face to cells.
+of cells), so the errors do not include rounding the face length to cells. They do include
+sampling the face by n point cells (a midpoint rule: about 0.11 dB x (6 / cells per wavelength)^2
+of lobe error for any solver that models the face as n cells; measured against the discrete
+array of the same n point sources in benchmarks/jwave_compare.py, which isolates the solver's
+own error).
 """
 
 from __future__ import annotations

@@ -154,7 +154,13 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
             raise ValueError(f"medium.{name} has shape {jnp.shape(arr)}, expected the grid shape {shape}")
     _check_speed(c)
 
+    model = medium.boundary_model
     rigid = None if medium.rigid is None else jnp.clip(jnp.asarray(medium.rigid, dtype), 0, 1)
+    if rigid is not None and model == "conservative":
+        # A cut cell with almost no fluid left (phi < 1e-3) is closed: with K / phi its pressure
+        # follows its neighbours at negligible energy, but clusters of such cells inside a wall
+        # ring on their own (|p| ~ 0.3 of the source after 1500 steps in a rigid horn).
+        rigid = jnp.where(rigid > 1 - 1e-3, 1.0, rigid).astype(dtype)
     soft = None if medium.soft is None else jnp.clip(jnp.asarray(medium.soft, dtype), 0, 1)
     model = medium.boundary_model
     homogeneous = jnp.ndim(c) == 0 and jnp.ndim(rho) == 0 and rigid is None and soft is None

@@ -147,16 +147,16 @@ def stencil(lat: Lattice, q):
     north, south = qp[1:-1, 2:], qp[1:-1, :-2]
     bx, by = _face_coefficients(lat, q.shape, q.dtype)
     terms = []
-    for (hi, lo), b, a_hi, a_lo in (
-        ((east, west), bx, lat.ax_hi, lat.ax_lo),
-        ((north, south), by, lat.ay_hi, lat.ay_lo),
+    for axis, (hi, lo), b, a_hi, a_lo in (
+        (0, (east, west), bx, lat.ax_hi, lat.ax_lo),
+        (1, (north, south), by, lat.ay_hi, lat.ay_lo),
     ):
         if b is None and a_hi is None:
             terms.append(hi + lo - 2 * q)
             continue
         c_hi = c_lo = 1
-        if b is not None:
-            c_hi, c_lo = (b[1:], b[:-1]) if b is bx else (b[:, 1:], b[:, :-1])
+        if b is not None:  # the cell's high and low faces
+            c_hi, c_lo = (b[1:], b[:-1]) if axis == 0 else (b[:, 1:], b[:, :-1])
         if a_hi is not None:
             c_hi, c_lo = a_hi * c_hi, a_lo * c_lo
         terms.append(c_hi * (hi - q) - c_lo * (q - lo))

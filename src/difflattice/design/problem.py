@@ -173,6 +173,25 @@ def _n_steps(grid: Grid, contour: BoxContour, cycles: float, traversals: float) 
     return int(math.ceil(traversals * diag / grid.courant + (cycles + 6) * grid.steps_per_period))
 
 
+def _check_wall_resolved(wall_min_m: float, dx: float) -> None:
+    if wall_min_m < dx - 1e-12:
+        raise ValueError(f"wall_min_m = {wall_min_m:.6g} m is thinner than one cell ({dx:.6g} m): "
+                         "the grid cannot resolve the wall; raise wall_min_m or cells_per_wavelength")
+
+
+def _layout(back: int, fwd: int, half: int, gap_cells: int, pml_cells: int, frequency_hz, cells_per_wavelength,
+            wall, dtype):
+    """Grid and contour around a transducer anchored `back` cells behind and `fwd` cells before
+    the walls' reach, `half` cells either side; returns (grid, contour, anchor cell)."""
+    ix0 = iy0 = pml_cells + 3
+    ix_s = ix0 + gap_cells + back
+    ix1 = ix_s + fwd + gap_cells
+    iy_s = iy0 + gap_cells + half
+    iy1 = iy_s + half + gap_cells
+    grid = _grid(frequency_hz, cells_per_wavelength, wall, (ix1 + 3 + pml_cells, iy1 + 3 + pml_cells), dtype)
+    return grid, BoxContour(ix0, ix1, iy0, iy1), (ix_s, iy_s)
+
+
 def horn_design(*, limits: HornLimits, face_m: float, frequency_hz: float = 50e3, cells_per_wavelength: float = 8.0,
                 wall: str = "soft", cycles: float = 5.0, range_m: float = 1.0, angle_step_deg: float = 0.5,
                 field_of_view_deg: float = 90.0, sector_deg: float = 10.0, gap_cells: int = 4, pml_cells: int = 12,
@@ -186,20 +205,12 @@ def horn_design(*, limits: HornLimits, face_m: float, frequency_hz: float = 50e3
     if limits.throat_min_m < n_cells * dx - 1e-12:
         raise ValueError(f"throat_min_m = {limits.throat_min_m:.6g} m is narrower than the transducer "
                          f"({n_cells} cells = {n_cells * dx:.6g} m at this resolution): the walls would cover source cells")
-    if limits.wall_min_m < dx - 1e-12:
-        raise ValueError(f"wall_min_m = {limits.wall_min_m:.6g} m is thinner than one cell ({dx:.6g} m): "
-                         "the grid cannot resolve the wall; raise wall_min_m or cells_per_wavelength")
+    _check_wall_resolved(limits.wall_min_m, dx)
     back = int(math.ceil(limits.wall_max_m / dx)) + 1
     fwd = int(math.ceil((limits.length_max_m + limits.wall_max_m) / dx)) + 1
     half = int(math.ceil((0.5 * limits.mouth_max_m + limits.wall_max_m) / dx)) + 1
-    ix0 = iy0 = pml_cells + 3
-    ix_s = ix0 + gap_cells + back
-    ix1 = ix_s + fwd + gap_cells
-    iy_s = iy0 + gap_cells + half
-    iy1 = iy_s + half + gap_cells
-    grid = _grid(frequency_hz, cells_per_wavelength, wall, (ix1 + 3 + pml_cells, iy1 + 3 + pml_cells), dtype)
-    contour = BoxContour(ix0, ix1, iy0, iy1)
-    return _finish("horn", grid, limits, (ix_s, iy_s), n_cells, 0.0, cycles, wall, contour, pml_cells,
+    grid, contour, anchor = _layout(back, fwd, half, gap_cells, pml_cells, frequency_hz, cells_per_wavelength, wall, dtype)
+    return _finish("horn", grid, limits, anchor, n_cells, 0.0, cycles, wall, contour, pml_cells,
                    _n_steps(grid, contour, cycles, traversals), range_m, angle_step_deg, field_of_view_deg, sector_deg,
                    reference)
 
@@ -213,9 +224,7 @@ def reflector_design(*, limits: ReflectorLimits, face_m: float, frequency_hz: fl
     mirror opening towards +x, facing the vertex (as the paper's Fig. 10)."""
     dx = _dx(frequency_hz, cells_per_wavelength)
     n_cells = max(1, int(round(face_m / dx)))
-    if limits.wall_min_m < dx - 1e-12:
-        raise ValueError(f"wall_min_m = {limits.wall_min_m:.6g} m is thinner than one cell ({dx:.6g} m): "
-                         "the grid cannot resolve the wall; raise wall_min_m or cells_per_wavelength")
+    _check_wall_resolved(limits.wall_min_m, dx)
     half_face = 0.5 * n_cells * dx
     f = limits.focal_min_m
     if f - half_face**2 / (4 * f) < dx - 1e-12:
@@ -227,13 +236,7 @@ def reflector_design(*, limits: ReflectorLimits, face_m: float, frequency_hz: fl
     back = int(math.ceil((limits.focal_max_m + limits.wall_max_m) / dx)) + 1
     fwd = max(int(math.ceil((rim + limits.wall_max_m) / dx)) + 1, 1)
     half = int(math.ceil((0.5 * max(limits.aperture_max_m, n_cells * dx) + limits.wall_max_m) / dx)) + 1
-    ix0 = iy0 = pml_cells + 3
-    ix_s = ix0 + gap_cells + back
-    ix1 = ix_s + fwd + gap_cells
-    iy_s = iy0 + gap_cells + half
-    iy1 = iy_s + half + gap_cells
-    grid = _grid(frequency_hz, cells_per_wavelength, wall, (ix1 + 3 + pml_cells, iy1 + 3 + pml_cells), dtype)
-    contour = BoxContour(ix0, ix1, iy0, iy1)
-    return _finish("reflector", grid, limits, (ix_s, iy_s), n_cells, 180.0, cycles, wall, contour, pml_cells,
+    grid, contour, anchor = _layout(back, fwd, half, gap_cells, pml_cells, frequency_hz, cells_per_wavelength, wall, dtype)
+    return _finish("reflector", grid, limits, anchor, n_cells, 180.0, cycles, wall, contour, pml_cells,
                    _n_steps(grid, contour, cycles, traversals), range_m, angle_step_deg, field_of_view_deg, sector_deg,
                    reference)

@@ -67,7 +67,7 @@ def main() -> None:
     ap.add_argument("--cold", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.cold:
-        from difflattice.jaxconfig import configure
+        from difflattice.apps.jaxconfig import configure
 
         configure()
         return cold(args.cold)

@@ -8,22 +8,22 @@ here), then runs, one after the other, each in its own process and venv:
 
 1. reference (`.venv`, cached in out/jwave_compare_reference.json): for every n used below, the
    lobe at 1 m (0..60 deg, 0.05 deg) of (a) the continuous uniform line of length n dx, from
-   `difflattice.accuracy.reference` (accuracy.py's reference), and (b) the discrete array of the
+   `difflattice.apps.accuracy.reference` (accuracy.py's reference), and (b) the discrete array of the
    n isotropic point sources dx apart (exact 2-D Green's function, scipy), which isolates the
    solver's error from that of replacing the face by n cells;
-2. j-Wave (`.venv-jwave`): `difflattice.accuracy`'s problem (35.7 mm line, 50 kHz, c = 343 m/s,
+2. j-Wave (`.venv-jwave`): `difflattice.apps.accuracy`'s problem (35.7 mm line, 50 kHz, c = 343 m/s,
    n = round(35.7 mm / dx) sources one dx apart) with the pseudo-spectral k-space solver
    `jwave.acoustics.simulate_wave_propagation` (default PML, 20 points; float32), a 4-cycle Hann
    tone burst (as difflattice's transfer runs), the 50 kHz phasor of the whole field taken inside
    the jitted function, then a Kirchhoff-Helmholtz transform to 1 m from a box around the
-   source(s) (continuum k, 4-term Hankel expansion as difflattice.farfield), with the spectral p
+   source(s) (continuum k, 4-term Hankel expansion as difflattice.observe.farfield), with the spectral p
    and grad p of j-Wave's field FFT-resampled to >= 16 samples per wavelength. Each source cell is
    an isotropic Gaussian mass source (sigma 1.2 cells): a single-grid-point source is a sinc x
    sinc in a pseudo-spectral code and its tails cross the contour (see NOTES). Series:
    "line" (the whole line simulated), "cell" (one source, its contour field translated over the n
    cell positions: difflattice's fast path with the solver swapped), both at CFL 0.3
    (TimeAxis.from_medium's default), and "line" at CFL 0.6;
-3. difflattice (`.venv`): `difflattice.accuracy.sweep` at 6..40 cells per wavelength, float32
+3. difflattice (`.venv`): `difflattice.apps.accuracy.sweep` at 6..40 cells per wavelength, float32
    (the official sweep; its times include the wavefront block; its "lattice" far-field rows, the
    lattice's own dispersion over 1 m, feed the projection below), and lobe-only runs of the same
    `free_field_transfer` call ("continuum" far field) up to 20 cells per wavelength, float32 and
@@ -108,7 +108,7 @@ def lobe_errors(lobe, ref) -> dict:
 def role_reference(spec: dict) -> dict:
     import numpy as np
 
-    from difflattice.accuracy import reference
+    from difflattice.apps.accuracy import reference
 
     a = angles()
     out = {}
@@ -339,7 +339,7 @@ def role_difflattice(spec: dict) -> dict:
     import jax
     import numpy as np
 
-    from difflattice import accuracy
+    from difflattice.apps import accuracy
     from difflattice.fit.transfer import free_field_transfer
 
     refs = json.loads(Path(spec["ref"]).read_text())
@@ -421,12 +421,12 @@ def role_throughput_difflattice(spec: dict) -> dict:
     import jax
     import jax.numpy as jnp
 
-    from difflattice.grid import make_grid
+    from difflattice.lattice.grid import make_grid
     from difflattice.lattice import Edges
-    from difflattice.medium import Medium
-    from difflattice.sensors import Sensors
+    from difflattice.lattice.medium import Medium
+    from difflattice.solver.sensors import Sensors
     from difflattice.solver import Stepper, run
-    from difflattice.source import ToneBurst, line_transducer
+    from difflattice.solver.sources import ToneBurst, line_transducer
 
     nx, ny, steps = spec["nx"], spec["ny"], spec["steps"]
     g = make_grid(frequency_hz=F_HZ, cells_per_wavelength=20, c_max_m_s=C_M_S, shape=(nx, ny), dtype="float32")
@@ -577,11 +577,11 @@ def write_docs(res: dict) -> None:
     if res.get("conclusion"):
         L += ["## Conclusion", "", res["conclusion"], ""]
     L += ["## Set-up", "",
-          "Problem: `difflattice.accuracy`'s case: a uniform line of n = round(35.7 mm / dx) cells one dx apart, 50 kHz, "
+          "Problem: `difflattice.apps.accuracy`'s case: a uniform line of n = round(35.7 mm / dx) cells one dx apart, 50 kHz, "
           "c = 343 m/s; lobe at 1 m, 0-60 deg in 0.05 deg steps, dB re its maximum. Error: max |dB| difference over the "
           "directions where the reference is above -20 dB (main lobe and first side lobes), against two references:",
           "",
-          "- **continuous line** of length n dx (`difflattice.accuracy.reference`, scipy Hankel quadrature): the measure "
+          "- **continuous line** of length n dx (`difflattice.apps.accuracy.reference`, scipy Hankel quadrature): the measure "
           "of accuracy.py. It includes the error of replacing the face by n point cells (midpoint rule, "
           "≈ 0.11 dB × (6 / cells per λ)², the same for any solver that models the face as n cells);",
           "- **discrete array** of the same n isotropic point sources (exact 2-D Green's function, scipy): the solver's "

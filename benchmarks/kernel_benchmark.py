@@ -45,10 +45,10 @@ def _scene(kind, nx, ny, dtype):
     """(grid, medium factory c -> Medium, edges, sensors) for a benchmark scene kind."""
     import jax.numpy as jnp
 
-    from difflattice.grid import make_grid
+    from difflattice.lattice.grid import make_grid
     from difflattice.lattice import Edges
-    from difflattice.medium import Medium
-    from difflattice.sensors import Sensors
+    from difflattice.lattice.medium import Medium
+    from difflattice.solver.sensors import Sensors
 
     g = make_grid(frequency_hz=50e3, cells_per_wavelength=20, c_max_m_s=343.0, shape=(nx, ny), dtype=dtype)
     dt = g.jnp_dtype
@@ -79,7 +79,7 @@ def jax_case(spec):
     import jax.numpy as jnp
 
     from difflattice.solver import Stepper, grid_sharding, run
-    from difflattice.source import ToneBurst, line_transducer
+    from difflattice.solver.sources import ToneBurst, line_transducer
 
     nx, ny, steps, mode = spec["nx"], spec["ny"], spec["steps"], spec["mode"]
     g, medium, edges, sensors, c0 = _scene(spec["kind"], nx, ny, spec["dtype"])

@@ -18,15 +18,15 @@ import equinox as eqx  # noqa: E402
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-from difflattice.analytic import discrete_rt  # noqa: E402
-from difflattice.geometry import Box, Segment, rasterise  # noqa: E402
-from difflattice.grid import MAX_COURANT, make_grid  # noqa: E402
+from difflattice.observe.analytic import discrete_rt  # noqa: E402
+from difflattice.lattice.geometry import Box, Segment, rasterise  # noqa: E402
+from difflattice.lattice.grid import MAX_COURANT, make_grid  # noqa: E402
 from difflattice.lattice import Edges  # noqa: E402
-from difflattice.medium import Medium  # noqa: E402
-from difflattice.sensors import Sensors  # noqa: E402
+from difflattice.lattice.medium import Medium  # noqa: E402
+from difflattice.solver.sensors import Sensors  # noqa: E402
 from difflattice.solver import Stepper, run, simulate  # noqa: E402
-from difflattice.source import PointSources, ToneBurst  # noqa: E402
-from difflattice.validation import discrete_energy, plane_wave_rt  # noqa: E402
+from difflattice.solver.sources import PointSources, ToneBurst  # noqa: E402
+from difflattice.apps.validation import discrete_energy, plane_wave_rt  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 ROWS = []

@@ -16,14 +16,14 @@ import jax
 jax.config.update("jax_enable_x64", True)
 import numpy as np  # noqa: E402
 
-from difflattice.analytic import continuum_rt, discrete_rt, lattice_wavenumber, line_array_pattern, mur_reflection  # noqa: E402
-from difflattice.farfield import box_around, far_field  # noqa: E402
-from difflattice.grid import make_grid  # noqa: E402
-from difflattice.medium import Medium  # noqa: E402
-from difflattice.sensors import Sensors  # noqa: E402
+from difflattice.observe.analytic import continuum_rt, discrete_rt, lattice_wavenumber, line_array_pattern, mur_reflection  # noqa: E402
+from difflattice.observe.farfield import box_around, far_field  # noqa: E402
+from difflattice.lattice.grid import make_grid  # noqa: E402
+from difflattice.lattice.medium import Medium  # noqa: E402
+from difflattice.solver.sensors import Sensors  # noqa: E402
 from difflattice.solver import simulate  # noqa: E402
-from difflattice.source import ToneBurst, line_transducer  # noqa: E402
-from difflattice.validation import edge_reflection_db, plane_wave_rt  # noqa: E402
+from difflattice.solver.sources import ToneBurst, line_transducer  # noqa: E402
+from difflattice.apps.validation import edge_reflection_db, plane_wave_rt  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 CASES = {

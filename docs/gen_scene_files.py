@@ -7,7 +7,7 @@ Usage (from the repository root):
 
 The part between the markers ``<!-- BEGIN GENERATED: schema -->`` and ``<!-- END GENERATED:
 schema -->`` is `difflattice.scene.schema_markdown()` (every section and key, from
-`difflattice.scene.SCHEMA`) followed by the materials table (`difflattice.medium.MATERIALS`); the
+`difflattice.scene.SCHEMA`) followed by the materials table (`difflattice.lattice.medium.MATERIALS`); the
 rest of the page is written by hand.
 """
 
@@ -25,7 +25,7 @@ END = "<!-- END GENERATED: schema -->"
 
 def generated() -> str:
     sys.path.insert(0, str(ROOT / "src"))
-    from difflattice.medium import MATERIALS
+    from difflattice.lattice.medium import MATERIALS
     from difflattice.scene import schema_markdown
 
     lines = [schema_markdown().rstrip(), "", "### Materials", "", "| name | kind | speed (m/s) | density (kg/m³) |",

@@ -24,7 +24,7 @@ def run(quick: bool = False, out_dir: Path | None = None) -> dict:
     jax.config.update("jax_enable_x64", True)
     from difflattice import plots
     from difflattice.fit.transfer import free_field_transfer
-    from difflattice.observables import lobe_metrics
+    from difflattice.observe.observables import lobe_metrics
 
     f, c, n = 50e3, 343.0, 104
     ppw = 12.0 if quick else 20.0

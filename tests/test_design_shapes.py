@@ -144,7 +144,7 @@ def test_cli_design_subcommand_parses():
 def test_material_walls_keep_the_air_resolution():
     """A pine wall: the cell still resolves air at CPW cells per wavelength; the time step follows
     pine (courant 0.707 at 3500 m/s); the wall's speed and density are blended by occupancy."""
-    from difflattice.medium import MATERIALS, air
+    from difflattice.lattice.medium import MATERIALS, air
 
     pb = horn_design(limits=HORN_LIMITS, face_m=0.010, cells_per_wavelength=CPW, wall="pine", angle_step_deg=1.0, reference=False)
     c_air, pine = air(20.0).speed_m_s, MATERIALS["pine"]

@@ -15,7 +15,7 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 from difflattice import plots  # noqa: E402
-from difflattice.gallery import (  # noqa: E402
+from difflattice.apps.gallery import (  # noqa: E402
     COMPARISONS,
     load_scaled_scene,
     render_gallery,

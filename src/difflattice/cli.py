@@ -12,8 +12,8 @@ from pathlib import Path
 
 
 def _simulate(args) -> int:
-    from .runner import run_scene, write_outputs
-    from .scene import load_scene
+    from .apps.runner import run_scene, write_outputs
+    from .scene.model import load_scene
 
     scene = load_scene(args.scene)
     if args.render_every is not None:
@@ -34,14 +34,14 @@ def _simulate(args) -> int:
 
 
 def _gallery(args) -> int:
-    from .gallery import render_gallery
+    from .apps.gallery import render_gallery
 
     render_gallery(args.out, scale=args.scale, names=args.only or None, progress=not args.quiet)
     return 0
 
 
 def _demo(args) -> int:
-    from .demo import run_demo
+    from .apps.demo import run_demo
 
     return run_demo(args.out, quick=args.quick)
 
@@ -53,7 +53,7 @@ def _fit(args) -> int:
 
 
 def _accuracy(args) -> int:
-    from . import accuracy as acc
+    from .apps import accuracy as acc
 
     cpw = tuple(args.cells_per_wavelength) if args.cells_per_wavelength else None
     if cpw is not None and min(cpw) < 4:
@@ -164,10 +164,10 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command in ("simulate", "gallery", "demo", "fit", "accuracy", "design"):
-        from .jaxconfig import configure
+        from .apps.jaxconfig import configure
 
         configure()
-    from .schema import ConfigError
+    from .scene.schema import ConfigError
 
     try:
         return int(args.func(args) or 0)

@@ -14,7 +14,7 @@ matplotlib.use("Agg") if matplotlib.get_backend().lower() not in ("agg", "pdf", 
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from .scene import MIN_PIXELS_PER_WAVELENGTH, PAPER_RENDER_EVERY, render_stride  # noqa: E402,F401
+from .scene.model import MIN_PIXELS_PER_WAVELENGTH, PAPER_RENDER_EVERY, render_stride  # noqa: E402,F401
 
 
 def field_image(

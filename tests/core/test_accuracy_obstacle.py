@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from difflattice.accuracy import (
+from difflattice.apps.accuracy import (
     _delay_steps,
     edge_sweep,
     image_source_reference,
@@ -79,7 +79,7 @@ def test_pml_reflects_less_than_mur_and_rigid():
     # oblique ones from y_lo and y_hi (images sqrt(3^2 + 8^2) away, incidence atan(3/8)). Bound each
     # by the lattice's normal-incidence |R| (analytic.mur_reflection) plus, when oblique, the
     # continuum first-order Mur (1 - cos)/(1 + cos), times the 2-D spreading sqrt(r_in / r_out).
-    from difflattice.analytic import mur_reflection
+    from difflattice.observe.analytic import mur_reflection
 
     r0 = abs(mur_reflection(2 * math.pi * 0.707 / 8, 0.707))
     th = math.atan2(3, 8)

@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from difflattice.accuracy import sweep
+from difflattice.apps.accuracy import sweep
 
 
 def test_errors_fall_with_resolution():

@@ -7,13 +7,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from difflattice.geometry import Circle, rasterise
-from difflattice.grid import make_grid
+from difflattice.lattice.geometry import Circle, rasterise
+from difflattice.lattice.grid import make_grid
 from difflattice.lattice import Edges
-from difflattice.medium import Medium
-from difflattice.sensors import Sensors
+from difflattice.lattice.medium import Medium
+from difflattice.solver.sensors import Sensors
 from difflattice.solver import simulate
-from difflattice.source import ToneBurst, line_transducer
+from difflattice.solver.sources import ToneBurst, line_transducer
 
 G = make_grid(frequency_hz=50e3, cells_per_wavelength=10, c_max_m_s=343.0, shape=(48, 40), dtype="float64")
 X = jnp.arange(48.0)[:, None] * jnp.ones((1, 40))

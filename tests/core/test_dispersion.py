@@ -12,10 +12,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from difflattice.analytic import lattice_wavenumber, phase_velocity_error
-from difflattice.grid import make_grid
+from difflattice.observe.analytic import lattice_wavenumber, phase_velocity_error
+from difflattice.lattice.grid import make_grid
 from difflattice.lattice import Edges
-from difflattice.medium import Medium
+from difflattice.lattice.medium import Medium
 from difflattice.solver import Stepper, run
 
 N_STEPS = 60

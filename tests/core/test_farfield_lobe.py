@@ -17,13 +17,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from difflattice.analytic import line_array_pattern
-from difflattice.farfield import box_around, far_field, field_at, level_db
-from difflattice.grid import make_grid
-from difflattice.medium import Medium
-from difflattice.sensors import Sensors, arc_cells
+from difflattice.observe.analytic import line_array_pattern
+from difflattice.observe.farfield import box_around, far_field, field_at, level_db
+from difflattice.lattice.grid import make_grid
+from difflattice.lattice.medium import Medium
+from difflattice.solver.sensors import Sensors, arc_cells
 from difflattice.solver import simulate
-from difflattice.source import ToneBurst, line_transducer
+from difflattice.solver.sources import ToneBurst, line_transducer
 
 
 def _run(n_cells, shape, extra_cells=None, n_steps=None, ppw=20.0):

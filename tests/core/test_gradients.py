@@ -9,13 +9,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from difflattice.geometry import Circle, rasterise
-from difflattice.grid import make_grid
+from difflattice.lattice.geometry import Circle, rasterise
+from difflattice.lattice.grid import make_grid
 from difflattice.lattice import Edges
-from difflattice.medium import Medium
-from difflattice.sensors import Sensors
+from difflattice.lattice.medium import Medium
+from difflattice.solver.sensors import Sensors
 from difflattice.solver import simulate
-from difflattice.source import ToneBurst, line_transducer
+from difflattice.solver.sources import ToneBurst, line_transducer
 
 GRID = make_grid(frequency_hz=50e3, cells_per_wavelength=10, c_max_m_s=343.0, shape=(60, 50), dtype="float64")
 SENS = Sensors(probes=[(45, 25), (40, 35)], phasor_cells=[(50, 20)])

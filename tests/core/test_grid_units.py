@@ -4,8 +4,8 @@ import math
 
 import pytest
 
-from difflattice.grid import MAX_COURANT, make_grid
-from difflattice.medium import MATERIALS, air, air_speed_m_s, reflection_coefficient
+from difflattice.lattice.grid import MAX_COURANT, make_grid
+from difflattice.lattice.medium import MATERIALS, air, air_speed_m_s, reflection_coefficient
 
 
 def test_paper_scales():

@@ -12,9 +12,9 @@ import math
 import numpy as np
 import pytest
 
-from difflattice.analytic import continuum_rt, discrete_rt, lattice_wavenumber
-from difflattice.grid import make_grid
-from difflattice.validation import edge_reflection_db, plane_wave_rt
+from difflattice.observe.analytic import continuum_rt, discrete_rt, lattice_wavenumber
+from difflattice.lattice.grid import make_grid
+from difflattice.apps.validation import edge_reflection_db, plane_wave_rt
 
 CASES = {
     "equal speeds, rho x3": (343.0, 343.0, 1.2, 3.6),
@@ -100,7 +100,7 @@ def test_pml_reflection_target():
 
 
 def test_mur_reflection_matches_its_discrete_theory():
-    from difflattice.analytic import mur_reflection
+    from difflattice.observe.analytic import mur_reflection
 
     g = make_grid(frequency_hz=50e3, cells_per_wavelength=20, c_max_m_s=343.0, shape=(3, 1))
     expected_db = 20 * math.log10(abs(mur_reflection(g.omega, g.courant)))

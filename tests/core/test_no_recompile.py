@@ -5,12 +5,12 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from difflattice.grid import make_grid
+from difflattice.lattice.grid import make_grid
 from difflattice.lattice import Edges
-from difflattice.medium import Medium
-from difflattice.sensors import Sensors
+from difflattice.lattice.medium import Medium
+from difflattice.solver.sensors import Sensors
 from difflattice.solver import Stepper, run
-from difflattice.source import PointSources, ToneBurst
+from difflattice.solver.sources import PointSources, ToneBurst
 
 G = make_grid(frequency_hz=50e3, cells_per_wavelength=10, c_max_m_s=343.0, shape=(120, 100))
 

@@ -13,12 +13,12 @@ SCRIPT = textwrap.dedent(
     import jax, jax.numpy as jnp, numpy as np
     jax.config.update("jax_enable_x64", True)
     assert len(jax.devices()) == 2, jax.devices()
-    from difflattice.grid import make_grid
+    from difflattice.lattice.grid import make_grid
     from difflattice.lattice import Edges
-    from difflattice.medium import Medium
-    from difflattice.sensors import Sensors
+    from difflattice.lattice.medium import Medium
+    from difflattice.solver.sensors import Sensors
     from difflattice.solver import simulate, grid_sharding
-    from difflattice.source import line_transducer, ToneBurst
+    from difflattice.solver.sources import line_transducer, ToneBurst
 
     g = make_grid(frequency_hz=50e3, cells_per_wavelength=10, c_max_m_s=343.0, shape=(96, 70), dtype="float64")
     x = jnp.arange(96.0)[:, None] * jnp.ones((1, 70))

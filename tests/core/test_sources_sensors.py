@@ -8,13 +8,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from difflattice.analytic import lattice_wavenumber
-from difflattice.grid import make_grid
+from difflattice.observe.analytic import lattice_wavenumber
+from difflattice.lattice.grid import make_grid
 from difflattice.lattice import Edges
-from difflattice.medium import Medium
-from difflattice.sensors import Sensors
+from difflattice.lattice.medium import Medium
+from difflattice.solver.sensors import Sensors
 from difflattice.solver import Stepper, simulate
-from difflattice.source import PointSources, ToneBurst, line_transducer
+from difflattice.solver.sources import PointSources, ToneBurst, line_transducer
 
 G = make_grid(frequency_hz=50e3, cells_per_wavelength=12, c_max_m_s=343.0, shape=(80, 70), dtype="float64")
 E = Edges(thickness_cells=12)

@@ -9,13 +9,13 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from difflattice.grid import MAX_COURANT, make_grid
+from difflattice.lattice.grid import MAX_COURANT, make_grid
 from difflattice.lattice import Edges
-from difflattice.medium import Medium
-from difflattice.sensors import Sensors
+from difflattice.lattice.medium import Medium
+from difflattice.solver.sensors import Sensors
 from difflattice.solver import INSTABILITY_MESSAGE, Stepper, check_result, run, simulate
-from difflattice.source import PointSources, ToneBurst
-from difflattice.validation import discrete_energy
+from difflattice.solver.sources import PointSources, ToneBurst
+from difflattice.apps.validation import discrete_energy
 
 
 def _box(dtype, courant=MAX_COURANT, n=64):
@@ -109,8 +109,8 @@ def test_smoothly_rasterised_obstacles_stay_bounded_at_the_courant_limit(model, 
     the step. Regression: the conservative form once doubled the conductance of partly soft
     faces (1 + s_l + s_h) and grew by 1e46 within 100 steps. A closed box at exactly 1/sqrt(2):
     an instability grows by orders of magnitude, so 'bounded' is a peak below 2x the early peak."""
-    from difflattice.geometry import Circle, rasterise
-    from difflattice.source import line_transducer
+    from difflattice.lattice.geometry import Circle, rasterise
+    from difflattice.solver.sources import line_transducer
 
     g = make_grid(frequency_hz=50e3, cells_per_wavelength=10, c_max_m_s=343.0, shape=(64, 64),
                   courant=MAX_COURANT, dtype="float64")
@@ -133,8 +133,8 @@ def test_smooth_rigid_obstacle_does_not_trap_energy():
     as a ringing resonator. Regression: with K unchanged in partly rigid cells and product face
     apertures, the residual stayed 300x above the hard disc's after 3000 steps. Bound: 3x (the
     two tails differ by the sub-cell shape, an O(1) factor)."""
-    from difflattice.geometry import Circle, rasterise
-    from difflattice.source import line_transducer
+    from difflattice.lattice.geometry import Circle, rasterise
+    from difflattice.solver.sources import line_transducer
 
     g = make_grid(frequency_hz=50e3, cells_per_wavelength=8, c_max_m_s=343.0, shape=(120, 100), dtype="float64")
     src = line_transducer(g, (30 * g.dx_m, 50 * g.dx_m), n_cells=9, signal=ToneBurst(50e3, 4))

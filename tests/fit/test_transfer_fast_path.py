@@ -13,13 +13,13 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
-from difflattice.farfield import box_around, field_at
+from difflattice.observe.farfield import box_around, field_at
 from difflattice.fit.transfer import _source_spectrum, free_field_transfer
-from difflattice.grid import make_grid
-from difflattice.medium import Medium
-from difflattice.sensors import Sensors
+from difflattice.lattice.grid import make_grid
+from difflattice.lattice.medium import Medium
+from difflattice.solver.sensors import Sensors
 from difflattice.solver import simulate
-from difflattice.source import PointSources, ToneBurst
+from difflattice.solver.sources import PointSources, ToneBurst
 
 
 def test_fast_path_equals_direct_line_simulation():

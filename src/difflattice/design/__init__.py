@@ -1,4 +1,4 @@
-"""Gradient-based horn and reflector design (issue 7).
+"""Gradient-based horn and reflector design.
 
 - `shapes`: differentiable designs (`HornParams`, `ReflectorParams`) and their limits
   (`HornLimits`, `ReflectorLimits`: validation and the constraint-keeping reparameterisation);
@@ -7,16 +7,14 @@
 - `problem`: `horn_design` / `reflector_design` build a `DesignProblem` (grid, transducer,
   far-field contour) whose `metrics(params)` is differentiable through the whole simulation;
 - `optimise`: BFGS (optimistix) over the reparameterised design with progress and history;
-- `export`: a design as a scene TOML file for `difflattice simulate`;
-- `straight`: the first piece (two straight walls at a half-angle, directivity objective).
+- `export`: a design as a scene TOML file for `difflattice simulate`.
 """
 
 from .objectives import Goal, pattern_metrics
 from .problem import DesignProblem, horn_design, reflector_design
 from .shapes import HornLimits, HornParams, ReflectorLimits, ReflectorParams
-from .straight import HornProblem, horn_problem, optimise_horn
 
 __all__ = [
-    "DesignProblem", "Goal", "HornLimits", "HornParams", "HornProblem", "ReflectorLimits", "ReflectorParams",
-    "horn_design", "horn_problem", "optimise_horn", "pattern_metrics", "reflector_design",
+    "DesignProblem", "Goal", "HornLimits", "HornParams", "ReflectorLimits", "ReflectorParams",
+    "horn_design", "pattern_metrics", "reflector_design",
 ]

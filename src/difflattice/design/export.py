@@ -51,7 +51,7 @@ def scene_toml(problem: DesignProblem, params, *, title: str = "", snapshot_ever
 
 def write_scene(problem: DesignProblem, params, path: str | Path, **kwargs) -> Path:
     """Write the scene file and check that it loads (raises `SceneError` if not)."""
-    from ..scene import load_scene
+    from ..scene.model import load_scene
 
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

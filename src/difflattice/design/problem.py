@@ -18,14 +18,14 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from ..farfield import BoxContour, far_field
-from ..geometry import rasterise
-from ..grid import Grid, make_grid
-from ..lattice import Edges
-from ..medium import Medium, air, material
-from ..sensors import Sensors
-from ..solver import simulate
-from ..source import ToneBurst, line_transducer
+from ..observe.farfield import BoxContour, far_field
+from ..lattice.geometry import rasterise
+from ..lattice.grid import Grid, make_grid
+from ..lattice.coefficients import Edges
+from ..lattice.medium import Medium, air, material
+from ..solver.sensors import Sensors
+from ..solver.loop import simulate
+from ..solver.sources import ToneBurst, line_transducer
 from .objectives import Goal, pattern_metrics
 from .shapes import HornLimits, HornParams, ReflectorLimits, ReflectorParams
 

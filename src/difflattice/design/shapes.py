@@ -22,7 +22,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from ..geometry import HornWalls, ParabolicMirror
+from ..lattice.geometry import HornWalls, ParabolicMirror
 
 _EDGE = 1e-6  # pack() keeps sigmoids this far inside (0, 1): a design exactly at a limit has a finite u
 

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..schema import NUM, REQUIRED, ConfigError, schema_markdown, validate_table
+from ..scene.schema import NUM, REQUIRED, ConfigError, schema_markdown, validate_table
 
 SCHEMA = {
     "data": {

@@ -132,12 +132,12 @@ def _field_figure(fitted: FitResult, transfer: Transfer, path: Path):
     import jax.numpy as jnp
 
     from .. import plots
-    from ..grid import make_grid
-    from ..lattice import Edges
-    from ..medium import Medium
-    from ..sensors import Sensors
-    from ..solver import simulate
-    from ..source import ToneBurst, line_transducer
+    from ..lattice.grid import make_grid
+    from ..lattice.coefficients import Edges
+    from ..lattice.medium import Medium
+    from ..solver.sensors import Sensors
+    from ..solver.loop import simulate
+    from ..solver.sources import ToneBurst, line_transducer
 
     g0 = transfer.grid
     n = fitted.spec.n_cells

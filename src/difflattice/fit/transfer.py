@@ -25,13 +25,13 @@ from dataclasses import dataclass, field
 import jax.numpy as jnp
 import numpy as np
 
-from ..farfield import BoxContour, field_at
-from ..grid import Grid, make_grid
-from ..lattice import Edges
-from ..medium import Medium, air_density_kg_m3
-from ..sensors import Sensors
-from ..solver import simulate
-from ..source import PointSources, ToneBurst
+from ..observe.farfield import BoxContour, field_at
+from ..lattice.grid import Grid, make_grid
+from ..lattice.coefficients import Edges
+from ..lattice.medium import Medium, air_density_kg_m3
+from ..solver.sensors import Sensors
+from ..solver.loop import simulate
+from ..solver.sources import PointSources, ToneBurst
 
 
 @dataclass

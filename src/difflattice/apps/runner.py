@@ -17,12 +17,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from . import __version__
-from .analytic import phase_error_rad
-from .farfield import far_field, level_db
-from .observables import lobe_metrics
-from .scene import Scene
-from .solver import INSTABILITY_MESSAGE, Result, Stepper, run
+from .. import __version__
+from ..observe.analytic import phase_error_rad
+from ..observe.farfield import far_field, level_db
+from ..observe.observables import lobe_metrics
+from ..scene.model import Scene
+from ..solver.loop import INSTABILITY_MESSAGE, Result, run
+from ..solver.stepper import Stepper
 
 
 @dataclass
@@ -194,8 +195,8 @@ def write_outputs(sr: SceneRun, out_dir: str | Path, *, animate: bool = True, fr
     an animation (`animation`: "gif", "mp4" or "none"; `animate=False` is "none"). `frames` and
     `animation` default to the scene's `[output]` section. Field images render every
     `sr.render_every`-th cell."""
-    from . import plots
-    from .scene import ANIMATION_KINDS
+    from .. import plots
+    from ..scene.model import ANIMATION_KINDS
 
     out_cfg = getattr(sr.scene, "output", None) or {}
     if frames is None:

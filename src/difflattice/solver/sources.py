@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
-from .grid import Grid
+from ..lattice.grid import Grid
 
 
 class ToneBurst(eqx.Module):
@@ -195,5 +195,3 @@ def line_transducer(
     return PointSources(cells=cells, signal=sig, weights=w, lags_s=lag, injection=injection)
 
 
-# Public name matching the k-Wave vocabulary.
-LineTransducer = line_transducer

@@ -24,7 +24,7 @@ import numpy as np
 from jaxtyping import Array, Complex, Float
 
 from .analytic import lattice_wavenumber
-from .grid import Grid
+from ..lattice.grid import Grid
 
 
 class BoxContour(eqx.Module):

@@ -15,10 +15,10 @@ from __future__ import annotations
 import equinox as eqx
 import numpy as np
 
-from .grid import Grid
+from ..lattice.grid import Grid
 from jaxtyping import Array, Int
 
-from .source import as_cells
+from .sources import as_cells
 
 
 class Sensors(eqx.Module):
@@ -78,11 +78,4 @@ def arc_cells(grid: Grid, centre_m, radius_m: float, angles_deg) -> np.ndarray:
     """Cells nearest to points on an arc (angle 0 = +x, counter-clockwise towards +y)."""
     a = np.radians(np.asarray(angles_deg, dtype=float))
     pts = np.stack([centre_m[0] + radius_m * np.cos(a), centre_m[1] + radius_m * np.sin(a)], 1)
-    return probe_cells(grid, pts)
-
-
-def segment_cells(grid: Grid, start_m, stop_m, n: int) -> np.ndarray:
-    """Cells nearest to `n` points evenly spaced from `start_m` to `stop_m` (metres)."""
-    t = np.linspace(0.0, 1.0, n)[:, None]
-    pts = np.asarray(start_m, float)[None] * (1 - t) + np.asarray(stop_m, float)[None] * t
     return probe_cells(grid, pts)

@@ -35,8 +35,9 @@ def _default_scenes_dir() -> Path:
     """The repository's data/scenes when running from a checkout, else the copy installed with
     the package (difflattice/scenes: in the repository a symlink to data/scenes, packaged as
     package data)."""
-    repo = Path(__file__).resolve().parents[2] / "data" / "scenes"
-    return repo if repo.is_dir() else Path(__file__).resolve().parent / "scenes"
+    package = Path(__file__).resolve().parents[1]  # src/difflattice
+    repo = package.parents[1] / "data" / "scenes"
+    return repo if repo.is_dir() else package / "scenes"
 
 
 DEFAULT_SCENES_DIR = _default_scenes_dir()
@@ -120,7 +121,7 @@ def describe_scene(path: str | Path) -> dict:
 
 def _c_max(data: dict) -> float:
     """Speed of the fastest fluid in a scene dict, m/s (what the grid is scaled to)."""
-    from .medium import air, material
+    from ..lattice.medium import air, material
 
     med = data.get("medium", {})
     bg_name = med.get("background", "air")
@@ -196,7 +197,7 @@ def scale_scene_data(data: dict, scale: float) -> dict:
 
 def load_scaled_scene(path: str | Path, scale: float = 1.0):
     """Read a scene file, scale it (see `scale_scene_data`) and validate it into a `Scene`."""
-    from .scene import SceneError, parse_scene
+    from ..scene.model import SceneError, parse_scene
 
     path = Path(path)
     try:
@@ -229,7 +230,7 @@ def write_figure(sr, path: Path, wanted_steps, *, title: str = "") -> Path:
     """figure.png: one field panel per wanted step, at the size `figure_size_px` gives."""
     import matplotlib.pyplot as plt
 
-    from . import plots
+    from .. import plots
 
     g = sr.grid
     frames = _pick_frames(sr, wanted_steps)
@@ -262,7 +263,7 @@ def write_figure(sr, path: Path, wanted_steps, *, title: str = "") -> Path:
 def write_wavefront(sr, path: Path) -> Path | None:
     """For a scene with arrival times and probes (Fig. 3): the front's lag behind its earliest
     point along the probe line, in mm of travel, against lateral position."""
-    from . import plots
+    from .. import plots
 
     res, st, g = sr.result, sr.stepper, sr.grid
     probes = np.asarray(st.sensors.probes).reshape(-1, 2)
@@ -365,7 +366,7 @@ def render_scene(path: str | Path, out_dir: str | Path, *, scale: float = 1.0, p
                  animate: bool | None = None) -> dict:
     """Render one scene file into ``out_dir`` (its own folder); returns its gallery entry with
     file paths relative to ``out_dir``'s parent."""
-    from .medium import ResolutionWarning
+    from ..lattice.medium import ResolutionWarning
     from .runner import run_scene, write_outputs
 
     path, out = Path(path), Path(out_dir)
@@ -450,7 +451,7 @@ def render_gallery(out_dir, *, scale: float = 1.0, names=None, progress: bool = 
         "comparisons": comparisons,
         "scenes": entries,
     }
-    from . import __version__
+    from .. import __version__
 
     meta["difflattice_version"] = __version__
     (out / "gallery.json").write_text(json.dumps(meta, indent=2))

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .analytic import phase_error_rad
+from ..observe.analytic import phase_error_rad
 
 F_HZ, C_M_S, FACE_M, Z_M = 50e3, 343.0, 0.0357, 0.0165
 
@@ -56,7 +56,7 @@ def reference(angles_deg, x_m, *, length_m: float = FACE_M, range_m: float = 1.0
 
 
 def _metrics(angles, x_m, lobe, wave, ref_lobe, ref_wave) -> dict:
-    from .observables import lobe_metrics
+    from ..observe.observables import lobe_metrics
 
     ld = 20 * np.log10(np.abs(lobe) / np.abs(lobe).max())
     rd = 20 * np.log10(np.abs(ref_lobe) / np.abs(ref_lobe).max())
@@ -76,7 +76,7 @@ def sweep(cells_per_wavelength=(6, 8, 10, 14, 20, 28, 40), dtypes=("float32", "f
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    from .fit.transfer import free_field_transfer
+    from ..fit.transfer import free_field_transfer
 
     angles = np.arange(0, 60.001, 0.05)
     x_m = np.arange(-0.02, 0.02001, 0.0005)
@@ -108,7 +108,7 @@ def sweep(cells_per_wavelength=(6, 8, 10, 14, 20, 28, 40), dtypes=("float32", "f
 
 
 def write(results: dict, out_dir: str | Path) -> None:
-    from . import plots  # noqa: F401  (sets the backend)
+    from .. import plots  # noqa: F401  (sets the backend)
     import matplotlib.pyplot as plt
 
     out = Path(out_dir)
@@ -142,7 +142,7 @@ def fit_sweep(config_path, cells_per_wavelength=(8, 10, 14, 20, 28, 40)) -> dict
     user sees the cheapest resolution at which the answer stops changing."""
     import copy
 
-    from .fit.config import load_config, run_fit
+    from ..fit.config import load_config, run_fit
 
     base = load_config(config_path)
     rows = []
@@ -262,12 +262,13 @@ def run_wall(cells_per_wavelength: float, dtype: str = "float32", *, wall: str =
     import jax
     import jax.numpy as jnp
 
-    from .grid import make_grid
-    from .lattice import Edges
-    from .medium import Medium
-    from .sensors import Sensors
-    from .solver import Stepper, run
-    from .source import PointSources, ToneBurst
+    from ..lattice.grid import make_grid
+    from ..lattice.coefficients import Edges
+    from ..lattice.medium import Medium
+    from ..solver.sensors import Sensors
+    from ..solver.stepper import Stepper
+    from ..solver.loop import run
+    from ..solver.sources import PointSources, ToneBurst
 
     if wall not in ("rigid", "soft"):
         raise ValueError(f"wall = {wall!r}; allowed: 'rigid' (R = +1), 'soft' (R = -1)")
@@ -354,7 +355,7 @@ def run_wall(cells_per_wavelength: float, dtype: str = "float32", *, wall: str =
 def _path_k(omega, c, cells, origin):
     """Lattice wavenumber (radians/cell, `analytic.lattice_wavenumber`) along the straight path
     from `origin` to each cell."""
-    from .analytic import lattice_wavenumber
+    from ..observe.analytic import lattice_wavenumber
 
     d = np.asarray(cells, float) - np.asarray(origin, float)
     return lattice_wavenumber(omega, c, np.arctan2(d[:, 1], d[:, 0]))
@@ -405,11 +406,12 @@ def _edge_run(ppw: float, half_cells: int, edges, dtype: str, probes_rel, n_step
     import jax
     import jax.numpy as jnp
 
-    from .grid import make_grid
-    from .medium import Medium
-    from .sensors import Sensors
-    from .solver import Stepper, run
-    from .source import PointSources, ToneBurst
+    from ..lattice.grid import make_grid
+    from ..lattice.medium import Medium
+    from ..solver.sensors import Sensors
+    from ..solver.stepper import Stepper
+    from ..solver.loop import run
+    from ..solver.sources import PointSources, ToneBurst
 
     L = edges.thickness_cells if edges.kinds() & {"pml", "sponge"} else 0
     n = 2 * (half_cells + L) + 1
@@ -439,7 +441,7 @@ def edge_sweep(cells_per_wavelength=(10, 20), thicknesses_cells=(5, 10, 20, 40),
     Error: max |p - p_ref| over the record / max |p_ref| at that probe, in dB."""
     import jax
 
-    from .lattice import Edges
+    from ..lattice.coefficients import Edges
 
     if dtype == "float64":
         jax.config.update("jax_enable_x64", True)
@@ -487,7 +489,7 @@ def wall_sweep(cells_per_wavelength=(6, 8, 10, 14, 20, 30), dtypes=("float32", "
 
 def write_wall(results: dict, out_dir: str | Path) -> None:
     """accuracy_wall.json, accuracy_wall_table.md and accuracy_wall.png (errors against wall time)."""
-    from . import plots
+    from .. import plots
     import matplotlib.pyplot as plt
 
     out = Path(out_dir)
@@ -533,7 +535,7 @@ def write_wall(results: dict, out_dir: str | Path) -> None:
 
 def write_edges(results: dict, out_dir: str | Path) -> None:
     """accuracy_edges.json, accuracy_edges_table.md and accuracy_edges.png."""
-    from . import plots
+    from .. import plots
     import matplotlib.pyplot as plt
 
     out = Path(out_dir)

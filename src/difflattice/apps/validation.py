@@ -12,13 +12,14 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
-from .analytic import lattice_wavenumber
-from .grid import Grid, make_grid
-from .lattice import Edges
-from .medium import Medium
-from .sensors import Sensors
-from .solver import Stepper, State, run, simulate
-from .source import PointSources, ToneBurst
+from ..observe.analytic import lattice_wavenumber
+from ..lattice.grid import Grid, make_grid
+from ..lattice.coefficients import Edges
+from ..lattice.medium import Medium
+from ..solver.sensors import Sensors
+from ..solver.stepper import Stepper, State
+from ..solver.loop import run, simulate
+from ..solver.sources import PointSources, ToneBurst
 
 
 def _dft(x, omega):
@@ -130,7 +131,7 @@ def discrete_energy(stepper: Stepper, p_new, p_old) -> float:
     if lat.q_scale is not None:
         raise ValueError("discrete_energy applies to the homogeneous and conservative forms")
     K = lat.K
-    from .solver import face_gradient
+    from ..lattice.operators import face_gradient
 
     dp = p_new - p_old
     kin = jnp.sum(dp * dp / K)

@@ -28,6 +28,8 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
+from ..lattice.operators import operator, stencil
+
 
 def supports(stepper, state=None) -> str | None:
     """None if the adjoint path handles this scene, otherwise the reason it does not."""
@@ -50,7 +52,6 @@ def supports(stepper, state=None) -> str | None:
 
 def _linear_step(lat, p, p_prev):
     """The source-free leapfrog step S(p, p_prev) (the stepper's, restricted to supported scenes)."""
-    from .solver import operator
 
     d = operator(lat, p)
     if lat.sponge is None:
@@ -142,7 +143,6 @@ def _linear_run_bwd(starts, grads, perturbed, stepper, n_steps, chunk):
             g = g.at[c[:, 0], c[:, 1]].add(w * (g_re * jnp.cos(ang) + g_im * jnp.sin(ang)))
         return g
 
-    from .solver import stencil
 
     # lattice fields whose gradients are wanted (the step reads K, q_scale, bx, by, keep, sponge)
     fields_wanted = tuple(

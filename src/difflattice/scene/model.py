@@ -157,13 +157,13 @@ class Scene:
     # ---------------------------------------------------------------------------------------
     def build(self):
         """Build (grid, medium, sources, sensors, edges, n_steps, extras) for `simulate`."""
-        from . import geometry as geo
-        from .farfield import box_around
-        from .grid import make_grid
-        from .lattice import Edges
-        from .medium import Medium, air, material, warn_if_under_resolved
-        from .sensors import Sensors, probe_cells
-        from .source import ContinuousWave, ToneBurst, line_transducer
+        from ..lattice import geometry as geo
+        from ..observe.farfield import box_around
+        from ..lattice.grid import make_grid
+        from ..lattice.coefficients import Edges
+        from ..lattice.medium import Medium, air, material, warn_if_under_resolved
+        from ..solver.sensors import Sensors, probe_cells
+        from ..solver.sources import ContinuousWave, ToneBurst, line_transducer
 
         p = self.path
         med = self.medium

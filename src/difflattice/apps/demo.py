@@ -21,7 +21,7 @@ TRUTH_CELLS_PER_WAVELENGTH = 30.0  # finer than the fit's 20: the fit sees a rea
 
 
 def truth_spec(dx_m: float, n_basis: int = 3):
-    from .fit.model import ModelSpec
+    from ..fit.model import ModelSpec
 
     return ModelSpec(n_cells=int(round(LINE_LENGTH_M / dx_m)), dx_m=dx_m, frequency_hz=FREQ_HZ, weights="smooth",
                      lags="smooth", n_basis=n_basis, symmetric=True, fit_diameter=True)
@@ -44,8 +44,8 @@ def make_truth_table(path: Path, *, angles_deg, x_m, z_m: float) -> dict:
     jax.config.update("jax_enable_x64", True)
     import numpy as np
 
-    from .capture.groundtruth import TableTransducer
-    from .fit.transfer import free_field_transfer
+    from ..capture.groundtruth import TableTransducer
+    from ..fit.transfer import free_field_transfer
 
     c = 331.3 * (1 + TEMPERATURE_C / 273.15) ** 0.5
     dx = c / (FREQ_HZ * TRUTH_CELLS_PER_WAVELENGTH)
@@ -94,8 +94,8 @@ def run_demo(out: str | Path, *, quick: bool = False) -> int:
 
     import numpy as np
 
-    from .capture.emulator import start_emulator
-    from .capture.host import capture_lobe, capture_wave
+    from ..capture.emulator import start_emulator
+    from ..capture.host import capture_lobe, capture_wave
 
     t0 = time.perf_counter()
     out = Path(out).resolve()
@@ -124,7 +124,7 @@ def run_demo(out: str | Path, *, quick: bool = False) -> int:
     print(f"[demo] captured {lobe.name} and {wave.name} over the pseudo-terminal ({t_cap:.1f} s so far)")
     cfg_path = out / "fit.toml"
     cfg_path.write_text(fit_config_text("data/lobe.csv", "data/wave.csv", out_dir=str(out / "report")))
-    from .fit.config import load_config, run_fit
+    from ..fit.config import load_config, run_fit
 
     rep = run_fit(load_config(cfg_path), quick=quick)
     p = rep["fit"]["parameters"]

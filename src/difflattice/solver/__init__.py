@@ -1,0 +1,21 @@
+"""Time stepping: sources, sensors (what is recorded inside the loop), the stateless stepper, the
+scanned loop with `simulate` as its one entry point, and the adjoint-wave-equation reverse mode."""
+
+from .loop import (
+    INSTABILITY_MESSAGE,
+    SPEED_MESSAGE,
+    Result,
+    check_result,
+    grid_sharding,
+    run,
+    simulate,
+)
+from .sensors import Sensors
+from .sources import ContinuousWave, PointSources, ToneBurst, line_transducer
+from .stepper import State, Stepper
+
+__all__ = [
+    "INSTABILITY_MESSAGE", "SPEED_MESSAGE", "ContinuousWave", "PointSources", "Result", "Sensors",
+    "State", "Stepper", "ToneBurst", "check_result", "grid_sharding", "line_transducer", "run",
+    "simulate",
+]

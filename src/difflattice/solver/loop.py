@@ -1,0 +1,285 @@
+"""The time loop and the one entry point, `simulate`.
+
+`simulate` is a pure function of its array inputs (medium maps, source weights and lags), so it
+works under `jax.jit`, `jax.grad`, `jax.jvp` and `jax.vmap`. Sensors are recorded inside the
+scan; the time loop is a scan of chunks of steps, which gives snapshots every k steps, a
+per-chunk record of the peak |p| (instability detection), and memory-bounded reverse mode
+(`checkpoint="sqrt"`: each chunk is recomputed in the backward pass, memory ~ sqrt(steps)).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Literal, Sequence
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Complex, Float, Int
+
+from ..lattice.coefficients import Edges
+from ..lattice.grid import MAX_COURANT, Grid
+from ..lattice.medium import Medium
+from .sensors import Sensors
+from .sources import PointSources
+from .stepper import State, Stepper
+
+
+class Result(eqx.Module):
+    """What `simulate` returns. Times are in steps of `grid.dt_s`; pressures in Pa.
+
+    - `probes`: (n_steps, n_probes) pressure at the probe cells, steps 1..n_steps.
+    - `phasors`: (m,) complex DFT sum_n p(n) exp(+i omega n) at the phasor cells.
+    - `p_max`, `p_rms`: whole-field peak |p| and RMS; `arrival`: first step above threshold.
+    - `snapshots`: (k, nx, ny) fields at steps `snapshot_steps`.
+    - `peak_history`: (n_chunks,) max |p| at the end of each chunk (`chunk_steps`).
+    """
+
+    final: State
+    probes: Float[Array, "t n"] | None
+    phasors: Complex[Array, " m"] | None
+    p_max: Float[Array, "nx ny"] | None
+    p_rms: Float[Array, "nx ny"] | None
+    arrival: Int[Array, "nx ny"] | None
+    snapshots: Float[Array, "k nx ny"] | None
+    peak_history: Float[Array, " c"]
+    n_steps: int = eqx.field(static=True)
+    chunk_steps: tuple[int, ...] = eqx.field(static=True)
+
+    @property
+    def snapshot_steps(self) -> tuple[int, ...]:
+        return self.chunk_steps
+
+
+# ------------------------------------------------------------------------------------------
+# the time loop
+
+Checkpoint = Literal["sqrt"] | int | None
+
+
+def _chunking(n_steps: int, sensors: Sensors, checkpoint: Checkpoint) -> int:
+    if sensors.snapshot_every is not None:
+        return min(sensors.snapshot_every, n_steps)
+    if checkpoint == "sqrt":
+        return max(1, math.ceil(math.sqrt(n_steps)))
+    if isinstance(checkpoint, int) and not isinstance(checkpoint, bool):
+        if checkpoint < 1:
+            raise ValueError(f"checkpoint = {checkpoint}: give a chunk length >= 1 step")
+        return min(checkpoint, n_steps)
+    if checkpoint is not None:
+        raise ValueError(f"checkpoint = {checkpoint!r}; allowed: None, 'sqrt' or a chunk length in steps")
+    return min(n_steps, 128)
+
+
+def run(
+    stepper: Stepper,
+    n_steps: int,
+    *,
+    state: State | None = None,
+    checkpoint: Checkpoint = None,
+    unroll: int | None = None,
+    sharding: "jax.sharding.Sharding | None" = None,
+    adjoint: Literal["autodiff", "lattice", "auto"] = "autodiff",
+) -> Result:
+    """Run `n_steps` steps from `state` (default: rest) and collect the sensors. Pure and jittable.
+
+    `unroll` (steps per scan iteration): None picks 2 for the leapfrog (it removes the copies of
+    the carried fields that XLA adds to a rolled loop: 2x faster on CPU) and 1 for the staggered
+    PML form (unrolling it made XLA fuse across steps and run up to 10x slower).
+
+    `sharding`: a `jax.sharding.Sharding` of a grid-shaped array (e.g. `grid_sharding()`): the
+    fields are kept split across its devices every step and XLA exchanges the one-cell halos
+    (GPU clusters, or both cores of a CPU run with several host devices).
+
+    `adjoint`: how reverse mode differentiates the run. "autodiff": JAX's reverse mode of the
+    scan (the reference; also the only one with forward mode). "lattice": the adjoint wave
+    equation run backwards (`difflattice.adjoint`): the same gradients at about twice the forward
+    time for sources and bounded memory (`checkpoint` chunks, default sqrt(n_steps)) for medium
+    maps; raises for scenes it does not support. "auto": "lattice" where supported."""
+    if not isinstance(n_steps, (int, np.integer)) or n_steps < 1:
+        raise ValueError(f"n_steps = {n_steps!r} must be a positive integer")
+    n_steps = int(n_steps)
+    if adjoint not in ("autodiff", "lattice", "auto"):
+        raise ValueError(f"adjoint = {adjoint!r}; allowed: 'autodiff', 'lattice', 'auto'")
+    if adjoint != "autodiff":
+        from . import adjoint as adj
+
+        reason = adj.supports(stepper, state)
+        if reason is None and sharding is None:
+            return _run_lattice_adjoint(stepper, n_steps, checkpoint)
+        if adjoint == "lattice":
+            raise ValueError(
+                f"adjoint='lattice' does not support {reason or 'sharding'}: use adjoint='autodiff' "
+                "(or 'auto' to choose per scene)"
+            )
+    if unroll is None:
+        unroll = 1 if stepper.staggered else 2
+    sens = stepper.sensors
+    chunk = _chunking(n_steps, sens, checkpoint)
+    n_chunks, rem = divmod(n_steps, chunk)
+    state = stepper.init() if state is None else state
+    constrain = _constrainer(stepper.grid.shape, sharding)
+    state = constrain(state)
+
+    def one(st, _):
+        st, ys = stepper.step(st)
+        return constrain(st), ys
+
+    def chunk_scan(st, length):
+        f = lambda s: jax.lax.scan(one, s, None, length=length, unroll=min(unroll, length))
+        if checkpoint is not None:
+            f = jax.checkpoint(f)
+        return f(st)
+
+    def outer(st, _):
+        st, ys = chunk_scan(st, chunk)
+        p = st.pressure
+        peak = jnp.max(jnp.abs(p))
+        snap = p if sens.snapshot_every is not None else None
+        return st, (ys, peak, snap)
+
+    state, (ys, peaks, snaps) = jax.lax.scan(outer, state, None, length=n_chunks)
+    steps = [chunk * (i + 1) for i in range(n_chunks)]
+    if ys is not None:
+        ys = ys.reshape(n_chunks * chunk, -1)
+    if rem:
+        state, ys_r = chunk_scan(state, rem)
+        peaks = jnp.concatenate([peaks, jnp.max(jnp.abs(state.pressure))[None]])
+        steps.append(n_steps)
+        if ys is not None:
+            ys = jnp.concatenate([ys, ys_r.reshape(rem, -1)], axis=0)
+        if snaps is not None and sens.snapshot_every is not None:
+            snaps = jnp.concatenate([snaps, state.pressure[None]], axis=0)
+
+    phasors = None
+    if state.phasor_re is not None:
+        phasors = jax.lax.complex(state.phasor_re, state.phasor_im)
+    p_rms = None if state.p_sq is None else jnp.sqrt(state.p_sq / n_steps)
+    return Result(
+        final=state,
+        probes=ys,
+        phasors=phasors,
+        p_max=state.p_max,
+        p_rms=p_rms,
+        arrival=state.arrival,
+        snapshots=snaps,
+        peak_history=peaks,
+        n_steps=n_steps,
+        chunk_steps=tuple(steps),
+    )
+
+
+def _run_lattice_adjoint(stepper: Stepper, n_steps: int, checkpoint: Checkpoint) -> Result:
+    from .adjoint import linear_run
+
+    chunk = _chunking(n_steps, stepper.sensors, "sqrt" if checkpoint is None else checkpoint)
+    probes, re, im, p, p_prev, peaks = linear_run(stepper, n_steps, chunk)
+    final = eqx.tree_at(
+        lambda s: (s.p, s.p_prev, s.n, s.phasor_re, s.phasor_im),
+        stepper.init(),
+        (p, p_prev, jnp.asarray(n_steps, jnp.int32), re, im),
+        is_leaf=lambda x: x is None,
+    )
+    n_chunks, rem = divmod(n_steps, chunk)
+    steps = [chunk * (i + 1) for i in range(n_chunks)] + ([n_steps] if rem else [])
+    return Result(
+        final=final,
+        probes=probes,
+        phasors=None if re is None else jax.lax.complex(re, im),
+        p_max=None,
+        p_rms=None,
+        arrival=None,
+        snapshots=None,
+        peak_history=peaks,
+        n_steps=n_steps,
+        chunk_steps=tuple(steps),
+    )
+
+
+def _constrainer(shape, sharding):
+    """Apply `sharding` to every grid-shaped field of a State (identity without a sharding)."""
+    if sharding is None:
+        return lambda st: st
+
+    def f(st):
+        return jax.tree_util.tree_map(
+            lambda a: jax.lax.with_sharding_constraint(a, sharding) if a.shape == tuple(shape) else a, st
+        )
+
+    return f
+
+
+def grid_sharding(devices: Sequence | None = None, axis: int = 0) -> "jax.sharding.NamedSharding":
+    """A sharding that splits grid-shaped arrays along `axis` (0 = x) across `devices` (default:
+    all devices). On a CPU, `XLA_FLAGS=--xla_force_host_platform_device_count=N` (set before JAX
+    starts) gives N host devices, one per core."""
+    from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+    devs = np.asarray(jax.devices() if devices is None else list(devices))
+    spec = PartitionSpec("grid", None) if axis == 0 else PartitionSpec(None, "grid")
+    return NamedSharding(Mesh(devs, ("grid",)), spec)
+
+
+INSTABILITY_MESSAGE = (
+    "difflattice: the simulation produced non-finite pressure (numerical instability or overflow). "
+    "Likely causes: a lattice speed above 1/sqrt(2) cells/step (lower the grid courant), a strong "
+    "density contrast at the stability limit with the conservative model (lower courant by ~1%), "
+    "or float32 overflow from extreme source amplitudes (scale the weights or use float64)."
+)
+SPEED_MESSAGE = (
+    "difflattice: a medium speed exceeds 1/sqrt(2) cells/step, the 2-D stability limit: lower the "
+    "grid courant or set c_max_m_s to the fastest medium's speed."
+)
+
+
+def check_result(result: Result, stepper: Stepper) -> Result:
+    """Raise (inside jit too, via `eqx.error_if`) if the run went non-finite."""
+    bad = ~jnp.all(jnp.isfinite(result.peak_history))
+    return eqx.error_if(result, bad, INSTABILITY_MESSAGE)
+
+
+def simulate(
+    grid: Grid,
+    medium: Medium,
+    sources: PointSources | Sequence[PointSources] = (),
+    sensors: Sensors = Sensors(),
+    *,
+    n_steps: int,
+    edges: Edges = Edges(),
+    checkpoint: Checkpoint = None,
+    unroll: int | None = None,
+    sharding: "jax.sharding.Sharding | None" = None,
+    adjoint: Literal["autodiff", "lattice", "auto"] = "autodiff",
+    throw: bool = True,
+) -> Result:
+    """Simulate `n_steps` time steps of the scene and return what the sensors recorded.
+
+    **Arguments:**
+    - `grid`: the lattice and its units (`make_grid`).
+    - `medium`: speeds, densities, obstacles and the boundary model (SI units).
+    - `sources`: one or more `PointSources` (e.g. `line_transducer`).
+    - `sensors`: what to record.
+    - `n_steps`: number of time steps (static).
+    - `edges`: window edges (default: 20-cell PML on every side).
+    - `checkpoint`: None (plain reverse mode), "sqrt" (memory ~ sqrt(n_steps)) or a chunk length.
+    - `unroll`: steps per scan iteration (None: the fastest per stepper, see `run`).
+    - `sharding`: split the grid across devices (`grid_sharding()`); None: one device.
+    - `adjoint`: reverse-mode method, "autodiff" (JAX's), "lattice" (adjoint wave equation,
+      faster and memory-bounded) or "auto" (see `run`).
+    - `throw`: raise on non-finite fields (otherwise inspect `result.peak_history`).
+    """
+    stepper = Stepper.build(grid, medium, sources, sensors, edges)
+    return _simulate(stepper, n_steps, checkpoint, unroll, sharding, adjoint, throw)
+
+
+@eqx.filter_jit
+def _simulate(stepper: Stepper, n_steps: int, checkpoint, unroll: int | None, sharding, adjoint, throw: bool) -> Result:
+    lat = stepper.lattice
+    if jnp.ndim(lat.c) != 0 or isinstance(lat.c, jax.core.Tracer):
+        # speeds may be traced (e.g. fitted): check the stability limit at run time
+        stepper = eqx.error_if(stepper, jnp.max(lat.c) > MAX_COURANT * (1 + 1e-6), SPEED_MESSAGE)
+    result = run(stepper, n_steps, checkpoint=checkpoint, unroll=unroll, sharding=sharding, adjoint=adjoint)
+    if throw:
+        result = check_result(result, stepper)
+    return result

@@ -125,7 +125,7 @@ def test_exported_scene_loads_and_rebuilds_the_walls(horn, tmp_path):
 
     p = HornParams(0.012, 0.022, 0.018, 0.0018, 0.7)
     path = write_scene(horn, p, tmp_path / "horn.toml")
-    grid, medium, sources, sensors, edges, n_steps, _ = load_scene(path).build()
+    grid, medium, sources, sensors, edges, n_steps = load_scene(path).build()[:6]
     assert grid.shape == horn.grid.shape and n_steps == horn.n_steps
     np.testing.assert_array_equal(sources[0].cells_array, horn.source().cells_array)
     # float32 scene vs float64 design: occupancies agree to float32 rounding of the coordinates

@@ -13,7 +13,7 @@ import pytest  # noqa: E402
 from difflattice import plots  # noqa: E402
 from difflattice.cli import main  # noqa: E402
 from difflattice.lattice.medium import ResolutionWarning  # noqa: E402
-from difflattice.apps.runner import run_scene, write_outputs  # noqa: E402
+from difflattice.apps.scene_run import run_scene, write_outputs  # noqa: E402
 from difflattice.scene import parse_scene, render_stride  # noqa: E402
 from difflattice.solver import Stepper, run  # noqa: E402
 

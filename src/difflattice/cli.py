@@ -12,7 +12,7 @@ from pathlib import Path
 
 
 def _simulate(args) -> int:
-    from .apps.runner import run_scene, write_outputs
+    from .apps.scene_run import run_scene, write_outputs
     from .scene.model import load_scene
 
     scene = load_scene(args.scene)

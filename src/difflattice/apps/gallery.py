@@ -2,8 +2,8 @@
 
 `render_gallery(out_dir)` loads each scene file, optionally shrinks the grid (``scale`` multiplies
 the cells per wavelength and keeps every physical size, so 0.25 gives 5 cells per wavelength: a
-quick, coarse look), runs it with `runner.run_scene`, writes the usual outputs with
-`runner.write_outputs` into ``out_dir/<name>/`` (below scale 1, a quick look: no animation and no
+quick, coarse look), runs it with `scene_run.run_scene`, writes the usual outputs with
+`scene_run.write_outputs` into ``out_dir/<name>/`` (below scale 1, a quick look: no animation and no
 per-snapshot frames), and adds:
 
 - ``<name>/figure.png``: the field at the moment(s) the paper shows (the scene file's
@@ -236,7 +236,7 @@ def write_figure(sr, path: Path, wanted_steps, *, title: str = "") -> Path:
     frames = _pick_frames(sr, wanted_steps)
     w, h = figure_size_px(g.shape, len(frames))
     fig = plt.figure(figsize=(w / FIG_DPI, h / FIG_DPI), dpi=FIG_DPI)
-    from .runner import obstacle_map
+    from .scene_run import obstacle_map
 
     obst = obstacle_map(sr.stepper)
     src = [s.cells_array for s in sr.stepper.sources]
@@ -367,7 +367,7 @@ def render_scene(path: str | Path, out_dir: str | Path, *, scale: float = 1.0, p
     """Render one scene file into ``out_dir`` (its own folder); returns its gallery entry with
     file paths relative to ``out_dir``'s parent."""
     from ..lattice.medium import ResolutionWarning
-    from .runner import run_scene, write_outputs
+    from .scene_run import run_scene, write_outputs
 
     path, out = Path(path), Path(out_dir)
     name = path.stem

@@ -20,6 +20,7 @@ from ..solver.sensors import Sensors
 from ..solver.stepper import Stepper, State
 from ..solver.loop import run, simulate
 from ..solver.sources import PointSources, ToneBurst
+from ..air import SPEED_OF_SOUND_20C_M_S
 
 
 def _dft(x, omega):
@@ -114,10 +115,10 @@ def edge_reflection_db(
     n_steps = int((2 * d + (cycles + 2) * ppw) / 0.7) + 100
     out = []
     for nx in (x0 + d + L, x0 + 4 * far):
-        grid = make_grid(frequency_hz=50e3, cells_per_wavelength=ppw, c_max_m_s=343.0, shape=(nx, 1), dtype=dtype)
+        grid = make_grid(frequency_hz=50e3, cells_per_wavelength=ppw, c_max_m_s=SPEED_OF_SOUND_20C_M_S, shape=(nx, 1), dtype=dtype)
         src = PointSources(cells=[(x0, 0)], signal=ToneBurst(50e3, cycles), weights=jnp.ones(1), lags_s=jnp.zeros(1))
         e = Edges(x_lo="rigid", x_hi=kind, y_lo="rigid", y_hi="rigid", thickness_cells=L, **edge_kwargs)
-        r = simulate(grid, Medium(343.0, 1.2), src, Sensors(probes=[(x0 + d // 2, 0)]), n_steps=n_steps, edges=e)
+        r = simulate(grid, Medium(SPEED_OF_SOUND_20C_M_S, 1.2), src, Sensors(probes=[(x0 + d // 2, 0)]), n_steps=n_steps, edges=e)
         out.append(np.asarray(r.probes[:, 0]))
     p, pref = out
     return float(20 * np.log10(np.abs(p - pref).max() / np.abs(pref).max()))

@@ -68,16 +68,7 @@ class DesignProblem(eqx.Module):
         """Smooth occupancy of the design's walls (None for no shape)."""
         if params is None:
             return None
-        shape = params.shape(self.anchor_m)
-        if self.ramp_cells == 1.0:
-            return rasterise(shape, self.grid, "smooth")
-        # a wider ramp (`ramp_cells` cells across the boundary) averages the sub-cell position of a
-        # wall over more cells: a smoother objective, at the price of a blurrier wall
-        g = self.grid
-        x, y = (jnp.arange(n, dtype=g.jnp_dtype) * g.dx_m for n in g.shape)
-        d = shape.sdf(x[:, None], y[None, :]) / (g.dx_m * self.ramp_cells)
-        u = jnp.clip(0.5 - d, 0.0, 1.0)
-        return u * u * (3 - 2 * u)
+        return rasterise(params.shape(self.anchor_m), self.grid, "smooth", ramp_cells=self.ramp_cells)
 
     def medium(self, params) -> Medium:
         """Air with the design's walls: rigid (R = +1, conservative model), soft (R = -1: the paper's

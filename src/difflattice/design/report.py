@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from .problem import DesignProblem
+from ..air import SPEED_OF_SOUND_20C_M_S
 
 
 def _levels_db(p, ref):
@@ -23,7 +24,7 @@ def _levels_db(p, ref):
 
 def resolution_note(problem: DesignProblem) -> str:
     g = problem.grid
-    return (f"{g.cells_per_wavelength * 343.2 / g.c_max_m_s:.1f} cells per wavelength in air at "
+    return (f"{g.cells_per_wavelength * SPEED_OF_SOUND_20C_M_S / g.c_max_m_s:.1f} cells per wavelength in air at "
             f"{g.frequency_hz / 1e3:.0f} kHz (cell {g.dx_m * 1e3:.3f} mm), grid {g.shape[0]} x {g.shape[1]}, "
             f"{problem.n_steps} steps, {g.dtype}; beam at {problem.range_m} m by the Kirchhoff-Helmholtz transform")
 
@@ -81,7 +82,7 @@ def fields_plot(problem: DesignProblem, designs: dict, *, frame_fraction: float 
     g = problem.grid
     n = len(designs)
     fig, axs = plt.subplots(2, n, figsize=(5.5 * n, 2 * 5.5 * g.shape[1] / g.shape[0] + 1.5), squeeze=False)
-    every = max(1, int(round(g.cells_per_wavelength * 343.2 / g.c_max_m_s / 8)))
+    every = max(1, int(round(g.cells_per_wavelength * SPEED_OF_SOUND_20C_M_S / g.c_max_m_s / 8)))
     k = max(1, problem.n_steps // 40)
     for j, (label, params) in enumerate(designs.items()):
         snaps, steps, pmax = problem.fields(params, k)

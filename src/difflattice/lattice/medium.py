@@ -21,20 +21,13 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from ..air import density_kg_m3 as air_density_kg_m3
+from ..air import speed_of_sound_m_s as air_speed_m_s
+
 BoundaryModel = Literal["conservative", "paper", "speed_zero"]
 BOUNDARY_MODELS = ("conservative", "paper", "speed_zero")
 
 
-def air_speed_m_s(temperature_c: float) -> float:
-    """Speed of sound in dry air, m/s: c = 331.3 sqrt(1 + T/273.15)."""
-    if temperature_c <= -273.15:
-        raise ValueError(f"temperature_c = {temperature_c} is below absolute zero")
-    return 331.3 * math.sqrt(1.0 + temperature_c / 273.15)
-
-
-def air_density_kg_m3(temperature_c: float, pressure_pa: float = 101_325.0) -> float:
-    """Density of dry air (ideal gas, R = 287.05 J/(kg K)), kg/m^3."""
-    return pressure_pa / (287.05 * (temperature_c + 273.15))
 
 
 @dataclass(frozen=True)

@@ -14,9 +14,17 @@ import tomllib
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from ..lattice.coefficients import Edges
+    from ..lattice.grid import Grid
+    from ..lattice.medium import Medium
+    from ..observe.farfield import BoxContour
+    from ..solver.sensors import Sensors
+    from ..solver.sources import PointSources
 
 from .schema import NUM, REQUIRED, ConfigError, fail, schema_markdown as _schema_markdown, validate_table
 
@@ -138,6 +146,27 @@ def _validate_table(path, section: str, table: dict, where: str) -> dict:
     return validate_table(path, SCHEMA[section], table, where, SceneError)
 
 
+class BuiltScene(NamedTuple):
+    """What `Scene.build()` gives: the solver's objects plus what the scene asks to observe.
+
+    - `grid`, `medium`, `sources`, `sensors`, `edges`, `n_steps`: the arguments of `simulate`;
+    - `contour`: the far-field contour (None when the scene has no `[farfield]`);
+    - `farfield_source`: index of the transducer whose lobe is computed;
+    - `show_steps`: steps at which field images are wanted; `render_every`: render stride, cells.
+    """
+
+    grid: "Grid"
+    medium: "Medium"
+    sources: tuple["PointSources", ...]
+    sensors: "Sensors"
+    edges: "Edges"
+    n_steps: int
+    contour: "BoxContour | None"
+    farfield_source: int
+    show_steps: list[int]
+    render_every: int
+
+
 @dataclass
 class Scene:
     """A validated scene (SI units). Sections mirror the file; see `SCHEMA`."""
@@ -155,8 +184,8 @@ class Scene:
     raw: dict = field(default_factory=dict)
 
     # ---------------------------------------------------------------------------------------
-    def build(self):
-        """Build (grid, medium, sources, sensors, edges, n_steps, extras) for `simulate`."""
+    def build(self) -> BuiltScene:
+        """Build the solver's objects (`BuiltScene`) for `simulate`."""
         from ..lattice import geometry as geo
         from ..observe.farfield import box_around
         from ..lattice.grid import make_grid
@@ -316,9 +345,8 @@ class Scene:
             _fail(p, "run", f"n_steps = {n_steps} must be >= 1")
         if r["checkpoint"] not in ("none", "sqrt"):
             _fail(p, "run.checkpoint", f"= {r['checkpoint']!r}; allowed: none, sqrt")
-        extras = {"contour": contour, "farfield_source": ff_index, "shapes": self.objects,
-                  "show_steps": self.show_steps(grid, n_steps), "render_every": self.render_every(grid)}
-        return grid, medium, tuple(sources), sensors, edges, n_steps, extras
+        return BuiltScene(grid, medium, tuple(sources), sensors, edges, n_steps, contour, ff_index,
+                          self.show_steps(grid, n_steps), self.render_every(grid))
 
 
     # ---------------------------------------------------------------------------------------

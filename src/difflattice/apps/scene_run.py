@@ -23,6 +23,7 @@ from ..observe.farfield import far_field, level_db
 from ..observe.observables import lobe_metrics
 from ..scene.model import Scene
 from ..solver.loop import INSTABILITY_MESSAGE, Result, run
+from ..lattice.grid import Grid
 from ..solver.stepper import Stepper
 
 
@@ -33,7 +34,7 @@ class SceneRun:
     kept); `moments` maps each `[output]` show step to the full-resolution field at that step."""
 
     scene: Scene
-    grid: object
+    grid: Grid
     stepper: Stepper
     result: Result
     summary: dict
@@ -56,7 +57,7 @@ def _piece_ends(n_steps: int, seg: int, snapshot_every: int | None, moments) -> 
     return sorted(e for e in ends if 1 <= e <= n_steps)
 
 
-def run_chunked(stepper: Stepper, n_steps: int, *, segments: int = 20, progress: bool = True, checkpoint=None,
+def run_in_pieces(stepper: Stepper, n_steps: int, *, segments: int = 20, progress: bool = True, checkpoint=None,
                 moments=(), render_every: int = 1):
     """Run in `segments` compiled pieces so a progress bar can update between them (the kernel
     itself is untouched). Pieces also end at each step of `moments`, whose full-resolution fields
@@ -122,15 +123,14 @@ def run_chunked(stepper: Stepper, n_steps: int, *, segments: int = 20, progress:
 
 
 def run_scene(scene: Scene, *, progress: bool = True) -> SceneRun:
-    grid, medium, sources, sensors, edges, n_steps, extras = scene.build()
-    if grid.dtype == "float64":
-        jax.config.update("jax_enable_x64", True)
+    built = scene.build()
+    grid, medium, sources, sensors, edges, n_steps = built[:6]
     stepper = Stepper.build(grid, medium, sources, sensors, edges)
     checkpoint = None if scene.run["checkpoint"] == "none" else "sqrt"
     t0 = time.perf_counter()
-    every = extras["render_every"]
-    result, snaps, snap_steps, first, moments = run_chunked(
-        stepper, n_steps, progress=progress, checkpoint=checkpoint, moments=extras["show_steps"], render_every=every)
+    every = built.render_every
+    result, snaps, snap_steps, first, moments = run_in_pieces(
+        stepper, n_steps, progress=progress, checkpoint=checkpoint, moments=built.show_steps, render_every=every)
     wall = time.perf_counter() - t0
     nx, ny = grid.shape
     dist_cells = min(grid.courant * n_steps, math.hypot(nx, ny))
@@ -170,12 +170,12 @@ def run_scene(scene: Scene, *, progress: bool = True) -> SceneRun:
         },
     }
     lobe = None
-    contour = extras["contour"]
+    contour = built.contour
     if contour is not None:
         ff = scene.farfield
         a0, a1, da = ff["angles_deg"]
         angles = np.arange(a0, a1 + da / 2, da)
-        src = sources[extras["farfield_source"]]
+        src = sources[built.farfield_source]
         centre = tuple(src.cells_array.mean(0))
         p = far_field(result.phasors, contour, grid, angles, ff["range_m"], centre)
         lv = np.asarray(level_db(p, floor_db=-100))

@@ -132,13 +132,15 @@ def test_exported_scene_loads_and_rebuilds_the_walls(horn, tmp_path):
     np.testing.assert_allclose(np.asarray(medium.soft), np.asarray(horn.occupancy(p)), atol=1e-4)
 
 
-def test_cli_design_subcommand_parses():
-    from difflattice.cli import build_parser
+def test_cli_design_refuses_an_unknown_design(capsys, tmp_path):
+    from difflattice.cli import main
 
-    a = build_parser().parse_args(["design", "reflector", "--out", "x", "--steps", "3", "--no-gradient-check"])
-    assert (a.what, a.steps, a.no_gradient_check, a.wall) == ("reflector", 3, True, "soft")
-    with pytest.raises(SystemExit):
-        build_parser().parse_args(["design", "trumpet", "--out", "x"])
+    with pytest.raises(SystemExit) as e:
+        main(["design", "trumpet", "--out", str(tmp_path / "x")])
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert "trumpet" in err and "horn" in err and "Traceback" not in err
+    assert not (tmp_path / "x").exists()  # nothing written for a refused command
 
 
 def test_material_walls_keep_the_air_resolution():

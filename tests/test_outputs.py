@@ -14,7 +14,7 @@ from difflattice import plots  # noqa: E402
 from difflattice.cli import main  # noqa: E402
 from difflattice.lattice.medium import ResolutionWarning  # noqa: E402
 from difflattice.apps.scene_run import run_scene, write_outputs  # noqa: E402
-from difflattice.scene import parse_scene, render_stride  # noqa: E402
+from difflattice.scene import SceneError, parse_scene, render_stride  # noqa: E402
 from difflattice.solver import Stepper, run  # noqa: E402
 
 
@@ -45,7 +45,7 @@ def test_render_stride_override_and_bad_values():
             render_stride(20, bad)
     with pytest.raises(ValueError, match="must be > 0"):
         render_stride(0)
-    with pytest.raises(Exception, match=r"output.render_every_cells"):
+    with pytest.raises(SceneError, match=r"output.render_every_cells"):
         _scene(render_every_cells=0).build()
 
 
@@ -86,9 +86,9 @@ def test_moments_are_fields_at_exactly_those_steps(tmp_path):
 
 
 def test_moment_outside_the_run_is_refused():
-    with pytest.raises(Exception, match=r"\[output\] moment at step 91"):
+    with pytest.raises(SceneError, match=r"\[output\] moment at step 91"):
         _scene(show_steps=[91]).build()
-    with pytest.raises(Exception, match=r"output.show_steps\[0\]"):
+    with pytest.raises(SceneError, match=r"output.show_steps\[0\]"):
         _scene(show_steps=[1.5]).build()
 
 

@@ -1,6 +1,6 @@
 """Benchmark: time and peak memory of one objective + gradient for the paper's Fig. 9 horn scene at
 20 cells per wavelength (median of repeats, after a compiling call), and of a whole horn
-optimisation (the fitting/design_horn.py set-up). Each case runs in a fresh process so its peak
+optimisation (the designs/design_horn.py set-up). Each case runs in a fresh process so its peak
 RSS is its own. Writes docs/benchmarks/design.json and design.md.
 
     .venv/bin/python benchmarks/design_benchmark.py [--repeats 3] [--cells-per-wavelength 20] [--opt-cells-per-wavelength 8] [--opt-steps 10]
@@ -29,7 +29,7 @@ def case_gradient(cpw: float, repeats: int) -> dict:
     import jax
 
     jax.config.update("jax_enable_x64", True)
-    sys.path.insert(0, str(ROOT / "fitting"))
+    sys.path.insert(0, str(ROOT / "designs"))
     from fig09_fig10_beams import CONE, CONE_LIMITS, FACE_M
 
     from difflattice.design import Goal, horn_design
@@ -126,7 +126,7 @@ def main(argv=None) -> int:
           f"| forward speed (million cell updates / s) | {g['mcell_updates_per_s_forward']:.0f} |",
           f"| peak RSS (MB) | {g['peak_rss_mb']:.0f} |", "",
           "## A whole optimisation", "",
-          f"fitting/design_horn.py set-up (free: mouth, length, flare; target 8 deg) at {o['cells_per_wavelength']:g} cells per "
+          f"designs/design_horn.py set-up (free: mouth, length, flare; target 8 deg) at {o['cells_per_wavelength']:g} cells per "
           f"wavelength, grid {o['grid'][0]} x {o['grid'][1]}, {o['n_steps']} steps, {o['bfgs_steps']} BFGS steps.", "",
           "| quantity | value |", "|---|---|",
           f"| total incl. problem set-up and compilation (s) | {o['total_s']:.1f} |",

@@ -1,5 +1,5 @@
 """The paper's Fig. 9 horn and Fig. 10 reflector as designs, and the two example studies (also
-behind `difflattice design` and fitting/design_*.py)."""
+behind `difflattice design` and designs/design_*.py)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """A whole design study in one call: gradient check at the start, optimisation, pictures, scene
-files and a report (JSON + Markdown + PNGs) in a directory. Used by fitting/design_*.py."""
+files and a report (JSON + Markdown + PNGs) in a directory. Used by designs/design_*.py."""
 
 from __future__ import annotations
 

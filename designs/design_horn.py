@@ -1,7 +1,7 @@
 """Optimise a horn for a target -6 dB beam width at 1 m, starting from the paper's Fig. 9 cone
 (5 degrees, 125 mm, 3 mm walls) on the Polaroid-like 35.7 mm line. One command:
 
-    .venv/bin/python fitting/design_horn.py --out out/design/horn [--cells-per-wavelength 8] [--target-deg 8] [--steps 15]
+    .venv/bin/python designs/design_horn.py --out out/design/horn [--cells-per-wavelength 8] [--target-deg 8] [--steps 15]
 
 (the same as `difflattice design horn`). Free: mouth width, length and flare (throat and wall
 thickness stay at the paper's); limits: mouth <= 90 mm, length 40-160 mm, |flare| <= 4. Writes

@@ -3,7 +3,7 @@ line with and without the 5-degree, 125 mm cone (Fig. 9), and the on-axis gain o
 reflector with the transducer at its focus (Fig. 10), for rigid walls and for pressure-release
 ("soft", R = -1: the paper's speed-zero walls) walls. One command:
 
-    .venv/bin/python fitting/fig09_fig10_beams.py --out out/design/fig09_fig10 [--cells-per-wavelength 8]
+    .venv/bin/python designs/fig09_fig10_beams.py --out out/design/fig09_fig10 [--cells-per-wavelength 8]
 
 Writes report.json, report.md, fig09_patterns.png, fig10_patterns.png, fig09_fields.png,
 fig10_fields.png and the designs as scene files. Beams come from the Kirchhoff-Helmholtz

@@ -2,7 +2,7 @@
 the paper's Fig. 10 mirror (focal length 50 mm, aperture 190 mm, 3 mm wall) with the Polaroid-like
 35.7 mm line at the focus. One command:
 
-    .venv/bin/python fitting/design_reflector.py --out out/design/reflector [--cells-per-wavelength 8] [--steps 15]
+    .venv/bin/python designs/design_reflector.py --out out/design/reflector [--cells-per-wavelength 8] [--steps 15]
 
 (the same as `difflattice design reflector`). Free: focal length (25-80 mm) and aperture
 (100-220 mm); the wall stays 3 mm. Writes report.json/.md, PNGs and the start and optimised

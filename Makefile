@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test docs venv clean
+.PHONY: demo test lint docs venv clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -21,6 +21,12 @@ demo: $(STAMP)
 ## Test suite
 test: $(STAMP)
 	$(BIN)/python -m pytest -q
+
+## Lint (ruff) and type check (mypy); CI runs it
+lint: $(STAMP)
+	$(BIN)/ruff check src tests benchmarks fitting designs docs data
+	$(BIN)/ruff format --check src tests benchmarks fitting designs docs data
+	$(BIN)/mypy
 
 ## Documentation site (mkdocs, warnings as errors; its own .venv-docs)
 docs: $(STAMP)

@@ -132,8 +132,9 @@ def rasterise(
         raise ValueError(f"ramp_cells = {ramp_cells} must be > 0")
     nx, ny = grid.shape
     dt = grid.jnp_dtype
-    x = (jnp.arange(nx, dtype=dt) * grid.dx_m)[:, None] * jnp.ones((1, ny), dt)
-    y = (jnp.arange(ny, dtype=dt) * grid.dx_m)[None, :] * jnp.ones((nx, 1), dt)
+    o = grid.origin_cells  # cell centres: 0 on a 2-D grid, 1/2 (from the axis and z = 0) on an rz grid
+    x = ((jnp.arange(nx, dtype=dt) + o) * grid.dx_m)[:, None] * jnp.ones((1, ny), dt)
+    y = ((jnp.arange(ny, dtype=dt) + o) * grid.dx_m)[None, :] * jnp.ones((nx, 1), dt)
     d = shape.sdf(x, y) / (grid.dx_m * ramp_cells)
     if mode == "hard":
         return (d < 0).astype(dt)

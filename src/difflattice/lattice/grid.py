@@ -9,7 +9,18 @@ cells/step).
     model scale  S = m f / c_max             cells per metre   (m = cells per wavelength)
     sim rate     R = c_max S / courant        steps per second
 
-The 2-D five-point leapfrog is stable for speeds up to 1/sqrt(2) cells/step; a faster one is refused.
+Two kinds of lattice (`Grid.kind`, static):
+
+- ``"2d"``: a plane of square cells; axis 0 is x, axis 1 is y; the origin is the centre of cell
+  (0, 0).
+- ``"rz"``: an axisymmetric (r-z) lattice of ring cells, the meridian plane of a body of
+  revolution. Axis 0 is z (the propagation direction: sources facing +x in 2-D face +z here),
+  axis 1 is r. The axis r = 0 is the low face of ring 0 (cell centres at r = (j + 1/2) dx), and
+  the origin (z = 0, r = 0) is the low corner of cell (0, 0), so the z_lo window face is z = 0
+  (where a rigid baffle lies). The y_lo window side is the axis (`Edges(y_lo="axis")`).
+
+Both leapfrogs are stable for speeds up to `stability_limit(kind)` = 1/sqrt(2) cells/step; a faster
+one is refused (see `stability_limit` for the derivation of the r-z bound).
 """
 
 from __future__ import annotations
@@ -22,14 +33,42 @@ import jax.numpy as jnp
 import numpy as np
 
 MAX_COURANT = 1.0 / math.sqrt(2.0)
-"""Stability limit of the 2-D five-point leapfrog in cells/step."""
+"""Stability limit of the 2-D five-point leapfrog in cells/step (also the r-z lattice's)."""
+
+GridKind = Literal["2d", "rz"]
+GRID_KINDS = ("2d", "rz")
+
+
+def stability_limit(kind: GridKind = "2d") -> float:
+    """Largest stable lattice speed (cells/step) of the leapfrog on a grid of `kind`.
+
+    The leapfrog ``P(t+1) = 2 P - P(t-1) + c^2 L P`` is stable iff c^2 rho(-L) <= 4, rho the
+    spectral radius of the spatial operator (cells^-2).
+
+    - "2d": -L is the five-point Laplacian, rho < 8 on any finite grid, so c <= 1/sqrt(2).
+    - "rz": the finite-volume operator on ring cells (axis on the low face of ring 0, ring
+      volume V_j = j + 1/2, radial face areas A_f = f, axial faces (j + 1/2), per radian) is
+      ``(L P)_ij = P_(i+1)j + P_(i-1)j - 2 P_ij + [A_(j+1) (P_i(j+1) - P_ij) - A_j (P_ij - P_i(j-1))] / V_j``
+      (no 1/r: the axis face has zero area, so ring 0 is exact). L is similar to a symmetric
+      matrix (V^(1/2) L V^(-1/2)), so its eigenvalues are real, and by Gershgorin's theorem each row
+      bounds them: axial 2 + 2, radial |A_(j+1) + A_j| / V_j + (A_(j+1) + A_j) / V_j = 2 + 2, in all
+      rho <= 8, the 2-D bound, for every ring including the axis one. Measured (dense and Lanczos
+      eigenvalues of the actual operator, n x n rings): rho = 7.800, 7.985, 7.9991, 7.99994 for
+      n = 8, 32, 128, 512, tending to 8 (the checkerboard far from the axis): the limit 1/sqrt(2) is
+      sharp. (With a node on the axis instead, a disc cell of radius 1/2, rho tends to 8.8418 and
+      the limit drops to 0.6726: that is why the axis lies on a face here.)
+    """
+    if kind not in GRID_KINDS:
+        raise ValueError(f"grid kind = {kind!r}; allowed: {', '.join(map(repr, GRID_KINDS))}")
+    return MAX_COURANT
 
 PAPER_COURANT = 0.707
 """The paper's choice: just below the limit."""
 
 
 class Grid(eqx.Module):
-    """A square-cell lattice of `shape` = (nx, ny) cells, axis 0 is x and axis 1 is y.
+    """A square-cell lattice of `shape` = (nx, ny) cells, axis 0 is x and axis 1 is y (for
+    `kind` = "rz": axis 0 is z and axis 1 is r, see the module docstring).
 
     All fields are static (they decide array shapes and compiled structure).
 
@@ -40,6 +79,7 @@ class Grid(eqx.Module):
     - `c_max_m_s`: speed of sound of the fastest medium in the scene, m/s.
     - `courant`: that medium's speed in cells/step (<= 1/sqrt(2)).
     - `dtype`: "float32" or "float64".
+    - `kind`: "2d" (plane) or "rz" (axisymmetric ring cells; the y_lo side is the axis).
     """
 
     shape: tuple[int, int] = eqx.field(static=True)
@@ -48,8 +88,11 @@ class Grid(eqx.Module):
     c_max_m_s: float = eqx.field(static=True)
     courant: float = eqx.field(static=True, default=PAPER_COURANT)
     dtype: Literal["float32", "float64"] = eqx.field(static=True, default="float32")
+    kind: GridKind = eqx.field(static=True, default="2d")
 
     def __check_init__(self):
+        if self.kind not in GRID_KINDS:
+            raise ValueError(f"grid kind = {self.kind!r}; allowed: {', '.join(map(repr, GRID_KINDS))}")
         nx, ny = self.shape
         if nx < 3 or ny < 1:
             raise ValueError(f"grid shape {self.shape} is too small: need at least 3 x 1 cells")
@@ -58,7 +101,7 @@ class Grid(eqx.Module):
                 "frequency_hz, cells_per_wavelength and c_max_m_s must be positive, got "
                 f"{self.frequency_hz}, {self.cells_per_wavelength}, {self.c_max_m_s}"
             )
-        check_courant(self.courant, what="grid courant (the fastest medium's speed)")
+        check_courant(self.courant, what="grid courant (the fastest medium's speed)", kind=self.kind)
         if self.dtype not in ("float32", "float64"):
             raise ValueError(f"dtype must be 'float32' or 'float64', got {self.dtype!r}")
 
@@ -116,24 +159,37 @@ class Grid(eqx.Module):
         """Frequency in Hz -> angular frequency in radians/step."""
         return 2.0 * math.pi * frequency_hz * self.dt_s
 
+    @property
+    def origin_cells(self) -> float:
+        """Offset of cell centres from the origin, in cells: 0 for "2d" (the origin is the centre
+        of cell (0, 0)), 1/2 for "rz" (the origin is its low corner: the axis and z = 0)."""
+        return 0.5 if self.kind == "rz" else 0.0
+
     def cell_of(self, position_m) -> tuple[int, int]:
-        """Nearest cell index to a point (x_m, y_m); the origin is the centre of cell (0, 0)."""
-        ix, iy = (int(round(p / self.dx_m)) for p in position_m)
+        """Index of the cell containing a point (x_m, y_m), or (z_m, r_m) for "rz"."""
+        if self.kind == "rz":
+            iz, ir = (int(math.floor(p / self.dx_m)) for p in position_m)
+            return iz, ir
+        ix, iy = (int(round(p / self.dx_m)) for p in position_m)  # nearest cell centre
         return ix, iy
 
     def coordinates_m(self) -> tuple[np.ndarray, np.ndarray]:
-        """Cell-centre coordinates (x_m of shape (nx,), y_m of shape (ny,))."""
-        return np.arange(self.shape[0]) * self.dx_m, np.arange(self.shape[1]) * self.dx_m
+        """Cell-centre coordinates (x_m of shape (nx,), y_m of shape (ny,)); for "rz" (z_m, r_m)
+        with r_m = (j + 1/2) dx."""
+        o = self.origin_cells
+        return (np.arange(self.shape[0]) + o) * self.dx_m, (np.arange(self.shape[1]) + o) * self.dx_m
 
 
-def check_courant(c_lattice: float, what: str = "speed") -> None:
-    """Refuse a lattice speed above 1/sqrt(2) cells/step (unstable, not merely inaccurate)."""
+def check_courant(c_lattice: float, what: str = "speed", kind: GridKind = "2d") -> None:
+    """Refuse a lattice speed above `stability_limit(kind)` cells/step (unstable, not merely
+    inaccurate)."""
     if not (c_lattice >= 0):
         raise ValueError(f"{what} = {c_lattice} cells/step: must be >= 0")
-    if c_lattice > MAX_COURANT * (1 + 1e-12):
+    limit = stability_limit(kind)
+    if c_lattice > limit * (1 + 1e-12):
         raise ValueError(
-            f"{what} = {c_lattice:.6f} cells/step exceeds the 2-D stability limit 1/sqrt(2) = "
-            f"{MAX_COURANT:.6f}: the leapfrog would grow without bound. Lower `courant` "
+            f"{what} = {c_lattice:.6f} cells/step exceeds the {'2-D' if kind == '2d' else 'rz'} stability limit "
+            f"1/sqrt(2) = {limit:.6f}: the leapfrog would grow without bound. Lower `courant` "
             f"(the paper uses {PAPER_COURANT}) or set c_max_m_s to the fastest medium's speed."
         )
 
@@ -147,8 +203,10 @@ def make_grid(
     size_m: tuple[float, float] | None = None,
     courant: float = PAPER_COURANT,
     dtype: Literal["float32", "float64"] = "float32",
+    kind: GridKind = "2d",
 ) -> Grid:
-    """Build a `Grid` from the paper's scale parameters and either `shape` (cells) or `size_m`."""
+    """Build a `Grid` from the paper's scale parameters and either `shape` (cells) or `size_m`
+    (for `kind` = "rz": (length along z, radius) in metres)."""
     if (shape is None) == (size_m is None):
         raise ValueError("give exactly one of shape=(nx, ny) cells or size_m=(width_m, height_m)")
     if shape is None:
@@ -161,4 +219,5 @@ def make_grid(
         c_max_m_s=float(c_max_m_s),
         courant=float(courant),
         dtype=dtype,
+        kind=kind,
     )

@@ -1,5 +1,8 @@
 """The spatial operator of every lattice: one flux stencil shared by the forward step and the
 adjoint pass (see `coefficients.py` for the flux form and what each coefficient array means).
+
+On an rz grid the radial faces of ring j are weighted by the metric (A_(j+1)/V_j, A_j/V_j, one
+(1, ny) row each): ``L = L_z + V^(-1) L_r^A`` with L_z and the area-weighted L_r^A symmetric.
 """
 
 from __future__ import annotations
@@ -48,7 +51,8 @@ def face_gradient(lat: Lattice, q, axis: int):
 
 
 def divergence(lat: Lattice, g, axis: int):
-    """Net flux into each cell from the face values g along `axis` (without the factor K)."""
+    """Net flux into each cell from the face values g along `axis` (without the factor K; per
+    unit ring volume on an rz grid)."""
     g_hi = g[1:] if axis == 0 else g[:, 1:]
     g_lo = g[:-1] if axis == 0 else g[:, :-1]
     a_hi = lat.ax_hi if axis == 0 else lat.ay_hi
@@ -56,6 +60,9 @@ def divergence(lat: Lattice, g, axis: int):
     if a_hi is not None:
         g_hi = a_hi * g_hi
         g_lo = a_lo * g_lo
+    if axis == 1 and lat.metric is not None:
+        g_hi = lat.metric.hi * g_hi
+        g_lo = lat.metric.lo * g_lo
     return g_hi - g_lo
 
 
@@ -71,17 +78,20 @@ def operator(lat: Lattice, p):
 
 
 def stencil(lat: Lattice, q):
-    """L(q): the flux stencil without the factor K (symmetric unless the paper model's a-factors)."""
+    """L(q): the flux stencil without the factor K (symmetric unless the paper model's a-factors;
+    V^(-1) times a symmetric one on an rz grid)."""
     qp = jnp.pad(q, 1)
     east, west = qp[2:, 1:-1], qp[:-2, 1:-1]
     north, south = qp[1:-1, 2:], qp[1:-1, :-2]
     bx, by = _face_coefficients(lat, q.shape, q.dtype)
+    m = lat.metric
     terms = []
     for axis, (hi, lo), b, a_hi, a_lo in (
         (0, (east, west), bx, lat.ax_hi, lat.ax_lo),
         (1, (north, south), by, lat.ay_hi, lat.ay_lo),
     ):
-        if b is None and a_hi is None:
+        radial = axis == 1 and m is not None
+        if b is None and a_hi is None and not radial:
             terms.append(hi + lo - 2 * q)
             continue
         c_hi = c_lo = 1
@@ -89,11 +99,17 @@ def stencil(lat: Lattice, q):
             c_hi, c_lo = (b[1:], b[:-1]) if axis == 0 else (b[:, 1:], b[:, :-1])
         if a_hi is not None:
             c_hi, c_lo = a_hi * c_hi, a_lo * c_lo
+        if radial:  # ring faces: area over ring volume
+            c_hi, c_lo = m.hi * c_hi, m.lo * c_lo
         terms.append(c_hi * (hi - q) - c_lo * (q - lo))
     return terms[0] + terms[1]
 
 
 def adjoint_operator(lat: Lattice, lam):
-    """D^T(lam) = q_scale L(K lam), valid where L is symmetric (every model but "paper")."""
+    """D^T(lam) = q_scale L(K lam), valid where L is symmetric (every model but "paper"); on an rz
+    grid L = V^(-1) S with S symmetric, so D^T(lam) = V L(K lam / V)."""
+    if lat.metric is not None:
+        v = lat.metric.volume
+        return v * stencil(lat, lat.K * lam / v)
     y = stencil(lat, lat.K * lam)
     return y if lat.q_scale is None else lat.q_scale * y

@@ -11,11 +11,20 @@ from .loop import (
     simulate,
 )
 from .sensors import Sensors
-from .sources import ContinuousWave, PointSources, ToneBurst, line_transducer
+from .sources import (
+    ContinuousWave,
+    PointSources,
+    ToneBurst,
+    disc_housing,
+    disc_transducer,
+    line_transducer,
+    ring_fractions,
+    ring_radii_m,
+)
 from .stepper import State, Stepper
 
 __all__ = [
     "INSTABILITY_MESSAGE", "SPEED_MESSAGE", "ContinuousWave", "PointSources", "Result", "Sensors",
-    "State", "Stepper", "ToneBurst", "check_result", "grid_sharding", "line_transducer", "run",
-    "simulate",
+    "State", "Stepper", "ToneBurst", "check_result", "disc_housing", "disc_transducer", "grid_sharding",
+    "line_transducer", "ring_fractions", "ring_radii_m", "run", "simulate",
 ]

@@ -7,7 +7,8 @@ the forward pass:
 
 - adjoint fields: with ``S(p, p') = keep ((2 p - (1 - s) p' + D p) / (1 + s))`` and
   ``a = keep g / (1 + s)``, the cotangents of (p(n), p(n-1)) are ``2 a + D^T a + g'`` and
-  ``-(1 - s) a``, where ``D^T a = q_scale L(K a)`` (L is symmetric);
+  ``-(1 - s) a``, where ``D^T a = q_scale L(K a)`` (L is symmetric), or ``V L(K a / V)`` on an rz
+  grid (L = V^(-1) times a symmetric operator, V the ring volumes);
 - source gradients: the adjoint field at the source cells, chained through the drive signal;
 - coefficient gradients (medium maps, shapes): per step, the cotangent of the lattice
   coefficients at the forward fields, which are recomputed chunk by chunk from states saved
@@ -29,6 +30,7 @@ import jax
 import jax.numpy as jnp
 
 from ..lattice.operators import operator, stencil
+from .stepper import source_injection
 
 
 def supports(stepper, state=None) -> str | None:
@@ -139,7 +141,7 @@ def _linear_run_bwd(starts, grads, perturbed, stepper, n_steps, chunk):
         if use_phasors:
             c = sens.phasor_cells
             ang = _angles(grid, sens, n)
-            w = jnp.where(n > 0, 1.0, 0.0).astype(dtype)
+            w = jnp.where(n > sens.phasor_from_step, 1.0, 0.0).astype(dtype)
             g = g.at[c[:, 0], c[:, 1]].add(w * (g_re * jnp.cos(ang) + g_im * jnp.sin(ang)))
         return g
 
@@ -167,11 +169,16 @@ def _linear_run_bwd(starts, grads, perturbed, stepper, n_steps, chunk):
             out["q_scale"] = p_n * stencil(lat, ka)
         for f, axis in (("bx", 0), ("by", 1)):
             if f in fields_wanted:
-                qp, kp = jnp.pad(q, 1), jnp.pad(ka, 1)
+                qp = jnp.pad(q, 1)
                 if axis == 0:
+                    kp = jnp.pad(ka, 1)
                     out[f] = -(qp[1:, 1:-1] - qp[:-1, 1:-1]) * (kp[1:, 1:-1] - kp[:-1, 1:-1])
-                else:
+                elif lat.metric is None:
+                    kp = jnp.pad(ka, 1)
                     out[f] = -(qp[1:-1, 1:] - qp[1:-1, :-1]) * (kp[1:-1, 1:] - kp[1:-1, :-1])
+                else:  # rz: a radial face of area A couples ka / V on either side
+                    kp = jnp.pad(ka / lat.metric.volume, 1)
+                    out[f] = -lat.metric.area * (qp[1:-1, 1:] - qp[1:-1, :-1]) * (kp[1:-1, 1:] - kp[1:-1, :-1])
         if "keep" in fields_wanted or "sponge" in fields_wanted:
             s_ = lat.sponge
             u = 2 * p_n - p_nm1 + lat.K * lq if s_ is None else (2 * p_n - (1 - s_) * p_nm1 + lat.K * lq) / (1 + s_)
@@ -189,14 +196,14 @@ def _linear_run_bwd(starts, grads, perturbed, stepper, n_steps, chunk):
         for src in reversed(stepper.sources):
             c = src.cells
             src_ct.append(g1[c[:, 0], c[:, 1]])
-            if src.injection == "hard":
+            if not src.adds:
                 g1 = g1.at[c[:, 0], c[:, 1]].set(0.0)
         src_ct = tuple(reversed(src_ct))
         a = g1 if lat.keep is None else lat.keep * g1
         if lat.sponge is not None:
             a = a / (1 + lat.sponge)
         ka = lat.K * a
-        y = stencil(lat, ka)
+        y = stencil(lat, ka) if lat.metric is None else lat.metric.volume * stencil(lat, ka / lat.metric.volume)
         if fields_wanted:
             p_n, p_nm1 = fields if need_prev else (fields, None)
             ct = lattice_ct(g1, a, ka, p_n, p_nm1)
@@ -225,8 +232,8 @@ def _linear_run_bwd(starts, grads, perturbed, stepper, n_steps, chunk):
                 t = n_next.astype(dtype) * grid.dt_s
                 for src in stepper.sources:
                     cc = src.cells
-                    v = src.values(t).astype(dtype)
-                    new = new.at[cc[:, 0], cc[:, 1]].add(v) if src.injection == "soft" else new.at[cc[:, 0], cc[:, 1]].set(v)
+                    v = source_injection(src, t, grid, lat).astype(dtype)
+                    new = new.at[cc[:, 0], cc[:, 1]].add(v) if src.adds else new.at[cc[:, 0], cc[:, 1]].set(v)
                 return (new, p), ((p, pp) if need_prev else p)
 
             _, fields = jax.lax.scan(fwd_one, (p_start, pp_start), ns, unroll=min(2, length))
@@ -252,18 +259,31 @@ def _linear_run_bwd(starts, grads, perturbed, stepper, n_steps, chunk):
     src_cts = tuple(jnp.concatenate([pc[i] for pc in pieces], axis=0) for i in range(len(stepper.sources)))
     _, _, lat_ct = carry
 
-    # chain the per-step source cotangents through the drive signals (weights, lags)
+    # chain the per-step source cotangents through the drive signals (weights, lags) and, for
+    # velocity sources, the lattice speed at their cells
     t_all = (jnp.arange(1, n_steps + 1)).astype(dtype) * grid.dt_s
     src_grads = []
+    want_c = any(s.injection == "velocity" for s in stepper.sources) and any(
+        jax.tree_util.tree_leaves(perturbed.lattice.c))
+    c_ct = None
     for src, ct in zip(stepper.sources, src_cts):
-        _, vjp = jax.vjp(lambda s: jax.vmap(s.values)(t_all), src)
-        (g,) = vjp(ct.astype(dtype))
+        def injected(s, c):
+            lat_c = eqx.tree_at(lambda L: L.c, lat, c)
+            return jax.vmap(lambda t: source_injection(s, t, grid, lat_c))(t_all)
+
+        _, vjp = jax.vjp(injected, src, lat.c)
+        g, gc = vjp(ct.astype(dtype))
         src_grads.append(g)
+        if want_c and src.injection == "velocity":
+            c_ct = gc if c_ct is None else c_ct + gc
 
     out = jax.tree_util.tree_map(lambda _: None, stepper)
     sources_ct = tuple(_mask(g, pt) for g, pt in zip(src_grads, perturbed.sources))
     out = eqx.tree_at(lambda s: s.sources, out, sources_ct, is_leaf=lambda x: x is None)
-    if fields_wanted:
+    if c_ct is not None:
+        lat_ct = dict(lat_ct)
+        lat_ct["c"] = c_ct
+    if lat_ct:
         lat_grad = jax.tree_util.tree_map(lambda _: None, lat)
         names = tuple(lat_ct)
         lat_grad = eqx.tree_at(lambda L: tuple(getattr(L, f) for f in names), lat_grad,

@@ -19,7 +19,7 @@ import numpy as np
 from jaxtyping import Array, Complex, Float, Int
 
 from ..lattice.coefficients import Edges
-from ..lattice.grid import MAX_COURANT, Grid
+from ..lattice.grid import Grid, stability_limit
 from ..lattice.medium import Medium
 from .sensors import Sensors
 from .sources import PointSources
@@ -81,6 +81,7 @@ def run(
     unroll: int | None = None,
     sharding: "jax.sharding.Sharding | None" = None,
     adjoint: Literal["autodiff", "lattice", "auto"] = "autodiff",
+    backend: Literal["auto", "jax", "native"] = "auto",
 ) -> Result:
     """Run `n_steps` steps from `state` (default: rest) and collect the sensors. Pure and jittable.
 
@@ -96,12 +97,25 @@ def run(
     scan (the reference; also the only one with forward mode). "lattice": the adjoint wave
     equation run backwards (`difflattice.adjoint`): the same gradients at about twice the forward
     time for sources and bounded memory (`checkpoint` chunks, default sqrt(n_steps)) for medium
-    maps; raises for scenes it does not support. "auto": "lattice" where supported."""
+    maps; raises for scenes it does not support. "auto": "lattice" where supported.
+
+    `backend`: "jax" (this loop: the reference, and the path on GPUs), "native" (the C++ kernels
+    of `difflattice.solver.native` on a CPU: raises if the scene or machine is not supported), or
+    "auto" (native where supported, else jax). Derivatives of a native run are the JAX loop's."""
     if not isinstance(n_steps, (int, np.integer)) or n_steps < 1:
         raise ValueError(f"n_steps = {n_steps!r} must be a positive integer")
     n_steps = int(n_steps)
     if adjoint not in ("autodiff", "lattice", "auto"):
         raise ValueError(f"adjoint = {adjoint!r}; allowed: 'autodiff', 'lattice', 'auto'")
+    # --- native CPU kernels (issue 15): the one dispatch hook ------------------------------
+    if backend != "jax":
+        from . import native
+
+        result = native.dispatch(stepper, n_steps, state=state, checkpoint=checkpoint, unroll=unroll,
+                                 sharding=sharding, adjoint=adjoint, backend=backend)
+        if result is not None:
+            return result
+    # ------------------------------------------------------------------------------------------
     if adjoint != "autodiff":
         from . import adjoint as adj
 
@@ -228,7 +242,7 @@ INSTABILITY_MESSAGE = (
     "or float32 overflow from extreme source amplitudes (scale the weights or use float64)."
 )
 SPEED_MESSAGE = (
-    "difflattice: a medium speed exceeds 1/sqrt(2) cells/step, the 2-D stability limit: lower the "
+    "difflattice: a medium speed exceeds 1/sqrt(2) cells/step, the stability limit (2-D and rz): lower the "
     "grid courant or set c_max_m_s to the fastest medium's speed."
 )
 
@@ -252,6 +266,7 @@ def simulate(
     sharding: "jax.sharding.Sharding | None" = None,
     adjoint: Literal["autodiff", "lattice", "auto"] = "autodiff",
     throw: bool = True,
+    backend: Literal["auto", "jax", "native"] = "auto",
 ) -> Result:
     """Simulate `n_steps` time steps of the scene and return what the sensors recorded.
 
@@ -268,18 +283,22 @@ def simulate(
     - `adjoint`: reverse-mode method, "autodiff" (JAX's), "lattice" (adjoint wave equation,
       faster and memory-bounded) or "auto" (see `run`).
     - `throw`: raise on non-finite fields (otherwise inspect `result.peak_history`).
+    - `backend`: "auto" (native CPU kernels where supported), "jax" or "native" (see `run`).
     """
     stepper = Stepper.build(grid, medium, sources, sensors, edges)
-    return _simulate(stepper, n_steps, checkpoint, unroll, sharding, adjoint, throw)
+    return _simulate(stepper, n_steps, checkpoint, unroll, sharding, adjoint, throw, backend)
 
 
 @eqx.filter_jit
-def _simulate(stepper: Stepper, n_steps: int, checkpoint, unroll: int | None, sharding, adjoint, throw: bool) -> Result:
+def _simulate(stepper: Stepper, n_steps: int, checkpoint, unroll: int | None, sharding, adjoint, throw: bool,
+              backend: str = "auto") -> Result:
     lat = stepper.lattice
     if jnp.ndim(lat.c) != 0 or isinstance(lat.c, jax.core.Tracer):
         # speeds may be traced (e.g. fitted): check the stability limit at run time
-        stepper = eqx.error_if(stepper, jnp.max(lat.c) > MAX_COURANT * (1 + 1e-6), SPEED_MESSAGE)
-    result = run(stepper, n_steps, checkpoint=checkpoint, unroll=unroll, sharding=sharding, adjoint=adjoint)
+        limit = stability_limit(stepper.grid.kind)
+        stepper = eqx.error_if(stepper, jnp.max(lat.c) > limit * (1 + 1e-6), SPEED_MESSAGE)
+    result = run(stepper, n_steps, checkpoint=checkpoint, unroll=unroll, sharding=sharding, adjoint=adjoint,
+                 backend=backend)
     if throw:
         result = check_result(result, stepper)
     return result

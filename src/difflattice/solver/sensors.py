@@ -29,6 +29,10 @@ class Sensors(eqx.Module):
     - `probes`: (n, 2) cell indices recorded every step.
     - `phasor_cells`: (m, 2) cell indices whose DFT at `phasor_frequency_hz` is accumulated.
     - `phasor_frequency_hz`: None means the grid's drive frequency.
+    - `phasor_from_step`: accumulate the phasors over steps n > this only (0: all steps). For a
+      continuous wave, start once the field is steady and run a whole number of periods after it
+      (with a whole number of steps per period the DFT has no leakage): the phasor is then
+      (n_steps - phasor_from_step) / 2 times the complex amplitude (p = Re(A exp(-i omega t))).
     - `p_max`, `p_rms`: record the whole-field peak |p| and RMS (Pa).
     - `arrival_threshold_pa`: if set, record the first step at which |p| exceeds it (-1: never).
     - `snapshot_every`: if set, return the field every that many steps.
@@ -37,6 +41,7 @@ class Sensors(eqx.Module):
     probes: Int[Array, "n 2"] = eqx.field(default=(), converter=as_cells)
     phasor_cells: Int[Array, "m 2"] = eqx.field(default=(), converter=as_cells)
     phasor_frequency_hz: float | None = eqx.field(static=True, default=None)
+    phasor_from_step: int = eqx.field(static=True, default=0)
     p_max: bool = eqx.field(static=True, default=False)
     p_rms: bool = eqx.field(static=True, default=False)
     arrival_threshold_pa: float | None = eqx.field(static=True, default=None)
@@ -45,6 +50,8 @@ class Sensors(eqx.Module):
     def __check_init__(self):
         if self.snapshot_every is not None and self.snapshot_every < 1:
             raise ValueError(f"snapshot_every = {self.snapshot_every} must be >= 1 step")
+        if not (isinstance(self.phasor_from_step, (int, np.integer)) and self.phasor_from_step >= 0):
+            raise ValueError(f"phasor_from_step = {self.phasor_from_step!r} must be an integer >= 0 (steps)")
         if self.arrival_threshold_pa is not None and not self.arrival_threshold_pa > 0:
             raise ValueError(f"arrival_threshold_pa = {self.arrival_threshold_pa} must be > 0")
 
@@ -69,8 +76,10 @@ class Sensors(eqx.Module):
 
 
 def probe_cells(grid: Grid, points_m) -> np.ndarray:
-    """Nearest cells to points given in metres, shape (n, 2)."""
+    """Cells containing points given in metres ((x, y), or (z, r) on an rz grid), shape (n, 2)."""
     pts = np.asarray(points_m, dtype=float).reshape(-1, 2)
+    if grid.kind == "rz":
+        return np.floor(pts / grid.dx_m).astype(np.int64)
     return np.rint(pts / grid.dx_m).astype(np.int64)
 
 

@@ -1,8 +1,22 @@
-"""Sources: drive signals and transducers (lines of source cells with per-cell weights and lags).
+"""Sources: drive signals and transducers (lines of source cells with per-cell weights and lags;
+on an axisymmetric grid, discs of ring cells).
 
 Per-cell weights (dimensionless) and phase lags (seconds) are arrays, so they can be fitted. Cell
 positions are integer arrays: their number fixes the compiled shapes, their values do not, so a
 moved transducer reuses the compiled simulation. The signal shape and the injection mode are static.
+
+Injection modes (what the step does with ``v(t) = weights * signal(t - lags_s)``):
+
+- "soft": adds v(t_(n+1)) to P at each new step n+1 (a pressure source, transparent to waves);
+- "hard": sets P = v (a reflecting source);
+- "velocity": a vibrating face: the low z face of each source cell (axis 0) moves with normal
+  velocity u(t) = v(t) / (rho c), v in Pa (the plane-wave pressure rho c u of the face; rho c of
+  the medium in the cell). It is the finite-volume flux through that face: with
+  ``dP/dt = K (A / V) u`` per cell (K = rho c^2, A / V = 1 / dx for a face of the cell, plane or
+  ring), the leapfrog gains ``c_lat (v(t_(n+1/2)) - v(t_(n-1/2)))`` per step, c_lat the cell's
+  lattice speed. Put the face on a closed face (a rigid window edge or a rigid body behind the
+  cell) to model a piston; the absolute level then follows without any fitted scale (a baffled
+  disc's on-axis pressure is 2 rho c u |sin(k (sqrt(z^2 + a^2) - z) / 2)|).
 """
 
 from __future__ import annotations
@@ -88,14 +102,15 @@ class PointSources(eqx.Module):
     - `signal`: the drive signal.
     - `weights`: (n,) amplitude weights (dimensionless, differentiable).
     - `lags_s`: (n,) delays in seconds (differentiable; > 0 emits later).
-    - `injection`: "soft" (add to P: transparent to waves) or "hard" (set P: a reflecting source).
+    - `injection`: "soft" (add to P: transparent to waves), "hard" (set P: a reflecting source)
+      or "velocity" (a vibrating low z face of each cell; see the module docstring).
     """
 
     cells: Int[Array, "n 2"] = eqx.field(converter=lambda c: as_cells(c))
     signal: Signal
     weights: Float[Array, " n"]
     lags_s: Float[Array, " n"]
-    injection: Literal["soft", "hard"] = eqx.field(static=True, default="soft")
+    injection: Literal["soft", "hard", "velocity"] = eqx.field(static=True, default="soft")
 
     def __check_init__(self):
         n = self.n_cells
@@ -104,8 +119,8 @@ class PointSources(eqx.Module):
                 f"weights {jnp.shape(self.weights)} and lags_s {jnp.shape(self.lags_s)} must both "
                 f"have shape ({n},), one entry per source cell"
             )
-        if self.injection not in ("soft", "hard"):
-            raise ValueError(f"injection = {self.injection!r}; allowed: 'soft', 'hard'")
+        if self.injection not in INJECTIONS:
+            raise ValueError(f"injection = {self.injection!r}; allowed: {', '.join(map(repr, INJECTIONS))}")
 
     @property
     def n_cells(self) -> int:
@@ -119,6 +134,22 @@ class PointSources(eqx.Module):
     def values(self, t_s):
         """Source values at time t_s (scalar seconds): weights * signal(t - lags)."""
         return self.weights * self.signal(t_s - self.lags_s)
+
+    @property
+    def adds(self) -> bool:
+        """True if the step adds the source to P ("soft", "velocity"), False if it sets it."""
+        return self.injection != "hard"
+
+    def injected(self, t_s, dt_s: float, c_lattice):
+        """What the step adds to (or sets in) P at the new step's time `t_s` (seconds): v(t_s) for
+        "soft" and "hard"; ``c_lattice (v(t_s - dt/2) - v(t_s - 3 dt/2))`` for "velocity"
+        (`c_lattice`: the lattice speed at the cells, cells/step, scalar or (n,))."""
+        if self.injection == "velocity":
+            return c_lattice * (self.values(t_s - 0.5 * dt_s) - self.values(t_s - 1.5 * dt_s))
+        return self.values(t_s)
+
+
+INJECTIONS = ("soft", "hard", "velocity")
 
 
 
@@ -195,3 +226,149 @@ def line_transducer(
     return PointSources(cells=cells, signal=sig, weights=w, lags_s=lag, injection=injection)
 
 
+
+
+# ------------------------------------------------------------------------------------------
+# Circular transducers on an axisymmetric (rz) grid
+
+Baffle = Literal["rigid", "none", "can"]
+BAFFLES = ("rigid", "none", "can")
+
+
+def ring_fractions(radius_cells, n_rings: int) -> Float[Array, " n_rings"]:
+    """Fraction of each ring's axial face (r in [j, j + 1] cells) covered by a disc of radius
+    `radius_cells`: ``clip((a^2 - j^2) / (2 j + 1), 0, 1)``, the exact area fraction, so the disc's
+    area is exactly pi a^2 and its radius a continuous, differentiable parameter (the derivative
+    jumps only where the rim crosses a ring face)."""
+    j = jnp.arange(n_rings)
+    a = jnp.asarray(radius_cells)
+    return jnp.clip((a * a - j * j) / (2 * j + 1), 0.0, 1.0)
+
+
+def ring_radii_m(grid: Grid, n_rings: int) -> np.ndarray:
+    """Centre radii (j + 1/2) dx of the first `n_rings` rings, metres (to build weight and lag
+    profiles for `disc_transducer`)."""
+    return (np.arange(n_rings) + 0.5) * grid.dx_m
+
+
+def _check_rz(grid: Grid, what: str) -> None:
+    if grid.kind != "rz":
+        raise ValueError(
+            f"{what} needs an axisymmetric grid (make_grid(..., kind='rz')), got kind = {grid.kind!r}; "
+            "on a 2-D grid use line_transducer"
+        )
+
+
+def face_row(grid: Grid, z_m: float) -> int:
+    """The cell row whose low face is the plane z = `z_m` (snapped to the nearest cell face)."""
+    return int(round(z_m / grid.dx_m))
+
+
+def disc_transducer(
+    grid: Grid,
+    *,
+    radius_m,
+    z_m: float = 0.0,
+    n_rings: int | None = None,
+    weights=None,
+    lags_s=None,
+    signal: Signal | None = None,
+    baffle: Baffle = "rigid",
+) -> PointSources:
+    """A circular piston on an rz grid: one ring of source cells per ring of the face, facing +z.
+
+    The face is the plane z = `z_m` (snapped to a cell face, row `face_row(grid, z_m)`); each ring
+    cell in front of it is a "velocity" source (see the module docstring): its low face vibrates
+    with u(t) = weight_j signal(t - lag_j) / (rho c), times the fraction of the ring's face inside
+    the radius (`ring_fractions`), so the radius is continuous and differentiable.
+
+    **Arguments:**
+    - `radius_m`: disc radius in metres (float or a traced scalar; differentiable).
+    - `z_m`: the face plane, metres (z = 0 is the z_lo window face).
+    - `n_rings`: number of ring cells (static); default: every ring the radius touches,
+      ``ceil(radius / dx)``. Give it when `radius_m` is traced (fitted) with room to grow.
+    - `weights`: (n_rings,) per-ring velocity weights (dimensionless, differentiable; default 1).
+    - `lags_s`: (n_rings,) per-ring delays in seconds (differentiable; default 0).
+    - `signal`: the drive, amplitude in Pa = rho c u0 (the plane-wave pressure of the face's
+      velocity amplitude u0); default a 5-cycle Hann burst at the grid frequency, 1 Pa.
+    - `baffle`: "rigid" (an infinite rigid baffle: the face must be the closed window face z = 0,
+      `Edges.axisymmetric(z_lo="rigid")`), "none" (a bare disc, back at rest) or "can" (a housing);
+      for the last two the face lies inside the window and `disc_housing` gives the rigid body
+      behind it.
+    """
+    _check_rz(grid, "disc_transducer")
+    if baffle not in BAFFLES:
+        raise ValueError(f"baffle = {baffle!r}; allowed: {', '.join(map(repr, BAFFLES))}")
+    i0 = face_row(grid, z_m)
+    if baffle == "rigid" and i0 != 0:
+        raise ValueError(
+            f"baffle = 'rigid' puts the face on the rigid z_lo window face z = 0, got z_m = {z_m} m "
+            f"(row {i0}): use z_m = 0 with Edges.axisymmetric(z_lo='rigid'), or baffle = 'none' / 'can' "
+            "with disc_housing for a face inside the window"
+        )
+    if baffle != "rigid" and i0 < 1:
+        raise ValueError(f"baffle = {baffle!r}: the face z_m = {z_m} m needs room behind it for the housing; move it up")
+    nx, ny = grid.shape
+    if not 0 <= i0 < nx:
+        raise ValueError(f"face z_m = {z_m} m (row {i0}) lies outside the grid (0 .. {nx - 1})")
+    if n_rings is None:
+        try:
+            a_cells = float(radius_m) / grid.dx_m
+        except Exception:  # traced radius
+            raise ValueError("radius_m is traced: give n_rings (static) explicitly") from None
+        n_rings = max(1, math.ceil(a_cells - 1e-9))
+    n_rings = int(n_rings)
+    if not 1 <= n_rings <= ny:
+        raise ValueError(f"n_rings = {n_rings} must be in 1 .. {ny} (the grid's rings)")
+    try:
+        a_cells = float(radius_m) / grid.dx_m
+        if not a_cells > 0:
+            raise ValueError(f"radius_m = {radius_m} must be > 0")
+        if a_cells > n_rings + 1e-9:
+            raise ValueError(f"radius_m = {radius_m} ({a_cells:.3f} cells) exceeds n_rings = {n_rings}: raise n_rings")
+    except (TypeError, jax.errors.ConcretizationTypeError):
+        pass  # traced
+    dtype = grid.jnp_dtype
+    cells = np.stack([np.full(n_rings, i0), np.arange(n_rings)], 1)
+    frac = ring_fractions(jnp.asarray(radius_m, dtype) / grid.dx_m, n_rings).astype(dtype)
+    w = jnp.ones(n_rings, dtype) if weights is None else jnp.asarray(weights, dtype)
+    lag = jnp.zeros(n_rings, dtype) if lags_s is None else jnp.asarray(lags_s, dtype)
+    if w.shape != (n_rings,) or lag.shape != (n_rings,):
+        raise ValueError(f"weights {w.shape} and lags_s {lag.shape} must have shape ({n_rings},), one per ring")
+    sig = signal if signal is not None else ToneBurst(grid.frequency_hz, 5.0)
+    return PointSources(cells=cells, signal=sig, weights=w * frac, lags_s=lag, injection="velocity")
+
+
+def disc_housing(
+    grid: Grid,
+    *,
+    radius_m,
+    z_m: float,
+    baffle: Baffle,
+    depth_m=None,
+    wall_m=0.0,
+) -> Float[Array, "nz nr"] | None:
+    """Rigid occupancy (nz, nr) of what lies behind a `disc_transducer` face, as a body of
+    revolution: None for "rigid" (the baffle is the window face); for "none" a rigid disc of
+    `radius_m` and thickness `depth_m` (default one cell) behind the face; for "can" a closed can of
+    outer radius `radius_m + wall_m` and depth `depth_m` (required) whose front is flush with the
+    face. Occupancies are exact ring-volume fractions (smooth in the radii and the depth), for the
+    cut-cell model of `build_lattice`. Pass it as `Medium(..., rigid=...)` (combine with other
+    bodies by `geometry.union_occupancy`)."""
+    _check_rz(grid, "disc_housing")
+    if baffle not in BAFFLES:
+        raise ValueError(f"baffle = {baffle!r}; allowed: {', '.join(map(repr, BAFFLES))}")
+    if baffle == "rigid":
+        return None
+    if baffle == "can" and depth_m is None:
+        raise ValueError("baffle = 'can' needs depth_m (the can's depth behind the face, metres)")
+    dx = grid.dx_m
+    dtype = grid.jnp_dtype
+    nx, ny = grid.shape
+    depth = jnp.asarray(dx if depth_m is None else depth_m, dtype) / dx
+    outer = (jnp.asarray(radius_m, dtype) + (jnp.asarray(wall_m, dtype) if baffle == "can" else 0.0)) / dx
+    zf = face_row(grid, z_m)
+    i = jnp.arange(nx, dtype=dtype)
+    fz = jnp.clip(jnp.minimum(i + 1, zf) - jnp.maximum(i, zf - depth), 0.0, 1.0)
+    fr = ring_fractions(outer, ny).astype(dtype)
+    return (fz[:, None] * fr[None, :]).astype(dtype)

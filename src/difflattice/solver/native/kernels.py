@@ -1,0 +1,311 @@
+"""The time loop on the native kernels: the chunked loop of `loop.run` (same chunks, peak history,
+snapshots and `Result`), each chunk of steps one XLA FFI call that also injects the sources and
+records probes, phasors and field statistics.
+
+Derivatives: the native loop is a `custom_jvp` whose rule is the JAX reference loop
+(`loop.run(..., backend="jax")`), so `jax.jvp`, `jax.grad` and `jax.jacfwd` through a native run
+give JAX's own derivatives (never the derivative of an opaque call, never silently wrong); only
+runs that are not differentiated execute the native kernel.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ...lattice.coefficients import Lattice
+from ...lattice.operators import _face_coefficients
+from ..stepper import State, Stepper
+
+# Lattice fields the kernels implement; a field added to `Lattice` later is refused (the JAX loop
+# runs) until the kernels learn it
+KNOWN_LATTICE_FIELDS = frozenset({"K", "q_scale", "bx", "by", "ax_lo", "ax_hi", "ay_lo", "ay_hi", "keep", "c",
+                                  "sponge", "pml", "metric", "eta", "ghosts", "mur"})
+L1_BYTES = 40 * 1024  # working-set budgets of the temporal blocking (most x86 cores: 48 KB L1d,
+L2_BYTES = 512 * 1024  # >= 1 MB L2)
+
+
+def unsupported(stepper: Stepper, state: State | None, sharding) -> str | None:
+    """None if the native kernels run this scene, otherwise the reason they do not."""
+    if sharding is not None:
+        return "a sharded run (the native kernels run on one host)"
+    if jax.default_backend() != "cpu":
+        return f"the {jax.default_backend()} backend (the native kernels run on CPUs)"
+    grid, lat = stepper.grid, stepper.lattice
+    if len(grid.shape) != 2:
+        return f"a {len(grid.shape)}-D grid (the native kernels are 2-D)"
+    if grid.dtype not in ("float32", "float64"):
+        return f"dtype {grid.dtype}"
+    if type(stepper) is not Stepper or type(lat) is not Lattice:
+        return f"a custom stepper ({type(stepper).__name__})"
+    extra = [f.name for f in dataclasses.fields(lat) if f.name not in KNOWN_LATTICE_FIELDS and getattr(lat, f.name) is not None]
+    if extra:
+        return f"lattice terms the kernels do not implement ({', '.join(extra)})"
+    if any(lat.mur):
+        return "Mur edges"
+    rad = None if lat.pml is None else getattr(lat.pml, "radial", None)
+    if rad is not None and not (hasattr(rad, "decay") and hasattr(rad, "drive")):
+        return "an rz r_hi PML correction the kernels do not implement"
+    if lat.ax_lo is not None:
+        return 'the "paper" boundary model'
+    nx, ny = grid.shape
+    layouts = {"K": (nx, ny), "q_scale": (nx, ny), "keep": (nx, ny), "sponge": (nx, ny), "bx": (nx + 1, ny),
+               "by": (nx, ny + 1)}
+    for name, full in layouts.items():
+        v = getattr(lat, name)
+        if v is not None and not _broadcasts(jnp.shape(v), full):
+            return f"a {name} array of shape {jnp.shape(v)} (not a row, column or full layout of {full})"
+    if stepper.staggered and lat.pml is None:
+        return "a staggered stepper without PML factors"
+    metric = getattr(lat, "metric", None)
+    if metric is not None and not all(_broadcasts(jnp.shape(v), (nx, ny)) for v in (metric.lo, metric.hi)):
+        return "an rz metric that is not a row, column or full layout"
+    if state is not None and stepper.staggered != (state.px is not None):
+        return "a start state of the other stepper"
+    return None
+
+
+def _broadcasts(shape, full) -> bool:
+    n, m = full
+    return tuple(shape) in ((), (1,), (1, 1), (n, m), (n, 1), (1, m))
+
+
+def _threads() -> int:
+    env = os.environ.get("DIFFLATTICE_NATIVE_THREADS")
+    if env:
+        return max(1, int(env))
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def _levels(ny: int, itemsize: int, staggered: bool) -> int:
+    """Steps each thread advances per sweep over the rows (temporal blocking): as many as keep a
+    sweep's rows (about `levels + 2` rows of each field) in L1, else in L2. Measured on a Xeon
+    (Sapphire Rapids class, 2 cores; benchmarks/native_tuning.py): rows of 630 cells ran fastest
+    with 8 steps per sweep (L1), rows of 2048 with 32 (L2)."""
+    env = os.environ.get("DIFFLATTICE_NATIVE_LEVELS")
+    if env:
+        return max(1, int(env))
+    row = ny * itemsize * (6 if staggered else 2)  # bytes of one row of every field a step touches
+    in_l1 = L1_BYTES // row
+    if in_l1 >= 6:
+        return min(in_l1, 16)
+    return max(2, min(32, L2_BYTES // row - 2))
+
+
+# ------------------------------------------------------------------------------------------
+# one chunk of steps = one FFI call
+
+
+def _absent(dtype):
+    return jnp.zeros((0,), dtype)
+
+
+def _cells(cells):
+    return jnp.asarray(cells, jnp.int32).reshape(-1, 2)
+
+
+class _Chunk:
+    """The constant inputs of the FFI calls of one stepper (built once per trace)."""
+
+    def __init__(self, stepper: Stepper, threads: int, levels: int):
+        self.stepper = stepper
+        grid, lat, sens = stepper.grid, stepper.lattice, stepper.sensors
+        self.dt = dt = grid.jnp_dtype
+        self.shape = grid.shape
+        self.attrs = dict(threads=np.int64(threads), levels=np.int64(levels), eta=float(lat.eta),
+                          threshold=float(sens.arrival_threshold_pa or 0.0))
+        as_dt = lambda v: _absent(dt) if v is None else jnp.asarray(v, dt)
+        bx, by = _face_coefficients(lat, self.shape, dt)
+        self.coef = [as_dt(lat.K), as_dt(bx), as_dt(by), as_dt(lat.q_scale), as_dt(lat.keep)]
+        metric = getattr(lat, "metric", None)  # rz grids: per-ring factors of the radial faces
+        self.metric = [as_dt(None if metric is None else metric.lo), as_dt(None if metric is None else metric.hi)]
+        self.sponge = as_dt(lat.sponge)
+        if stepper.staggered:
+            pml = lat.pml
+            self.pml = [as_dt(getattr(pml, k)) for k in ("ax_cell", "bx_cell", "ax_face", "bx_face",
+                                                          "ay_cell", "by_cell", "ay_face", "by_face")]
+            rad = getattr(pml, "radial", None)  # rz r_hi layer: the ring field C's update factors
+            self.radial = [as_dt(None if rad is None else rad.decay.reshape(-1)),
+                           as_dt(None if rad is None else rad.drive.reshape(-1))]
+        srcs = stepper.sources
+        self.src_cells = _cells(jnp.concatenate([_cells(s.cells) for s in srcs])) if srcs else jnp.zeros((0, 2), jnp.int32)
+        self.src_hard = jnp.asarray(np.concatenate([np.full(s.n_cells, s.injection == "hard", np.int32) for s in srcs])
+                                    if srcs else np.zeros(0, np.int32))
+        self.rec_cells = _cells(sens.probes)
+        self.ph_cells = _cells(sens.phasor_cells)
+        self.n_probes, self.n_ph = sens.n_probes, sens.n_phasors
+
+    def tables(self, n0, length):
+        """Per-step source values (length, n_src) and phasor cos/sin (length,), as the stepper
+        computes them for steps n0 + 1 .. n0 + length."""
+        st, grid, sens = self.stepper, self.stepper.grid, self.stepper.sensors
+        ns = n0 + 1 + jnp.arange(length, dtype=jnp.int32)
+        if st.sources:
+            vals = jax.vmap(st._source_values)(ns)
+            vals = jnp.concatenate([v.reshape(length, -1) for v in vals], axis=1).astype(self.dt)
+        else:
+            vals = jnp.zeros((length, 0), self.dt)
+        if self.n_ph:
+            f = sens.phasor_frequency_hz or grid.frequency_hz
+            w = grid.hz_to_lattice_omega(f)
+            ang = (ns.astype(self.dt) * w) % (2 * math.pi)
+            cos, sin = jnp.cos(ang), jnp.sin(ang)
+            start = getattr(sens, "phasor_from_step", 0)
+            if start:  # the stepper adds 0 * cos up to that step
+                cos, sin = jnp.where(ns > start, cos, 0.0), jnp.where(ns > start, sin, 0.0)
+        else:
+            cos = sin = jnp.zeros((length,), self.dt)
+        return vals, cos, sin
+
+    def _stats_in(self, st: State):
+        dt = self.dt
+        return [_absent(dt) if st.phasor_re is None else st.phasor_re,
+                _absent(dt) if st.phasor_im is None else st.phasor_im,
+                _absent(dt) if st.p_max is None else st.p_max,
+                _absent(dt) if st.p_sq is None else st.p_sq,
+                _absent(jnp.int32) if st.arrival is None else st.arrival]
+
+    def advance(self, st: State, length: int):
+        """`length` steps from `st`; returns the new state and the probes (length, n) or None."""
+        vals, cos, sin = self.tables(st.n, length)
+        stats = self._stats_in(st)
+        n0 = jnp.asarray(st.n, jnp.int32)
+        rec_shape = jax.ShapeDtypeStruct((length, self.n_probes), self.dt)
+        stat_shapes = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in stats]
+        if not self.stepper.staggered:
+            args = [st.p, st.p_prev, *self.coef, self.sponge, *self.metric, self.src_cells, self.src_hard, vals, self.rec_cells,
+                    jnp.zeros((0, 2), jnp.int32), self.ph_cells, cos, sin, *stats, n0]
+            field = jax.ShapeDtypeStruct(self.shape, self.dt)
+            out = jax.ffi.ffi_call(
+                "difflattice_leapfrog", [field, field, rec_shape, *stat_shapes],
+                input_output_aliases={0: 0, 1: 1, 18: 3, 19: 4, 20: 5, 21: 6, 22: 7}, vmap_method="sequential",
+            )(*args, n_steps=np.int64(length), combine=np.int64(0), **self.attrs)
+            p, p_prev, rec, *stats_out = out
+            st = eqx.tree_at(lambda s: (s.p, s.p_prev), st, (p, p_prev))
+        else:
+            acc = self._acc_in(st)
+            p_prev = _absent(self.dt) if st.p_prev is None else st.p_prev
+            c_r = getattr(st, "c_r", None)
+            c_r = _absent(self.dt) if c_r is None else c_r
+            args = [st.px, st.py, st.wx, st.wy, p_prev, *self.coef, *self.metric, *self.pml, self.src_cells,
+                    self.src_hard, vals, acc, self.rec_cells, self.ph_cells, cos, sin, *stats, n0, c_r, *self.radial]
+            assert st.px is not None and st.py is not None and st.wx is not None and st.wy is not None
+            fields = (st.px, st.py, st.wx, st.wy, p_prev, acc)
+            shapes = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in fields]
+            out = jax.ffi.ffi_call(
+                "difflattice_staggered",
+                [*shapes, rec_shape, *stat_shapes, jax.ShapeDtypeStruct(c_r.shape, c_r.dtype)],
+                input_output_aliases={0: 0, 1: 1, 2: 2, 3: 3, 4: 4, 23: 5, 28: 7, 29: 8, 30: 9, 31: 10, 32: 11,
+                                      34: 12},
+                vmap_method="sequential",
+            )(*args, n_steps=np.int64(length), **self.attrs)
+            px, py, wx, wy, p_prev, acc, rec, *stats_out, c_r = out
+            if getattr(st, "c_r", None) is not None:
+                st = eqx.tree_at(lambda s: s.c_r, st, c_r)
+            st = eqx.tree_at(lambda s: (s.px, s.py, s.wx, s.wy), st, (px, py, wx, wy))
+            if st.src_acc:
+                st = eqx.tree_at(lambda s: s.src_acc, st, self._acc_out(st, acc))
+            if st.p_prev is not None:
+                st = eqx.tree_at(lambda s: s.p_prev, st, p_prev)
+        names = ("phasor_re", "phasor_im", "p_max", "p_sq", "arrival")
+        present = tuple(k for k in names if getattr(st, k) is not None)
+        if present:
+            new = dict(zip(names, stats_out))
+            st = eqx.tree_at(lambda s: tuple(getattr(s, k) for k in present), st, tuple(new[k] for k in present))
+        st = eqx.tree_at(lambda s: s.n, st, st.n + length)
+        return st, (rec if self.n_probes else None)
+
+    def _acc_in(self, st: State):
+        """The soft sources' running sums, one slot per source cell (hard cells: unused zeros)."""
+        parts, i_soft = [], 0
+        sums = st.src_acc or ()
+        for s in self.stepper.sources:
+            if s.injection != "hard":  # soft and velocity sources add: a running sum each
+                parts.append(jnp.asarray(sums[i_soft], self.dt))
+                i_soft += 1
+            else:
+                parts.append(jnp.zeros(s.n_cells, self.dt))
+        return jnp.concatenate(parts) if parts else jnp.zeros((0,), self.dt)
+
+    def _acc_out(self, st: State, acc):
+        if st.src_acc is None:
+            return None
+        out, start = [], 0
+        for s in self.stepper.sources:
+            if s.injection != "hard":
+                out.append(acc[start:start + s.n_cells])
+            start += s.n_cells
+        return tuple(out)
+
+
+# ------------------------------------------------------------------------------------------
+# the loop
+
+
+def _native_loop(stepper: Stepper, state: State, n_steps: int, chunk: int, threads: int, levels: int):
+    """(final state, probes, peak history, snapshots) of `loop.run`, on the native kernels."""
+    sens = stepper.sensors
+    kern = _Chunk(stepper, threads, levels)
+    n_chunks, rem = divmod(n_steps, chunk)
+
+    def outer(st, _):
+        st, ys = kern.advance(st, chunk)
+        p = st.pressure
+        return st, (ys, jnp.max(jnp.abs(p)), p if sens.snapshot_every is not None else None)
+
+    state, (ys, peaks, snaps) = jax.lax.scan(outer, state, None, length=n_chunks)
+    if ys is not None:
+        ys = ys.reshape(n_chunks * chunk, -1)
+    if rem:
+        state, ys_r = kern.advance(state, rem)
+        peaks = jnp.concatenate([peaks, jnp.max(jnp.abs(state.pressure))[None]])
+        if ys is not None:
+            ys = jnp.concatenate([ys, ys_r.reshape(rem, -1)], axis=0)
+        if snaps is not None:
+            snaps = jnp.concatenate([snaps, state.pressure[None]], axis=0)
+    return state, ys, peaks, snaps
+
+
+@eqx.filter_custom_jvp
+def _loop(stepper, state, *, n_steps, chunk, checkpoint, unroll, threads, levels):
+    return _native_loop(stepper, state, n_steps, chunk, threads, levels)
+
+
+@_loop.def_jvp
+def _loop_jvp(primals, tangents, *, n_steps, chunk, checkpoint, unroll, threads, levels):
+    """Derivatives of the native loop = those of the JAX reference loop (same chunks)."""
+    from ..loop import run as jax_run
+
+    def reference(stepper, state):
+        r = jax_run(stepper, n_steps, state=state, checkpoint=checkpoint, unroll=unroll, backend="jax")
+        return r.final, r.probes, r.peak_history, r.snapshots
+
+    return eqx.filter_jvp(reference, primals, tangents)
+
+
+def run_native(stepper: Stepper, n_steps: int, *, state: State | None, checkpoint, unroll):
+    """`loop.run` on the native kernels (the caller checked `unsupported` and the library)."""
+    from ..loop import Result, _chunking
+
+    sens = stepper.sensors
+    chunk = _chunking(n_steps, sens, checkpoint)
+    state = stepper.init() if state is None else state
+    final, ys, peaks, snaps = _loop(stepper, state, n_steps=n_steps, chunk=chunk, checkpoint=checkpoint,
+                                    unroll=unroll, threads=_threads(),
+                                    levels=_levels(stepper.grid.shape[1], jnp.dtype(stepper.grid.jnp_dtype).itemsize,
+                                                   stepper.staggered))
+    n_chunks, rem = divmod(n_steps, chunk)
+    steps = [chunk * (i + 1) for i in range(n_chunks)] + ([n_steps] if rem else [])
+    phasors = None if final.phasor_re is None else jax.lax.complex(final.phasor_re, final.phasor_im)
+    p_rms = None if final.p_sq is None else jnp.sqrt(final.p_sq / n_steps)
+    return Result(final=final, probes=ys, phasors=phasors, p_max=final.p_max, p_rms=p_rms, arrival=final.arrival,
+                  snapshots=snaps, peak_history=peaks, n_steps=n_steps, chunk_steps=tuple(steps))

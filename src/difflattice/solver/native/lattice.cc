@@ -1,0 +1,1226 @@
+// difflattice native CPU kernels, called from JAX as XLA FFI custom calls
+// (difflattice.solver.native). Two time steppers of difflattice.solver.stepper, advanced over a
+// block of steps per call:
+//
+// - `difflattice_leapfrog`: P(t+1) = 2 P(t) - P(t-1) + K L(q), L the flux stencil of
+//   difflattice.lattice.operators, with the optional sponge, soft-cell factor (`keep`), q = c^2 P
+//   (`q_scale`) and viscous (`eta`) terms; `combine = 2` runs the adjoint step instead.
+// - `difflattice_staggered`: the split-field PML form (face fluxes wx, wy; pressure parts px, py).
+//
+// Both apply the sources, record probes, phasors and whole-field statistics inside the loop, in
+// the order of the JAX stepper. Coefficient arrays are inputs of any layout that broadcasts to
+// the grid (a scalar, one value per row, one vector for all rows, or a full array), so a lattice
+// with metric coefficients (axisymmetric) runs the same code.
+//
+// Speed: temporal blocking (each thread advances several steps per sweep over the rows, one row
+// apart) and a pipeline of threads (thread t takes the steps after thread t - 1's, one row
+// behind it), so rows are loaded from memory once per block of steps and all cores work without
+// a barrier per step. Results agree with the JAX reference to rounding (the stencil sums the
+// neighbours first where faces have unit conductance; XLA contracts a * b + c into FMAs, so this
+// file is compiled with -ffp-contract=fast as well).
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <thread>
+#include <vector>
+#if defined(__x86_64__) || defined(_M_X64)
+#include <immintrin.h>
+#define DL_PAUSE() _mm_pause()
+#else
+#define DL_PAUSE() ((void)0)
+#endif
+
+#include "xla/ffi/api/ffi.h"
+
+namespace ffi = xla::ffi;
+
+namespace dl {
+
+// ----------------------------------------------------------------------------------------------
+// threads
+
+class SpinBarrier {
+ public:
+  explicit SpinBarrier(int n) : n_(n), count_(n), gen_(0) {}
+  void wait() {
+    if (n_ == 1) return;
+    const int g = gen_.load(std::memory_order_acquire);
+    if (count_.fetch_sub(1, std::memory_order_acq_rel) == 1) {
+      count_.store(n_, std::memory_order_relaxed);
+      gen_.fetch_add(1, std::memory_order_release);
+      return;
+    }
+    int spins = 0;
+    while (gen_.load(std::memory_order_acquire) == g) {
+      if (++spins < 4000) {
+        DL_PAUSE();
+      } else {
+        std::this_thread::yield();  // an oversubscribed machine: let the other thread run
+      }
+    }
+  }
+
+ private:
+  const int n_;
+  std::atomic<int> count_;
+  std::atomic<int> gen_;
+};
+
+// XLA's CPU code flushes denormals to zero (FTZ and DAZ); the kernels' threads do the same, so
+// both agree on tiny values and no thread slows down on denormal arithmetic
+class FlushDenormals {
+ public:
+#if defined(__x86_64__) || defined(_M_X64)
+  FlushDenormals() : saved_(_mm_getcsr()) { _mm_setcsr(saved_ | 0x8040); }
+  ~FlushDenormals() { _mm_setcsr(saved_); }
+
+ private:
+  unsigned int saved_;
+#endif
+};
+
+template <typename F>
+void parallel(int n_threads, F&& body) {
+  FlushDenormals ftz;
+  if (n_threads <= 1) {
+    body(0);
+    return;
+  }
+  std::vector<std::thread> pool;
+  pool.reserve(n_threads - 1);
+  for (int t = 1; t < n_threads; ++t)
+    pool.emplace_back([&body, t] {
+      FlushDenormals ftz_thread;
+      body(t);
+    });
+  body(0);
+  for (auto& th : pool) th.join();
+}
+
+// The pipeline of steps: a block of n_threads * levels steps; thread t advances steps
+// first_t .. first_t + mine_t - 1 in one sweep over the rows (step first_t + l at row m - l at
+// sweep position m), its first step waiting for the previous thread's last step to have finished
+// the row below. `make_worker(t)` returns a callable row(l, L, i): row i of step L (1-based in the
+// call) using the scratch of level l; `finish(t)` runs after the last block.
+struct alignas(64) Progress {  // rows finished by a thread's last step (one cache line each)
+  std::atomic<int64_t> rows{0};
+};
+
+template <typename MakeWorker, typename Finish>
+void pipeline(int64_t nx, int64_t ny, int64_t n_steps, int n_threads, int levels, MakeWorker&& make_worker,
+              Finish&& finish) {
+  const int nt = std::max(1, n_threads);
+  levels = std::max(1, levels);
+  std::vector<Progress> progress(nt);
+  // progress is published every `stride` rows (~16 KB of a field), so the counter's cache line
+  // moves between cores once per stride rather than once per row
+  const int64_t stride = std::max<int64_t>(1, 4096 / std::max<int64_t>(1, ny));
+  SpinBarrier barrier(nt);
+  parallel(nt, [&](int t) {
+    auto row = make_worker(t);
+    for (int64_t s0 = 0; s0 < n_steps; s0 += int64_t(nt) * levels) {
+      const int64_t n_block = std::min<int64_t>(int64_t(nt) * levels, n_steps - s0);
+      const int64_t base = n_block / nt, extra = n_block % nt;
+      const int64_t first = s0 + 1 + t * base + std::min<int64_t>(t, extra);
+      const int64_t mine = base + (t < extra ? 1 : 0);
+      progress[t].rows.store(0, std::memory_order_relaxed);
+      barrier.wait();
+      if (mine > 0) {
+        const bool wait_prev = t > 0 && first - 1 > s0;  // step first - 1 is another thread's
+        int64_t seen = 0;  // the previous thread's progress as last read
+        for (int64_t m = 0; m < nx + mine - 1; ++m) {
+          for (int64_t l = 0; l < mine; ++l) {
+            const int64_t i = m - l;
+            if (i < 0 || i >= nx) continue;
+            if (l == 0 && wait_prev) {
+              const int64_t need = std::min<int64_t>(i + 2, nx);
+              int spins = 0;
+              while (seen < need) {
+                seen = progress[t - 1].rows.load(std::memory_order_acquire);
+                if (seen >= need) break;
+                if (++spins < 4000) DL_PAUSE();
+                else std::this_thread::yield();
+              }
+            }
+            row(int(l), first + l, i);
+            if (l == mine - 1 && ((i + 1) % stride == 0 || i + 1 == nx))
+              progress[t].rows.store(i + 1, std::memory_order_release);
+          }
+        }
+      } else {
+        progress[t].rows.store(nx, std::memory_order_release);
+      }
+      barrier.wait();
+    }
+    finish(t, nt);
+  });
+}
+
+// ----------------------------------------------------------------------------------------------
+// coefficient arrays broadcast to a grid: absent, one value (scalar), one value per row (n, 1),
+// one vector for all rows (1, m), or a full array (n, m)
+
+enum Mode : int { kAbsent = 0, kScalar = 1, kPerRow = 2, kPerCol = 3, kFull = 4 };
+
+template <typename T>
+struct Coef {
+  const T* data = nullptr;
+  int mode = kAbsent;
+  int64_t ld = 0;  // row stride of a full array
+  bool present() const { return mode != kAbsent; }
+  bool in_register() const { return mode == kScalar || mode == kPerRow; }
+  T value(int64_t i) const { return mode == kScalar ? data[0] : data[i]; }
+  const T* row(int64_t i) const { return mode == kPerCol ? data : data + i * ld; }
+  T at(int64_t i, int64_t j) const { return in_register() ? value(i) : row(i)[j]; }
+};
+
+template <typename T>
+Coef<T> make_coef(const ffi::AnyBuffer& b, int64_t rows, int64_t cols, bool* ok) {
+  Coef<T> c;
+  auto d = b.dimensions();
+  if (b.element_count() == 0) return c;
+  c.data = reinterpret_cast<const T*>(b.untyped_data());
+  if (d.size() == 0 || b.element_count() == 1) {
+    c.mode = kScalar;
+  } else if (d.size() == 2 && d[0] == rows && d[1] == cols) {
+    c.mode = kFull;
+    c.ld = cols;
+  } else if (d.size() == 2 && d[0] == rows && d[1] == 1) {
+    c.mode = kPerRow;
+  } else if (d.size() == 2 && d[0] == 1 && d[1] == cols) {
+    c.mode = kPerCol;
+  } else {
+    *ok = false;
+  }
+  return c;
+}
+
+template <typename T>
+bool all_one(const T* v, int64_t n) {
+  for (int64_t j = 0; j < n; ++j)
+    if (v[j] != T(1)) return false;
+  return true;
+}
+
+// ----------------------------------------------------------------------------------------------
+// cell operations of a step (sources, recorded cells, phasors) bucketed by row, list order kept
+// within a row; whole-field statistics (peak |p|, sum of p^2, first arrival)
+
+struct RowIndex {
+  std::vector<int64_t> start;  // (nx + 1,) offsets into `item`
+  std::vector<int64_t> item;   // list indices grouped by row
+  RowIndex(const int32_t* cells, int64_t n, int64_t nx) : start(nx + 1, 0), item(n) {
+    for (int64_t k = 0; k < n; ++k) ++start[cells[2 * k] + 1];
+    for (int64_t i = 0; i < nx; ++i) start[i + 1] += start[i];
+    std::vector<int64_t> fill(start.begin(), start.end() - 1);
+    for (int64_t k = 0; k < n; ++k) item[fill[cells[2 * k]]++] = k;
+  }
+};
+
+template <typename T>
+struct CellOps {
+  int64_t ny = 0;
+  const int32_t* src_cells = nullptr;  // sources, in list order: set (src_hard = 1) or add
+  const int32_t* src_hard = nullptr;
+  const T* src_vals = nullptr;  // (n_steps, n_src)
+  int64_t n_src = 0;
+  T* src_acc = nullptr;  // staggered form: running sums of soft sources (n_src)
+  const int32_t* rec_cells = nullptr;  // recorded after the sources: rec_out (n_steps, n_rec)
+  T* rec_out = nullptr;
+  int64_t n_rec = 0;
+  const int32_t* zero_cells = nullptr;  // then set to zero (the adjoint's hard sources)
+  int64_t n_zero = 0;
+  const int32_t* ph_cells = nullptr;  // phasors: re += p cos, im += p sin (per step tables)
+  const T* ph_cos = nullptr;
+  const T* ph_sin = nullptr;
+  T* ph_re = nullptr;
+  T* ph_im = nullptr;
+  int64_t n_ph = 0;
+  T* p_max = nullptr;  // whole-field statistics (nullptr: not recorded)
+  T* p_sq = nullptr;
+  int32_t* arrival = nullptr;
+  T threshold = T(0);
+  int64_t n0 = 0;  // steps done before this call (arrival records n0 + step)
+};
+
+template <typename T>
+struct CellPlan {
+  RowIndex src, rec, zer, pha;
+  std::vector<char> busy;  // rows with any cell operation
+  explicit CellPlan(const CellOps<T>& c, int64_t nx)
+      : src(c.src_cells, c.n_src, nx), rec(c.rec_cells, c.n_rec, nx), zer(c.zero_cells, c.n_zero, nx),
+        pha(c.ph_cells, c.n_ph, nx), busy(nx, 0) {
+    for (const RowIndex* r : {&src, &rec, &zer, &pha})
+      for (int64_t i = 0; i < nx; ++i) busy[i] |= r->start[i] != r->start[i + 1];
+  }
+};
+
+// row i of step s (0-based in the call) of the leapfrog, on the new field nw
+template <typename T>
+void leapfrog_cells(const CellOps<T>& c, const CellPlan<T>& pl, int64_t i, int64_t s, T* nw) {
+  const int64_t ny = c.ny;
+  for (int64_t u = pl.src.start[i]; u < pl.src.start[i + 1]; ++u) {
+    const int64_t k = pl.src.item[u];
+    const int64_t at = i * ny + c.src_cells[2 * k + 1];
+    const T v = c.src_vals[s * c.n_src + k];
+    if (c.src_hard[k]) nw[at] = v;
+    else nw[at] = nw[at] + v;
+  }
+  for (int64_t u = pl.rec.start[i]; u < pl.rec.start[i + 1]; ++u) {
+    const int64_t k = pl.rec.item[u];
+    c.rec_out[s * c.n_rec + k] = nw[i * ny + c.rec_cells[2 * k + 1]];
+  }
+  for (int64_t u = pl.zer.start[i]; u < pl.zer.start[i + 1]; ++u) {
+    const int64_t k = pl.zer.item[u];
+    nw[i * ny + c.zero_cells[2 * k + 1]] = T(0);
+  }
+  if (pl.pha.start[i] != pl.pha.start[i + 1]) {
+    const T cs = c.ph_cos[s], sn = c.ph_sin[s];
+    for (int64_t u = pl.pha.start[i]; u < pl.pha.start[i + 1]; ++u) {
+      const int64_t k = pl.pha.item[u];
+      const T v = nw[i * ny + c.ph_cells[2 * k + 1]];
+      c.ph_re[k] = c.ph_re[k] + v * cs;
+      c.ph_im[k] = c.ph_im[k] + v * sn;
+    }
+  }
+}
+
+// the staggered form's cells: sources on both pressure parts, records of px + py
+template <typename T>
+void staggered_cells(const CellOps<T>& c, const CellPlan<T>& pl, int64_t i, int64_t s, T* px, T* py) {
+  const int64_t ny = c.ny;
+  for (int64_t u = pl.src.start[i]; u < pl.src.start[i + 1]; ++u) {
+    const int64_t k = pl.src.item[u];
+    const int64_t at = i * ny + c.src_cells[2 * k + 1];
+    const T v = c.src_vals[s * c.n_src + k];
+    if (c.src_hard[k]) {
+      px[at] = T(0.5) * v;
+      py[at] = T(0.5) * v;
+    } else {
+      c.src_acc[k] = c.src_acc[k] + v;
+      const T half = T(0.5) * c.src_acc[k];
+      px[at] = px[at] + half;
+      py[at] = py[at] + half;
+    }
+  }
+  for (int64_t u = pl.rec.start[i]; u < pl.rec.start[i + 1]; ++u) {
+    const int64_t k = pl.rec.item[u];
+    const int64_t at = i * ny + c.rec_cells[2 * k + 1];
+    c.rec_out[s * c.n_rec + k] = px[at] + py[at];
+  }
+  if (pl.pha.start[i] != pl.pha.start[i + 1]) {
+    const T cs = c.ph_cos[s], sn = c.ph_sin[s];
+    for (int64_t u = pl.pha.start[i]; u < pl.pha.start[i + 1]; ++u) {
+      const int64_t k = pl.pha.item[u];
+      const int64_t at = i * ny + c.ph_cells[2 * k + 1];
+      const T v = px[at] + py[at];
+      c.ph_re[k] = c.ph_re[k] + v * cs;
+      c.ph_im[k] = c.ph_im[k] + v * sn;
+    }
+  }
+}
+
+// statistics of one row of the new field p (ny values), at step s
+template <typename T>
+void row_stats(const CellOps<T>& c, int64_t i, int64_t s, const T* p) {
+  const int64_t ny = c.ny;
+  if (c.p_max) {
+    T* m = c.p_max + i * ny;
+    for (int64_t j = 0; j < ny; ++j) {
+      const T v = std::abs(p[j]);
+      m[j] = (v > m[j] || v != v) ? v : m[j];  // jnp.maximum: NaN wins
+    }
+  }
+  if (c.p_sq) {
+    T* q = c.p_sq + i * ny;
+    for (int64_t j = 0; j < ny; ++j) q[j] = q[j] + p[j] * p[j];
+  }
+  if (c.arrival) {
+    int32_t* a = c.arrival + i * ny;
+    const int32_t n_next = int32_t(c.n0 + s + 1);
+    for (int64_t j = 0; j < ny; ++j)
+      if (a[j] < 0 && std::abs(p[j]) > c.threshold) a[j] = n_next;
+  }
+}
+
+// ----------------------------------------------------------------------------------------------
+// the leapfrog: one row of the flux stencil
+//
+// L(q)_ij = tx + ty; per axis (operators.stencil) c_hi (hi - q) - c_lo (q - lo), which is
+// hi + lo - 2 q where both faces of the cell have unit conductance. Combine forms:
+//   kFwd:  out = (2 p - pp) + K L(q)            (the plain leapfrog; q rows are p rows)
+//   kD:    out = K L(q)                          (combined later with sponge / keep)
+//   kAdj:  out = (2 a + L(u)) - h,  u = K a      (the adjoint step; h = -g0, q rows are u rows)
+
+enum Combine : int { kFwd = 0, kD = 1, kAdj = 2 };
+enum Faces : int { kUnit = 0, kReg = 1, kVec = 2 };  // a row's face conductances along one axis
+
+template <typename T>
+struct RowIO {
+  const T *qm, *q0, *qp;  // q rows i - 1, i, i + 1 (zero rows beyond the window)
+  const T* p0;            // p row i (kD, kAdj)
+  const T* pp0;           // pp row i (read before `out` is written at the same index)
+  T* out;
+};
+
+template <typename T>
+struct RowCtx {  // a row's coefficients (planned once per call)
+  T k, c0;        // scalar K and 2 - 4 K
+  const T* krow;  // K row (vector K)
+  T bxlo, bxhi;   // kReg: x faces of the row
+  const T *bxlo_r, *bxhi_r;
+  T by;                    // kReg: both y faces of every cell of the row
+  const T *cyl, *cyh;      // kVec: the low and high y face of each cell (ny each)
+  T by_first_lo, by_first_hi, by_last_lo, by_last_hi;  // y faces of the cells j = 0 and ny - 1
+};
+
+// an edge cell (its outer neighbour zero), in the reference form
+template <typename T, int BX, bool KREG, int CMB>
+static inline T edge_cell(const RowCtx<T>& c, const RowIO<T>& io, int64_t j, T s, T n, T by_lo, T by_hi) {
+  const T q = io.q0[j], e = io.qp[j], w = io.qm[j];
+  T tx;
+  if constexpr (BX == kUnit) tx = (e + w) - T(2) * q;
+  else if constexpr (BX == kReg) tx = c.bxhi * (e - q) - c.bxlo * (q - w);
+  else tx = c.bxhi_r[j] * (e - q) - c.bxlo_r[j] * (q - w);
+  const T ty = by_hi * (n - q) - by_lo * (q - s);
+  const T l = tx + ty;
+  if constexpr (CMB == kAdj) return (T(2) * io.p0[j] + l) - io.pp0[j];
+  const T k = KREG ? c.k : c.krow[j];
+  if constexpr (CMB == kFwd) return (T(2) * q - io.pp0[j]) + k * l;
+  return k * l;
+}
+
+template <typename T, int BX, int BY, bool KREG, int CMB>
+static void row_kernel(const RowCtx<T>& c, const RowIO<T>& io, int64_t ny) {
+  const T* __restrict qm = io.qm;
+  const T* __restrict q0 = io.q0;
+  const T* __restrict qp = io.qp;
+  const T* __restrict p0 = io.p0;
+  const T* pp0 = io.pp0;
+  T* out = io.out;
+  const T* __restrict krow = c.krow;
+  const T* __restrict bxlo = c.bxlo_r;
+  const T* __restrict bxhi = c.bxhi_r;
+  const T* __restrict cyl = c.cyl;
+  const T* __restrict cyh = c.cyh;
+  const T k = c.k, c0 = c.c0, bxl = c.bxlo, bxh = c.bxhi, byv = c.by;
+  if (ny == 1) {
+    out[0] = edge_cell<T, BX, KREG, CMB>(c, io, 0, T(0), T(0), c.by_first_lo, c.by_last_hi);
+    return;
+  }
+  const T first = edge_cell<T, BX, KREG, CMB>(c, io, 0, T(0), q0[1], c.by_first_lo, c.by_first_hi);
+  const T last = edge_cell<T, BX, KREG, CMB>(c, io, ny - 1, q0[ny - 2], T(0), c.by_last_lo, c.by_last_hi);
+  constexpr bool UNIT = BX == kUnit && BY == kUnit;
+#pragma GCC ivdep
+  for (int64_t j = 1; j < ny - 1; ++j) {
+    const T q = q0[j], e = qp[j], w = qm[j], n = q0[j + 1], s = q0[j - 1];
+    T l, sum;
+    if constexpr (UNIT) {
+      sum = ((e + w) + n) + s;
+      l = sum - T(4) * q;
+    } else {
+      T tx, ty;
+      if constexpr (BX == kUnit) tx = (e + w) - T(2) * q;
+      else if constexpr (BX == kReg) tx = bxh * (e - q) - bxl * (q - w);
+      else tx = bxhi[j] * (e - q) - bxlo[j] * (q - w);
+      if constexpr (BY == kUnit) ty = (n + s) - T(2) * q;
+      else if constexpr (BY == kReg) ty = byv * (n - q) - byv * (q - s);
+      else ty = cyh[j] * (n - q) - cyl[j] * (q - s);
+      l = tx + ty;
+      sum = l;
+    }
+    if constexpr (CMB == kFwd) {
+      if constexpr (UNIT && KREG) out[j] = (c0 * q - pp0[j]) + k * sum;
+      else out[j] = (T(2) * q - pp0[j]) + (KREG ? k : krow[j]) * l;
+    } else if constexpr (CMB == kD) {
+      out[j] = (KREG ? k : krow[j]) * l;
+    } else {
+      out[j] = (T(2) * p0[j] + l) - pp0[j];
+    }
+  }
+  out[0] = first;
+  out[ny - 1] = last;
+}
+
+template <typename T>
+using RowFn = void (*)(const RowCtx<T>&, const RowIO<T>&, int64_t);
+
+template <typename T, int CMB>
+RowFn<T> pick_row(int bx, int by, bool kreg) {
+#define DL_CASE(X, Y, K) \
+  if (bx == X && by == Y && kreg == K) return &row_kernel<T, X, Y, K, CMB>;
+  DL_CASE(kUnit, kUnit, true) DL_CASE(kReg, kUnit, true) DL_CASE(kUnit, kReg, true)
+  DL_CASE(kReg, kReg, true) DL_CASE(kVec, kVec, true) DL_CASE(kUnit, kVec, true) DL_CASE(kReg, kVec, true)
+  DL_CASE(kUnit, kUnit, false) DL_CASE(kReg, kUnit, false) DL_CASE(kUnit, kReg, false)
+  DL_CASE(kReg, kReg, false) DL_CASE(kVec, kVec, false) DL_CASE(kUnit, kVec, false) DL_CASE(kReg, kVec, false)
+#undef DL_CASE
+  return nullptr;
+}
+
+template <typename T>
+struct LeapfrogArgs {
+  int64_t nx, ny, n_steps;
+  int n_threads, levels;
+  int combine;  // kFwd (plain or with extras) or kAdj
+  T* p;         // P(t) in, the latest field out
+  T* pp;        // P(t-1) in, the previous field out
+  Coef<T> K, bx, by, qs, keep, sponge;
+  Coef<T> my_lo, my_hi;  // rz metric: factors of each cell's low and high y face (per column)
+  double eta;  // viscous coefficient (0: none); q = qs ((1 + eta) p - eta pp)
+  CellOps<T> cells;
+};
+
+// per-row coefficients and the row kernel that fits them
+template <typename T>
+struct RowPlan {
+  std::vector<RowFn<T>> fn;
+  std::vector<RowCtx<T>> ctx;        // coefficient fields only
+  std::vector<T> bx_full, by_full;  // both axes as full arrays where one is and the other not
+  std::vector<T> cy_lo, cy_hi;      // metric x conductance per cell face (a row, or the grid)
+};
+
+template <typename T>
+Coef<T> materialise(const Coef<T>& c, int64_t rows, int64_t cols, std::vector<T>& dst) {
+  dst.assign(rows * cols, T(1));
+  if (c.present())
+    for (int64_t i = 0; i < rows; ++i)
+      for (int64_t j = 0; j < cols; ++j) dst[i * cols + j] = c.at(i, j);
+  Coef<T> r;
+  r.data = dst.data();
+  r.mode = kFull;
+  r.ld = cols;
+  return r;
+}
+
+template <typename T>
+bool plan_rows(const LeapfrogArgs<T>& a, int cmb, RowPlan<T>& plan) {
+  const int64_t nx = a.nx, ny = a.ny;
+  Coef<T> bx = a.bx, by = a.by;
+  const bool metric = a.my_lo.present();
+  const bool bx_vec = bx.mode == kPerCol || bx.mode == kFull;
+  const bool by_vec = by.mode == kFull || (by.mode == kPerCol && !all_one(by.data + 1, ny - 1));
+  if (bx_vec && !by_vec) by = materialise(a.by, nx, ny + 1, plan.by_full);  // x vectors need y vectors
+  // the metric: per-cell y conductances m_lo b_lo and m_hi b_hi (products as the reference forms them)
+  bool cy_rows = false;
+  if (metric) {
+    cy_rows = by.mode == kFull || by.mode == kPerRow || a.my_lo.mode == kFull || a.my_hi.mode == kFull;
+    const int64_t rows = cy_rows ? nx : 1;
+    plan.cy_lo.assign(rows * ny, T(0));
+    plan.cy_hi.assign(rows * ny, T(0));
+    for (int64_t i = 0; i < rows; ++i)
+      for (int64_t j = 0; j < ny; ++j) {
+        const T ml = a.my_lo.at(i, j), mh = a.my_hi.at(i, j);
+        plan.cy_lo[i * ny + j] = by.present() ? ml * by.at(i, j) : ml;
+        plan.cy_hi[i * ny + j] = by.present() ? mh * by.at(i, j + 1) : mh;
+      }
+  }
+  plan.fn.resize(nx);
+  plan.ctx.resize(nx);
+  const bool kreg = a.K.in_register();
+  for (int64_t i = 0; i < nx; ++i) {
+    RowCtx<T>& c = plan.ctx[i];
+    c = RowCtx<T>{};
+    if (kreg) {
+      c.k = a.K.value(i);
+      c.c0 = T(2) - T(4) * c.k;
+    } else {
+      c.krow = a.K.row(i);
+    }
+    int bxm = kUnit, bym = kUnit;
+    if (bx.in_register()) {
+      c.bxlo = bx.value(i);
+      c.bxhi = bx.mode == kScalar ? c.bxlo : bx.value(i + 1);
+      bxm = (c.bxlo == T(1) && c.bxhi == T(1)) ? kUnit : kReg;
+    } else if (bx.present()) {
+      c.bxlo_r = bx.row(i);
+      c.bxhi_r = bx.mode == kPerCol ? c.bxlo_r : bx.row(i + 1);
+      bxm = kVec;
+    }
+    c.by_first_lo = c.by_first_hi = c.by_last_lo = c.by_last_hi = T(1);
+    if (metric) {
+      c.cyl = plan.cy_lo.data() + (cy_rows ? i * ny : 0);
+      c.cyh = plan.cy_hi.data() + (cy_rows ? i * ny : 0);
+      bym = kVec;
+    } else if (by.in_register()) {
+      c.by = by.value(i);
+      c.by_first_lo = c.by_first_hi = c.by_last_lo = c.by_last_hi = c.by;
+      bym = c.by == T(1) ? kUnit : kReg;
+    } else if (by.present()) {
+      const T* r = by.row(i);
+      c.cyl = r;
+      c.cyh = r + 1;
+      // unit inside (a rigid window's closed faces): only the edge cells differ
+      bym = (bxm == kVec || !all_one(r + 1, ny - 1)) ? kVec : kUnit;
+    }
+    if (bym == kVec) {
+      c.by_first_lo = c.cyl[0];
+      c.by_first_hi = c.cyh[0];
+      c.by_last_lo = c.cyl[ny - 1];
+      c.by_last_hi = c.cyh[ny - 1];
+    } else if (by.present() && !by.in_register()) {
+      c.by_first_lo = c.cyl[0];
+      c.by_last_hi = c.cyh[ny - 1];
+    }
+    if (bxm == kVec && bym != kVec) return false;  // (by was materialised above)
+    RowFn<T> f = cmb == kAdj ? pick_row<T, kAdj>(bxm, bym, kreg)
+                             : (cmb == kD ? pick_row<T, kD>(bxm, bym, kreg) : pick_row<T, kFwd>(bxm, bym, kreg));
+    if (!f) return false;
+    plan.fn[i] = f;
+  }
+  return true;
+}
+
+template <typename T>
+bool leapfrog(const LeapfrogArgs<T>& a) {
+  const int64_t nx = a.nx, ny = a.ny;
+  const int levels = std::max(1, a.levels);
+  const CellPlan<T> cplan(a.cells, nx);
+  const bool stats = a.cells.p_max || a.cells.p_sq || a.cells.arrival;
+  const bool adj = a.combine == kAdj;
+  const bool extras = !adj && (a.qs.present() || a.keep.present() || a.sponge.present() || a.eta != 0.0);
+  // the adjoint with a scalar K is the forward step: L(K a) = K L(a)
+  const bool adj_scalar = adj && a.K.in_register();
+  const int cmb = adj_scalar ? kFwd : (adj ? kAdj : (extras ? kD : kFwd));
+  const bool qbuf = (adj && !adj_scalar) || a.qs.present() || a.eta != 0.0;  // q rows computed
+  RowPlan<T> plan;
+  if (!plan_rows(a, cmb, plan)) return false;
+  const T eta1 = T(1.0 + a.eta), eta = T(a.eta);
+  T* buf[2] = {a.p, a.pp};  // step L lives in buf[L % 2] (step 0 = P(t) in buf[0])
+
+  // q of row i from step L - 1 (p_) and step L - 2 (pp_), before step L overwrites row i
+  auto q_of = [&](int64_t i, T* dst, const T* p_, const T* pp_) {
+    const T* pr = p_ + i * ny;
+    if (adj) {
+      if (a.K.in_register()) {
+        const T k = a.K.value(i);
+        for (int64_t j = 0; j < ny; ++j) dst[j] = k * pr[j];
+      } else {
+        const T* kr = a.K.row(i);
+        for (int64_t j = 0; j < ny; ++j) dst[j] = kr[j] * pr[j];
+      }
+      return;
+    }
+    if (a.eta != 0.0) {
+      const T* ppr = pp_ + i * ny;
+      for (int64_t j = 0; j < ny; ++j) dst[j] = eta1 * pr[j] - eta * ppr[j];
+    } else {
+      for (int64_t j = 0; j < ny; ++j) dst[j] = pr[j];
+    }
+    if (a.qs.present()) {
+      if (a.qs.in_register()) {
+        const T s = a.qs.value(i);
+        for (int64_t j = 0; j < ny; ++j) dst[j] = s * dst[j];
+      } else {
+        const T* sr = a.qs.row(i);
+        for (int64_t j = 0; j < ny; ++j) dst[j] = sr[j] * dst[j];
+      }
+    }
+  };
+  const std::vector<T> zero(ny, T(0));
+
+  struct Level {  // per-step scratch of one thread
+    std::vector<T> ring, d;
+    T* q[3] = {nullptr, nullptr, nullptr};  // q rows i - 1, i, i + 1 (qbuf)
+  };
+  auto make_worker = [&](int) {
+    std::vector<Level> lv(levels);
+    for (auto& l : lv) {
+      if (qbuf) l.ring.assign(3 * ny, T(0));
+      if (extras) l.d.assign(ny, T(0));
+    }
+    return [&, lv = std::move(lv)](int l, int64_t L, int64_t i) mutable {
+      Level& S = lv[l];
+      const T* p = buf[(L - 1) & 1];  // step L - 1
+      T* pp = buf[L & 1];             // step L - 2, overwritten by step L
+      RowIO<T> c;
+      if (qbuf) {
+        if (i == 0) {
+          S.q[0] = S.ring.data();
+          S.q[1] = S.ring.data() + ny;
+          S.q[2] = S.ring.data() + 2 * ny;
+          std::fill(S.q[0], S.q[0] + ny, T(0));
+          q_of(0, S.q[1], p, pp);
+        } else {
+          std::swap(S.q[0], S.q[1]);
+          std::swap(S.q[1], S.q[2]);
+        }
+        if (i + 1 < nx) q_of(i + 1, S.q[2], p, pp);
+        else std::fill(S.q[2], S.q[2] + ny, T(0));
+        c.qm = S.q[0];
+        c.q0 = S.q[1];
+        c.qp = S.q[2];
+      } else {
+        c.q0 = p + i * ny;
+        c.qm = i > 0 ? c.q0 - ny : zero.data();
+        c.qp = i + 1 < nx ? c.q0 + ny : zero.data();
+      }
+      T* out = pp + i * ny;
+      const T* p0 = p + i * ny;
+      c.p0 = p0;
+      c.pp0 = out;
+      if (!extras) {
+        c.out = out;
+        plan.fn[i](plan.ctx[i], c, ny);
+      } else {
+        T* d = S.d.data();
+        c.out = d;
+        plan.fn[i](plan.ctx[i], c, ny);
+        if (a.sponge.present()) {
+          for (int64_t j = 0; j < ny; ++j) {
+            const T sv = a.sponge.at(i, j);
+            out[j] = ((T(2) * p0[j] - (T(1) - sv) * out[j]) + d[j]) / (T(1) + sv);
+          }
+        } else {
+          for (int64_t j = 0; j < ny; ++j) out[j] = (T(2) * p0[j] - out[j]) + d[j];
+        }
+        if (a.keep.present()) {
+          if (a.keep.in_register()) {
+            const T kv = a.keep.value(i);
+            for (int64_t j = 0; j < ny; ++j) out[j] = kv * out[j];
+          } else {
+            const T* kr = a.keep.row(i);
+            for (int64_t j = 0; j < ny; ++j) out[j] = kr[j] * out[j];
+          }
+        }
+      }
+      if (cplan.busy[i]) leapfrog_cells(a.cells, cplan, i, L - 1, pp);
+      if (stats) row_stats(a.cells, i, L - 1, out);
+    };
+  };
+  // an odd number of steps leaves the latest field in the P(t-1) buffer: swap the contents
+  auto finish = [&](int t, int nt) {
+    if (a.n_steps % 2 == 0) return;
+    const int64_t r0 = nx * t / nt, r1 = nx * (t + 1) / nt;
+    for (int64_t i = r0; i < r1; ++i) std::swap_ranges(a.p + i * ny, a.p + (i + 1) * ny, a.pp + i * ny);
+  };
+  pipeline(nx, ny, a.n_steps, a.n_threads, levels, make_worker, finish);
+  return true;
+}
+
+// ----------------------------------------------------------------------------------------------
+// the staggered split-field PML form (stepper._step_staggered), in place:
+//   q  = qs ((1 + eta) (px + py) - eta p_prev)
+//   wx = ax_face wx + bx_face (b_x (q_i - q_{i-1}))       (nx + 1 faces, zero beyond the window)
+//   wy = ay_face wy + by_face (b_y (q_j - q_{j-1}))
+//   px = ax_cell px + bx_cell (K (wx_{i+1} - wx_i)),  py likewise;  keep px, py
+// Row i of a step updates face i + 1 of wx (from q rows i, i + 1), the faces of row i of wy and
+// then px, py of row i, so one copy of each field suffices; the next step may update row i once
+// this one has finished row i + 1 (the last reader of face i + 1 and of q row i).
+
+// a coefficient's row i as a plain pointer: its own row, or a buffer holding its one value
+template <typename T>
+struct RowBuf {
+  std::vector<T> v;
+  T value = T(0);
+  bool filled = false;
+  const T* get(const Coef<T>& c, int64_t i, int64_t n) {
+    if (!c.in_register()) return c.row(i);
+    const T x = c.value(i);
+    if (!filled || !(x == value) || int64_t(v.size()) < n) {
+      v.assign(n, x);
+      value = x;
+      filled = true;
+    }
+    return v.data();
+  }
+};
+
+template <typename T>
+struct StaggeredArgs {
+  int64_t nx, ny, n_steps;
+  int n_threads, levels;
+  T *px, *py, *wx, *wy, *p_prev;  // p_prev: nullptr unless eta
+  Coef<T> K, bx, by, qs, keep;
+  Coef<T> axc, bxc, axf, bxf;  // one value per row: (nx, 1), (nx + 1, 1)
+  Coef<T> ayc, byc, ayf, byf;  // one vector for all rows: (1, ny), (1, ny + 1)
+  Coef<T> my_lo, my_hi;        // rz metric of the y divergence (per column)
+  // rz r_hi PML (cylindrical correction) on the outer w rings j = ny - w + k: the ring field
+  // C = decay C + drive (sum of the ring's two y faces, new and old), added to the y divergence
+  T* c_r = nullptr;  // (nx, w)
+  const T *rad_decay = nullptr, *rad_drive = nullptr;
+  int64_t w = 0;
+  double eta;
+  CellOps<T> cells;
+};
+
+template <typename T>
+bool staggered(const StaggeredArgs<T>& a) {
+  const int64_t nx = a.nx, ny = a.ny;
+  const int levels = std::max(1, a.levels);
+  const CellPlan<T> cplan(a.cells, nx);
+  const bool stats = a.cells.p_max || a.cells.p_sq || a.cells.arrival;
+  const T eta1 = T(1.0 + a.eta), eta = T(a.eta);
+  const bool has_eta = a.eta != 0.0;
+  // the y-layer columns: PML factors differ from 1 outside [jl, jh) (cells) and [jl, jh] (faces)
+  auto y_one = [&](int64_t j, bool face) {
+    const Coef<T>& A = face ? a.ayf : a.ayc;
+    const Coef<T>& B = face ? a.byf : a.byc;
+    return (!A.present() || A.at(0, j) == T(1)) && (!B.present() || B.at(0, j) == T(1));
+  };
+  int64_t jl = 0;
+  while (jl < ny && !(y_one(jl, false) && y_one(jl, true))) ++jl;
+  int64_t jh = jl;
+  while (jh < ny && y_one(jh, false) && y_one(jh + 1, true)) ++jh;
+  auto x_one_cell = [&](int64_t i) {
+    return (!a.axc.present() || a.axc.at(i, 0) == T(1)) && (!a.bxc.present() || a.bxc.at(i, 0) == T(1));
+  };
+  auto x_one_face = [&](int64_t f) {
+    return (!a.axf.present() || a.axf.at(f, 0) == T(1)) && (!a.bxf.present() || a.bxf.at(f, 0) == T(1));
+  };
+  const std::vector<T> ones(ny + 1, T(1));
+  auto yrow = [&](const Coef<T>& c) -> const T* { return c.present() ? c.row(0) : ones.data(); };
+  const T *ayc = yrow(a.ayc), *byc = yrow(a.byc), *ayf = yrow(a.ayf), *byf = yrow(a.byf);
+
+  // Every loop below runs over plain row pointers (no branch per cell, so it vectorises): a
+  // coefficient held as one value per row is expanded into a row buffer of the thread (`RowBuf`),
+  // an absent conductance is a row of ones (1 * g is g exactly).
+  struct Scratch {
+    RowBuf<T> k, bx, by, qs, keep;
+  };
+
+  // q of row i (ny values) from the fields of the previous step
+  auto q_of = [&](Scratch& S, int64_t i, T* __restrict dst) {
+    const T* __restrict x = a.px + i * ny;
+    const T* __restrict y = a.py + i * ny;
+    if (has_eta) {
+      const T* __restrict pr = a.p_prev + i * ny;
+      for (int64_t j = 0; j < ny; ++j) dst[j] = eta1 * (x[j] + y[j]) - eta * pr[j];
+    } else {
+      for (int64_t j = 0; j < ny; ++j) dst[j] = x[j] + y[j];
+    }
+    if (a.qs.present()) {
+      const T* __restrict s_ = S.qs.get(a.qs, i, ny);
+      for (int64_t j = 0; j < ny; ++j) dst[j] = s_[j] * dst[j];
+    }
+  };
+
+  // wx face f from q rows f - 1 (lo) and f (hi)
+  auto face_x = [&](Scratch& S, int64_t f, const T* __restrict lo, const T* __restrict hi) {
+    T* __restrict w = a.wx + f * ny;
+    const bool unit = !a.bx.present();
+    const T* __restrict bb = unit ? ones.data() : S.bx.get(a.bx, f, ny);
+    if (x_one_face(f)) {
+      if (unit) {
+#pragma GCC ivdep
+        for (int64_t j = 0; j < ny; ++j) w[j] = w[j] + (hi[j] - lo[j]);
+      } else {
+#pragma GCC ivdep
+        for (int64_t j = 0; j < ny; ++j) w[j] = w[j] + bb[j] * (hi[j] - lo[j]);
+      }
+    } else {
+      const T A = a.axf.present() ? a.axf.at(f, 0) : T(1), B = a.bxf.present() ? a.bxf.at(f, 0) : T(1);
+#pragma GCC ivdep
+      for (int64_t j = 0; j < ny; ++j) w[j] = A * w[j] + B * (bb[j] * (hi[j] - lo[j]));
+    }
+  };
+  // the ny + 1 y faces of row i from q row i
+  auto faces_y = [&](Scratch& S, int64_t i, const T* __restrict q, T* old) {
+    T* __restrict w = a.wy + i * (ny + 1);
+    if (a.w) std::copy(w + ny - a.w, w + ny + 1, old);  // the outer rings' faces before the update
+    const bool unit = !a.by.present();
+    const T* __restrict bb = unit ? ones.data() : S.by.get(a.by, i, ny + 1);
+    // the two outer faces (zero beyond the row)
+    w[0] = ayf[0] * w[0] + byf[0] * (bb[0] * (q[0] - T(0)));
+    w[ny] = ayf[ny] * w[ny] + byf[ny] * (bb[ny] * (T(0) - q[ny - 1]));
+    const int64_t f0 = std::min(jl + 1, ny), f1 = std::max(jh, f0);  // interior faces [f0, f1)
+#pragma GCC ivdep
+    for (int64_t f = 1; f < f0; ++f) w[f] = ayf[f] * w[f] + byf[f] * (bb[f] * (q[f] - q[f - 1]));
+    if (unit) {
+#pragma GCC ivdep
+      for (int64_t f = f0; f < f1; ++f) w[f] = w[f] + (q[f] - q[f - 1]);
+    } else {
+#pragma GCC ivdep
+      for (int64_t f = f0; f < f1; ++f) w[f] = w[f] + bb[f] * (q[f] - q[f - 1]);
+    }
+#pragma GCC ivdep
+    for (int64_t f = f1; f < ny; ++f) w[f] = ayf[f] * w[f] + byf[f] * (bb[f] * (q[f] - q[f - 1]));
+    if (a.w) {  // C = decay C + drive ((w_new[j+1] + w_new[j]) + w_old[j+1]) + w_old[j])
+      T* c = a.c_r + i * a.w;
+      for (int64_t k = 0; k < a.w; ++k) {
+        const int64_t j = ny - a.w + k;
+        const T sum = ((w[j + 1] + w[j]) + old[k + 1]) + old[k];
+        c[k] = a.rad_decay[k] * c[k] + a.rad_drive[k] * sum;
+      }
+    }
+  };
+  // px, py of row i from the new faces
+  auto cells = [&](Scratch& S, int64_t i) {
+    T* __restrict x = a.px + i * ny;
+    T* __restrict y = a.py + i * ny;
+    const T* __restrict wlo = a.wx + i * ny;
+    const T* __restrict whi = wlo + ny;
+    const T* __restrict wyr = a.wy + i * (ny + 1);
+    const T* __restrict kr = S.k.get(a.K, i, ny);
+    if (x_one_cell(i)) {
+#pragma GCC ivdep
+      for (int64_t j = 0; j < ny; ++j) x[j] = x[j] + kr[j] * (whi[j] - wlo[j]);
+    } else {
+      const T A = a.axc.present() ? a.axc.at(i, 0) : T(1), B = a.bxc.present() ? a.bxc.at(i, 0) : T(1);
+#pragma GCC ivdep
+      for (int64_t j = 0; j < ny; ++j) x[j] = A * x[j] + B * (kr[j] * (whi[j] - wlo[j]));
+    }
+    // cells without y damping: [j0, j1); the rz ring correction's cells: [cw, ny)
+    const int64_t cw = ny - a.w;
+    const int64_t j0 = std::min(jl, cw), j1 = std::min(std::max(jh, j0), cw);
+    if (a.my_lo.present() || a.w) {  // rz: (m_hi w_(j+1)) - (m_lo w_j)
+      const T* __restrict ml = a.my_lo.present() ? a.my_lo.row(i) : ones.data();
+      const T* __restrict mh = a.my_hi.present() ? a.my_hi.row(i) : ones.data();
+#pragma GCC ivdep
+      for (int64_t j = 0; j < j0; ++j) y[j] = ayc[j] * y[j] + byc[j] * (kr[j] * (mh[j] * wyr[j + 1] - ml[j] * wyr[j]));
+#pragma GCC ivdep
+      for (int64_t j = j0; j < j1; ++j) y[j] = y[j] + kr[j] * (mh[j] * wyr[j + 1] - ml[j] * wyr[j]);
+#pragma GCC ivdep
+      for (int64_t j = j1; j < cw; ++j) y[j] = ayc[j] * y[j] + byc[j] * (kr[j] * (mh[j] * wyr[j + 1] - ml[j] * wyr[j]));
+      const T* c = a.w ? a.c_r + i * a.w : nullptr;  // + C, then K: K ((m_hi w_(j+1) - m_lo w_j) + C)
+      for (int64_t j = cw; j < ny; ++j) {
+        const T d = kr[j] * ((mh[j] * wyr[j + 1] - ml[j] * wyr[j]) + c[j - cw]);
+        y[j] = (j >= jl && j < jh) ? y[j] + d : ayc[j] * y[j] + byc[j] * d;
+      }
+    } else {
+#pragma GCC ivdep
+      for (int64_t j = 0; j < j0; ++j) y[j] = ayc[j] * y[j] + byc[j] * (kr[j] * (wyr[j + 1] - wyr[j]));
+#pragma GCC ivdep
+      for (int64_t j = j0; j < j1; ++j) y[j] = y[j] + kr[j] * (wyr[j + 1] - wyr[j]);
+#pragma GCC ivdep
+      for (int64_t j = j1; j < ny; ++j) y[j] = ayc[j] * y[j] + byc[j] * (kr[j] * (wyr[j + 1] - wyr[j]));
+    }
+    if (a.keep.present()) {
+      const T* __restrict kp = S.keep.get(a.keep, i, ny);
+      for (int64_t j = 0; j < ny; ++j) {
+        x[j] = kp[j] * x[j];
+        y[j] = kp[j] * y[j];
+      }
+    }
+  };
+
+  struct Level {
+    std::vector<T> ring, row, old;  // q rows i, i + 1; p = px + py of a row (statistics); old faces
+    T* q[2] = {nullptr, nullptr};
+  };
+  const std::vector<T> zero(ny, T(0));
+  auto make_worker = [&](int) {
+    std::vector<Level> lv(levels);
+    for (auto& l : lv) {
+      l.ring.assign(2 * ny, T(0));
+      if (stats) l.row.assign(ny, T(0));
+      l.old.assign(a.w + 1, T(0));
+    }
+    return [&, lv = std::move(lv), R = Scratch()](int l, int64_t L, int64_t i) mutable {
+      Level& S = lv[l];
+      if (i == 0) {
+        S.q[0] = S.ring.data();
+        S.q[1] = S.ring.data() + ny;
+        q_of(R, 0, S.q[0]);
+        face_x(R, 0, zero.data(), S.q[0]);
+      } else {
+        std::swap(S.q[0], S.q[1]);
+      }
+      const T* q0 = S.q[0];
+      if (i + 1 < nx) {
+        q_of(R, i + 1, S.q[1]);
+        face_x(R, i + 1, q0, S.q[1]);
+      } else {
+        face_x(R, nx, q0, zero.data());
+      }
+      faces_y(R, i, q0, S.old.data());
+      if (has_eta) {  // P(n - 1) of this row for the next step, before px, py change
+        T* pr = a.p_prev + i * ny;
+        const T* x = a.px + i * ny;
+        const T* y = a.py + i * ny;
+        for (int64_t j = 0; j < ny; ++j) pr[j] = x[j] + y[j];
+      }
+      cells(R, i);
+      if (cplan.busy[i]) staggered_cells(a.cells, cplan, i, L - 1, a.px, a.py);
+      if (stats) {
+        const T* x = a.px + i * ny;
+        const T* y = a.py + i * ny;
+        for (int64_t j = 0; j < ny; ++j) S.row[j] = x[j] + y[j];
+        row_stats(a.cells, i, L - 1, S.row.data());
+      }
+    };
+  };
+  pipeline(nx, ny, a.n_steps, a.n_threads, levels, make_worker, [](int, int) {});
+  return true;
+}
+
+}  // namespace dl
+
+// ------------------------------------------------------------------------------------------------
+// FFI binding
+
+namespace {
+
+template <typename T>
+T* out_from(ffi::Result<ffi::AnyBuffer>& r, const ffi::AnyBuffer& in) {
+  T* dst = reinterpret_cast<T*>(r->untyped_data());
+  if (in.element_count() && dst != in.untyped_data()) std::memcpy(dst, in.untyped_data(), in.size_bytes());
+  return in.element_count() ? dst : nullptr;
+}
+
+bool inside(const ffi::AnyBuffer& cells, int64_t nx, int64_t ny) {
+  const int32_t* c = reinterpret_cast<const int32_t*>(cells.untyped_data());
+  const int64_t n = int64_t(cells.element_count() / 2);
+  for (int64_t k = 0; k < n; ++k)
+    if (c[2 * k] < 0 || c[2 * k] >= nx || c[2 * k + 1] < 0 || c[2 * k + 1] >= ny) return false;
+  return true;
+}
+
+const char* kOutside = "difflattice: a source or sensor cell lies outside the grid";
+
+template <typename T>
+void bind_cells(dl::CellOps<T>& c, int64_t ny, const ffi::AnyBuffer& src_cells, const ffi::AnyBuffer& src_hard,
+                const ffi::AnyBuffer& src_vals, const ffi::AnyBuffer& rec_cells, ffi::Result<ffi::AnyBuffer>& rec,
+                const ffi::AnyBuffer& ph_cells, const ffi::AnyBuffer& ph_cos, const ffi::AnyBuffer& ph_sin,
+                T* ph_re, T* ph_im, T* p_max, T* p_sq, int32_t* arrival, const ffi::AnyBuffer& n0,
+                double threshold) {
+  c.ny = ny;
+  c.src_cells = reinterpret_cast<const int32_t*>(src_cells.untyped_data());
+  c.src_hard = reinterpret_cast<const int32_t*>(src_hard.untyped_data());
+  c.src_vals = reinterpret_cast<const T*>(src_vals.untyped_data());
+  c.n_src = int64_t(src_cells.element_count() / 2);
+  c.rec_cells = reinterpret_cast<const int32_t*>(rec_cells.untyped_data());
+  c.n_rec = int64_t(rec_cells.element_count() / 2);
+  c.rec_out = reinterpret_cast<T*>(rec->untyped_data());
+  c.ph_cells = reinterpret_cast<const int32_t*>(ph_cells.untyped_data());
+  c.n_ph = int64_t(ph_cells.element_count() / 2);
+  c.ph_cos = reinterpret_cast<const T*>(ph_cos.untyped_data());
+  c.ph_sin = reinterpret_cast<const T*>(ph_sin.untyped_data());
+  c.ph_re = ph_re;
+  c.ph_im = ph_im;
+  c.p_max = p_max;
+  c.p_sq = p_sq;
+  c.arrival = arrival;
+  c.threshold = T(threshold);
+  c.n0 = *reinterpret_cast<const int32_t*>(n0.untyped_data());
+}
+
+template <typename T>
+ffi::Error leapfrog_typed(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K, ffi::AnyBuffer bx, ffi::AnyBuffer by,
+                          ffi::AnyBuffer qs, ffi::AnyBuffer keep, ffi::AnyBuffer sponge, ffi::AnyBuffer my_lo,
+                          ffi::AnyBuffer my_hi, ffi::AnyBuffer src_cells,
+                          ffi::AnyBuffer src_hard, ffi::AnyBuffer src_vals, ffi::AnyBuffer rec_cells,
+                          ffi::AnyBuffer zero_cells, ffi::AnyBuffer ph_cells, ffi::AnyBuffer ph_cos,
+                          ffi::AnyBuffer ph_sin, ffi::AnyBuffer ph_re, ffi::AnyBuffer ph_im, ffi::AnyBuffer p_max,
+                          ffi::AnyBuffer p_sq, ffi::AnyBuffer arrival, ffi::AnyBuffer n0,
+                          ffi::Result<ffi::AnyBuffer> p_o, ffi::Result<ffi::AnyBuffer> pp_o,
+                          ffi::Result<ffi::AnyBuffer> rec_o, ffi::Result<ffi::AnyBuffer> ph_re_o,
+                          ffi::Result<ffi::AnyBuffer> ph_im_o, ffi::Result<ffi::AnyBuffer> p_max_o,
+                          ffi::Result<ffi::AnyBuffer> p_sq_o, ffi::Result<ffi::AnyBuffer> arrival_o,
+                          int64_t n_steps, int64_t threads, int64_t levels, int64_t combine, double eta,
+                          double threshold) {
+  auto dims = p.dimensions();
+  if (dims.size() != 2) return ffi::Error::InvalidArgument("difflattice_leapfrog: the field must be 2-D");
+  const int64_t nx = dims[0], ny = dims[1];
+  dl::LeapfrogArgs<T> a{};
+  a.nx = nx;
+  a.ny = ny;
+  a.n_steps = n_steps;
+  a.n_threads = int(threads);
+  a.levels = int(levels);
+  a.combine = int(combine);
+  bool ok = true;
+  a.K = dl::make_coef<T>(K, nx, ny, &ok);
+  a.bx = dl::make_coef<T>(bx, nx + 1, ny, &ok);
+  a.by = dl::make_coef<T>(by, nx, ny + 1, &ok);
+  a.qs = dl::make_coef<T>(qs, nx, ny, &ok);
+  a.keep = dl::make_coef<T>(keep, nx, ny, &ok);
+  a.sponge = dl::make_coef<T>(sponge, nx, ny, &ok);
+  a.my_lo = dl::make_coef<T>(my_lo, nx, ny, &ok);
+  a.my_hi = dl::make_coef<T>(my_hi, nx, ny, &ok);
+  ok = ok && (a.my_lo.present() == a.my_hi.present());
+  if (!ok || !a.K.present())
+    return ffi::Error::InvalidArgument("difflattice_leapfrog: a coefficient array does not broadcast to the grid");
+  if (!inside(src_cells, nx, ny) || !inside(rec_cells, nx, ny) || !inside(zero_cells, nx, ny) ||
+      !inside(ph_cells, nx, ny))
+    return ffi::Error::InvalidArgument(kOutside);
+  a.p = out_from<T>(p_o, p);
+  a.pp = out_from<T>(pp_o, pp);
+  a.eta = eta;
+  bind_cells<T>(a.cells, ny, src_cells, src_hard, src_vals, rec_cells, rec_o, ph_cells, ph_cos, ph_sin,
+                out_from<T>(ph_re_o, ph_re), out_from<T>(ph_im_o, ph_im), out_from<T>(p_max_o, p_max),
+                out_from<T>(p_sq_o, p_sq), out_from<int32_t>(arrival_o, arrival), n0, threshold);
+  a.cells.zero_cells = reinterpret_cast<const int32_t*>(zero_cells.untyped_data());
+  a.cells.n_zero = int64_t(zero_cells.element_count() / 2);
+  if (!dl::leapfrog<T>(a)) return ffi::Error::InvalidArgument("difflattice_leapfrog: unsupported coefficient layout");
+  return ffi::Error::Success();
+}
+
+ffi::Error leapfrog_impl(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K, ffi::AnyBuffer bx, ffi::AnyBuffer by,
+                         ffi::AnyBuffer qs, ffi::AnyBuffer keep, ffi::AnyBuffer sponge, ffi::AnyBuffer my_lo,
+                         ffi::AnyBuffer my_hi, ffi::AnyBuffer src_cells,
+                         ffi::AnyBuffer src_hard, ffi::AnyBuffer src_vals, ffi::AnyBuffer rec_cells,
+                         ffi::AnyBuffer zero_cells, ffi::AnyBuffer ph_cells, ffi::AnyBuffer ph_cos,
+                         ffi::AnyBuffer ph_sin, ffi::AnyBuffer ph_re, ffi::AnyBuffer ph_im, ffi::AnyBuffer p_max,
+                         ffi::AnyBuffer p_sq, ffi::AnyBuffer arrival, ffi::AnyBuffer n0,
+                         ffi::Result<ffi::AnyBuffer> p_o, ffi::Result<ffi::AnyBuffer> pp_o,
+                         ffi::Result<ffi::AnyBuffer> rec_o, ffi::Result<ffi::AnyBuffer> ph_re_o,
+                         ffi::Result<ffi::AnyBuffer> ph_im_o, ffi::Result<ffi::AnyBuffer> p_max_o,
+                         ffi::Result<ffi::AnyBuffer> p_sq_o, ffi::Result<ffi::AnyBuffer> arrival_o,
+                         int64_t n_steps, int64_t threads, int64_t levels, int64_t combine, double eta,
+                         double threshold) {
+#define DL_ARGS                                                                                                 \
+  p, pp, K, bx, by, qs, keep, sponge, my_lo, my_hi, src_cells, src_hard, src_vals, rec_cells, zero_cells, ph_cells, ph_cos, \
+      ph_sin, ph_re, ph_im, p_max, p_sq, arrival, n0, p_o, pp_o, rec_o, ph_re_o, ph_im_o, p_max_o, p_sq_o,     \
+      arrival_o, n_steps, threads, levels, combine, eta, threshold
+  switch (p.element_type()) {
+    case ffi::DataType::F32:
+      return leapfrog_typed<float>(DL_ARGS);
+    case ffi::DataType::F64:
+      return leapfrog_typed<double>(DL_ARGS);
+    default:
+      return ffi::Error::InvalidArgument("difflattice_leapfrog: float32 or float64 fields only");
+  }
+#undef DL_ARGS
+}
+
+template <typename T>
+ffi::Error staggered_typed(ffi::AnyBuffer px, ffi::AnyBuffer py, ffi::AnyBuffer wx, ffi::AnyBuffer wy,
+                           ffi::AnyBuffer p_prev, ffi::AnyBuffer K, ffi::AnyBuffer bx, ffi::AnyBuffer by,
+                           ffi::AnyBuffer qs, ffi::AnyBuffer keep, ffi::AnyBuffer my_lo, ffi::AnyBuffer my_hi,
+                           ffi::AnyBuffer axc, ffi::AnyBuffer bxc,
+                           ffi::AnyBuffer axf, ffi::AnyBuffer bxf, ffi::AnyBuffer ayc, ffi::AnyBuffer byc,
+                           ffi::AnyBuffer ayf, ffi::AnyBuffer byf, ffi::AnyBuffer src_cells, ffi::AnyBuffer src_hard,
+                           ffi::AnyBuffer src_vals, ffi::AnyBuffer src_acc, ffi::AnyBuffer rec_cells,
+                           ffi::AnyBuffer ph_cells, ffi::AnyBuffer ph_cos, ffi::AnyBuffer ph_sin,
+                           ffi::AnyBuffer ph_re, ffi::AnyBuffer ph_im, ffi::AnyBuffer p_max, ffi::AnyBuffer p_sq,
+                           ffi::AnyBuffer arrival, ffi::AnyBuffer n0, ffi::AnyBuffer c_r, ffi::AnyBuffer rad_decay,
+                           ffi::AnyBuffer rad_drive, ffi::Result<ffi::AnyBuffer> px_o,
+                           ffi::Result<ffi::AnyBuffer> py_o, ffi::Result<ffi::AnyBuffer> wx_o,
+                           ffi::Result<ffi::AnyBuffer> wy_o, ffi::Result<ffi::AnyBuffer> p_prev_o,
+                           ffi::Result<ffi::AnyBuffer> src_acc_o, ffi::Result<ffi::AnyBuffer> rec_o,
+                           ffi::Result<ffi::AnyBuffer> ph_re_o, ffi::Result<ffi::AnyBuffer> ph_im_o,
+                           ffi::Result<ffi::AnyBuffer> p_max_o, ffi::Result<ffi::AnyBuffer> p_sq_o,
+                           ffi::Result<ffi::AnyBuffer> arrival_o, ffi::Result<ffi::AnyBuffer> c_r_o,
+                           int64_t n_steps, int64_t threads, int64_t levels,
+                           double eta, double threshold) {
+  auto dims = px.dimensions();
+  if (dims.size() != 2) return ffi::Error::InvalidArgument("difflattice_staggered: the field must be 2-D");
+  const int64_t nx = dims[0], ny = dims[1];
+  dl::StaggeredArgs<T> a{};
+  a.nx = nx;
+  a.ny = ny;
+  a.n_steps = n_steps;
+  a.n_threads = int(threads);
+  a.levels = int(levels);
+  bool ok = true;
+  a.K = dl::make_coef<T>(K, nx, ny, &ok);
+  a.bx = dl::make_coef<T>(bx, nx + 1, ny, &ok);
+  a.by = dl::make_coef<T>(by, nx, ny + 1, &ok);
+  a.qs = dl::make_coef<T>(qs, nx, ny, &ok);
+  a.keep = dl::make_coef<T>(keep, nx, ny, &ok);
+  a.my_lo = dl::make_coef<T>(my_lo, nx, ny, &ok);
+  a.my_hi = dl::make_coef<T>(my_hi, nx, ny, &ok);
+  ok = ok && (a.my_lo.present() == a.my_hi.present()) && !a.my_lo.in_register() && !a.my_hi.in_register();
+  a.axc = dl::make_coef<T>(axc, nx, ny, &ok);
+  a.bxc = dl::make_coef<T>(bxc, nx, ny, &ok);
+  a.axf = dl::make_coef<T>(axf, nx + 1, ny, &ok);
+  a.bxf = dl::make_coef<T>(bxf, nx + 1, ny, &ok);
+  a.ayc = dl::make_coef<T>(ayc, nx, ny, &ok);
+  a.byc = dl::make_coef<T>(byc, nx, ny, &ok);
+  a.ayf = dl::make_coef<T>(ayf, nx, ny + 1, &ok);
+  a.byf = dl::make_coef<T>(byf, nx, ny + 1, &ok);
+  auto row_layout = [](const dl::Coef<T>& c) { return !c.present() || c.mode == dl::kScalar || c.mode == dl::kPerRow; };
+  auto col_layout = [](const dl::Coef<T>& c) { return !c.present() || c.mode == dl::kPerCol; };
+  ok = ok && a.K.present() && row_layout(a.axc) && row_layout(a.bxc) && row_layout(a.axf) && row_layout(a.bxf) &&
+       col_layout(a.ayc) && col_layout(a.byc) && col_layout(a.ayf) && col_layout(a.byf);
+  if (!ok) return ffi::Error::InvalidArgument("difflattice_staggered: a coefficient array has an unsupported layout");
+  if (!inside(src_cells, nx, ny) || !inside(rec_cells, nx, ny) || !inside(ph_cells, nx, ny))
+    return ffi::Error::InvalidArgument(kOutside);
+  a.px = out_from<T>(px_o, px);
+  a.py = out_from<T>(py_o, py);
+  a.wx = out_from<T>(wx_o, wx);
+  a.wy = out_from<T>(wy_o, wy);
+  a.p_prev = out_from<T>(p_prev_o, p_prev);
+  a.eta = eta;
+  if (eta != 0.0 && !a.p_prev) return ffi::Error::InvalidArgument("difflattice_staggered: eta needs p_prev");
+  bind_cells<T>(a.cells, ny, src_cells, src_hard, src_vals, rec_cells, rec_o, ph_cells, ph_cos, ph_sin,
+                out_from<T>(ph_re_o, ph_re), out_from<T>(ph_im_o, ph_im), out_from<T>(p_max_o, p_max),
+                out_from<T>(p_sq_o, p_sq), out_from<int32_t>(arrival_o, arrival), n0, threshold);
+  a.cells.src_acc = out_from<T>(src_acc_o, src_acc);
+  a.w = int64_t(rad_decay.element_count());
+  if (a.w) {
+    if (a.w > ny || int64_t(rad_drive.element_count()) != a.w || int64_t(c_r.element_count()) != nx * a.w)
+      return ffi::Error::InvalidArgument("difflattice_staggered: radial PML arrays of inconsistent sizes");
+    a.c_r = out_from<T>(c_r_o, c_r);
+    a.rad_decay = reinterpret_cast<const T*>(rad_decay.untyped_data());
+    a.rad_drive = reinterpret_cast<const T*>(rad_drive.untyped_data());
+  }
+  if (!dl::staggered<T>(a)) return ffi::Error::InvalidArgument("difflattice_staggered: unsupported layout");
+  return ffi::Error::Success();
+}
+
+ffi::Error staggered_impl(ffi::AnyBuffer px, ffi::AnyBuffer py, ffi::AnyBuffer wx, ffi::AnyBuffer wy,
+                          ffi::AnyBuffer p_prev, ffi::AnyBuffer K, ffi::AnyBuffer bx, ffi::AnyBuffer by,
+                          ffi::AnyBuffer qs, ffi::AnyBuffer keep, ffi::AnyBuffer my_lo, ffi::AnyBuffer my_hi,
+                          ffi::AnyBuffer axc, ffi::AnyBuffer bxc,
+                          ffi::AnyBuffer axf, ffi::AnyBuffer bxf, ffi::AnyBuffer ayc, ffi::AnyBuffer byc,
+                          ffi::AnyBuffer ayf, ffi::AnyBuffer byf, ffi::AnyBuffer src_cells, ffi::AnyBuffer src_hard,
+                          ffi::AnyBuffer src_vals, ffi::AnyBuffer src_acc, ffi::AnyBuffer rec_cells,
+                          ffi::AnyBuffer ph_cells, ffi::AnyBuffer ph_cos, ffi::AnyBuffer ph_sin, ffi::AnyBuffer ph_re,
+                          ffi::AnyBuffer ph_im, ffi::AnyBuffer p_max, ffi::AnyBuffer p_sq, ffi::AnyBuffer arrival,
+                          ffi::AnyBuffer n0, ffi::AnyBuffer c_r, ffi::AnyBuffer rad_decay, ffi::AnyBuffer rad_drive,
+                          ffi::Result<ffi::AnyBuffer> px_o, ffi::Result<ffi::AnyBuffer> py_o,
+                          ffi::Result<ffi::AnyBuffer> wx_o, ffi::Result<ffi::AnyBuffer> wy_o,
+                          ffi::Result<ffi::AnyBuffer> p_prev_o, ffi::Result<ffi::AnyBuffer> src_acc_o,
+                          ffi::Result<ffi::AnyBuffer> rec_o, ffi::Result<ffi::AnyBuffer> ph_re_o,
+                          ffi::Result<ffi::AnyBuffer> ph_im_o, ffi::Result<ffi::AnyBuffer> p_max_o,
+                          ffi::Result<ffi::AnyBuffer> p_sq_o, ffi::Result<ffi::AnyBuffer> arrival_o,
+                          ffi::Result<ffi::AnyBuffer> c_r_o, int64_t n_steps,
+                          int64_t threads, int64_t levels, double eta, double threshold) {
+#define DL_ARGS                                                                                                  \
+  px, py, wx, wy, p_prev, K, bx, by, qs, keep, my_lo, my_hi, axc, bxc, axf, bxf, ayc, byc, ayf, byf, src_cells, src_hard,    \
+      src_vals, src_acc, rec_cells, ph_cells, ph_cos, ph_sin, ph_re, ph_im, p_max, p_sq, arrival, n0, c_r,        \
+      rad_decay, rad_drive, px_o, py_o, wx_o, wy_o, p_prev_o, src_acc_o, rec_o, ph_re_o, ph_im_o, p_max_o, p_sq_o, \
+      arrival_o, c_r_o, n_steps, threads, levels, eta, threshold
+  switch (px.element_type()) {
+    case ffi::DataType::F32:
+      return staggered_typed<float>(DL_ARGS);
+    case ffi::DataType::F64:
+      return staggered_typed<double>(DL_ARGS);
+    default:
+      return ffi::Error::InvalidArgument("difflattice_staggered: float32 or float64 fields only");
+  }
+#undef DL_ARGS
+}
+
+}  // namespace
+
+#define DL_BUFS_8 \
+  .Arg<ffi::AnyBuffer>().Arg<ffi::AnyBuffer>().Arg<ffi::AnyBuffer>().Arg<ffi::AnyBuffer>().Arg<ffi::AnyBuffer>().Arg<ffi::AnyBuffer>().Arg<ffi::AnyBuffer>().Arg<ffi::AnyBuffer>()
+#define DL_RETS_4 .Ret<ffi::AnyBuffer>().Ret<ffi::AnyBuffer>().Ret<ffi::AnyBuffer>().Ret<ffi::AnyBuffer>()
+
+// args: p pp K bx by qs keep sponge | my_lo my_hi src_cells src_hard src_vals rec_cells zero_cells
+//       ph_cells | ph_cos ph_sin ph_re ph_im p_max p_sq arrival n0
+// rets: p pp rec ph_re ph_im p_max p_sq arrival
+XLA_FFI_DEFINE_HANDLER_SYMBOL(DifflatticeLeapfrog, leapfrog_impl,
+                              ffi::Ffi::Bind() DL_BUFS_8 DL_BUFS_8.Arg<ffi::AnyBuffer>()
+                                  .Arg<ffi::AnyBuffer>()
+                                  .Arg<ffi::AnyBuffer>()
+                                  .Arg<ffi::AnyBuffer>()
+                                  .Arg<ffi::AnyBuffer>()
+                                  .Arg<ffi::AnyBuffer>()
+                                  .Arg<ffi::AnyBuffer>()
+                                  .Arg<ffi::AnyBuffer>() DL_RETS_4 DL_RETS_4.Attr<int64_t>("n_steps")
+                                  .Attr<int64_t>("threads")
+                                  .Attr<int64_t>("levels")
+                                  .Attr<int64_t>("combine")
+                                  .Attr<double>("eta")
+                                  .Attr<double>("threshold"));
+
+// args: px py wx wy p_prev K bx by | qs keep my_lo my_hi axc bxc axf bxf | ayc byc ayf byf src_cells
+//       src_hard src_vals src_acc | rec_cells ph_cells ph_cos ph_sin ph_re ph_im p_max p_sq | arrival n0
+//       c_r rad_decay rad_drive
+// rets: px py wx wy p_prev src_acc rec ph_re ph_im p_max p_sq arrival c_r
+XLA_FFI_DEFINE_HANDLER_SYMBOL(DifflatticeStaggered, staggered_impl,
+                              ffi::Ffi::Bind() DL_BUFS_8 DL_BUFS_8 DL_BUFS_8 DL_BUFS_8.Arg<ffi::AnyBuffer>()
+                                  .Arg<ffi::AnyBuffer>()
+                                  .Arg<ffi::AnyBuffer>()
+                                  .Arg<ffi::AnyBuffer>()
+                                  .Arg<ffi::AnyBuffer>() DL_RETS_4 DL_RETS_4 DL_RETS_4.Ret<ffi::AnyBuffer>()
+                                  .Attr<int64_t>("n_steps")
+                                  .Attr<int64_t>("threads")
+                                  .Attr<int64_t>("levels")
+                                  .Attr<double>("eta")
+                                  .Attr<double>("threshold"));

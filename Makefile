@@ -28,7 +28,7 @@ lint: $(STAMP)
 	$(BIN)/ruff format --check src tests benchmarks fitting designs docs data
 	$(BIN)/mypy
 
-## Documentation site (mkdocs, warnings as errors; its own .venv-docs)
+## Documentation site (mkdocs, warnings as errors; its own .venv-docs) in out/site
 docs: $(STAMP)
 	bash docs/build.sh
 

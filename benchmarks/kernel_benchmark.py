@@ -82,6 +82,7 @@ def jax_case(spec):
     from difflattice.solver.sources import ToneBurst, line_transducer
 
     nx, ny, steps, mode = spec["nx"], spec["ny"], spec["steps"], spec["mode"]
+    backend = spec.get("backend", "jax")  # the XLA loop; the native kernels: `difflattice bench`
     g, medium, edges, sensors, c0 = _scene(spec["kind"], nx, ny, spec["dtype"])
     dt = g.jnp_dtype
     sharding = grid_sharding() if spec.get("devices", 1) > 1 else None
@@ -97,12 +98,12 @@ def jax_case(spec):
     c0 = jnp.asarray(c0, dt)
 
     def loss(w, lag, c, checkpoint=None, adjoint="autodiff"):
-        r = run(make(w, lag, c), steps, checkpoint=checkpoint, adjoint=adjoint)
+        r = run(make(w, lag, c), steps, checkpoint=checkpoint, adjoint=adjoint, backend=backend)
         return jnp.sum(r.probes ** 2)
 
     out = {}
     if mode == "forward":
-        f = jax.jit(lambda w, l, c: run(make(w, l, c), steps, sharding=sharding).final.pressure)
+        f = jax.jit(lambda w, l, c: run(make(w, l, c), steps, sharding=sharding, backend=backend).final.pressure)
         compile_s, t, ts = _median_time(f, w0, l0, c0)
         out.update(compile_s=compile_s, time_s=t, times_s=ts)
         if spec.get("recompile_check"):
@@ -111,7 +112,7 @@ def jax_case(spec):
 
             def sim(y0):
                 src = line_transducer(g, (40 * g.dx_m, y0 * g.dx_m), n_cells=104, signal=ToneBurst(50e3, 5))
-                return simulate(g, medium(c0), src, sensors, n_steps=steps, edges=edges).final.pressure
+                return simulate(g, medium(c0), src, sensors, n_steps=steps, edges=edges, backend=backend).final.pressure
 
             t0 = time.perf_counter()
             jax.block_until_ready(sim(ny / 2))
@@ -122,8 +123,8 @@ def jax_case(spec):
     elif mode == "vmap":
         B = spec["batch"]
         ws = jnp.linspace(0.5, 1.5, B)[:, None] * w0[None]
-        one = jax.jit(lambda w: run(make(w, l0, c0), steps).final.pressure)
-        batched = jax.jit(jax.vmap(lambda w: run(make(w, l0, c0), steps).final.pressure))
+        one = jax.jit(lambda w: run(make(w, l0, c0), steps, backend=backend).final.pressure)
+        batched = jax.jit(jax.vmap(lambda w: run(make(w, l0, c0), steps, backend=backend).final.pressure))
 
         def loop(ws):
             return [one(w) for w in ws]

@@ -4,6 +4,8 @@ of the homogeneous 2-D wave equation, measured in their own virtual environment.
 CLI (stable; `benchmarks/kernel_benchmark.py` calls it as a subprocess):
 
     python3 benchmarks/reference_kernels.py --json OUT.json [--quick] [--threads N] [--dtypes float32,float64]
+    python3 benchmarks/reference_kernels.py --kernel numba_serial --size 840x630x1000 [--dtypes float32]
+        [--threads N] [--repeats R]     (one case only: what `difflattice bench --reference` runs per process)
 
 - Any Python 3 may start it. Unless it already runs inside `<repo>/.venv-bench`, it creates that
   venv if missing (`python3 -m venv .venv-bench && .venv-bench/bin/pip install numba numpy`),
@@ -131,7 +133,7 @@ def initial(nx, ny, dtype):
     return p, q
 
 
-def measure(name, fn, nx, ny, steps, dtype):
+def measure(name, fn, nx, ny, steps, dtype, repeats=REPEATS):
     """Warm-up (compile) run, then the median of REPEATS timed runs. Returns (row, final p)."""
     import numpy as np
 
@@ -142,7 +144,7 @@ def measure(name, fn, nx, ny, steps, dtype):
     fn(p, q, c2, centre, WARMUP_STEPS)
     compile_s = time.perf_counter() - t0
     times, final = [], None
-    for _ in range(REPEATS):
+    for _ in range(repeats):
         p, q = initial(nx, ny, dtype)
         t0 = time.perf_counter()
         out = fn(p, q, c2, centre, steps)
@@ -153,6 +155,21 @@ def measure(name, fn, nx, ny, steps, dtype):
            "compile_s": compile_s if name != "numpy_inplace" else 0.0, "mlups": nx * ny * steps / t / 1e6}
     log(json.dumps(row))
     return row, np.array(final, dtype=np.float64)
+
+
+def one_case(args) -> dict:
+    """A single kernel at a single size (`--kernel`, `--size NXxNYxSTEPS`, the first dtype)."""
+    import numba
+
+    load_start = list(os.getloadavg())
+    numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
+    serial, parallel = make_numba_kernels()
+    fn = {"numpy_inplace": numpy_run, "numba_serial": serial, "numba_parallel": parallel}[args.kernel]
+    nx, ny, steps = (int(v) for v in args.size.lower().split("x"))
+    row, _ = measure(args.kernel, fn, nx, ny, steps, args.dtypes[0], repeats=args.repeats)
+    row["threads"] = numba.get_num_threads() if args.kernel == "numba_parallel" else 1
+    return {"date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "numba": numba.__version__,
+            "load_average_at_start": load_start, "load_average_at_end": list(os.getloadavg()), "rows": [row]}
 
 
 def bench(args) -> dict:
@@ -200,10 +217,14 @@ def main():
     ap.add_argument("--quick", action="store_true", help="a tenth of the steps")
     ap.add_argument("--threads", type=int, default=2, help="threads of the numba parallel kernel (default 2)")
     ap.add_argument("--dtypes", default="float32,float64")
+    ap.add_argument("--kernel", choices=["numpy_inplace", "numba_serial", "numba_parallel"], default=None,
+                    help="run this kernel only, at --size (one case per process)")
+    ap.add_argument("--size", default="840x630x1000", help="NXxNYxSTEPS of --kernel")
+    ap.add_argument("--repeats", type=int, default=REPEATS, help="timed runs of --kernel (median)")
     args = ap.parse_args()
     args.dtypes = [d.strip() for d in args.dtypes.split(",") if d.strip()]
     ensure_venv_and_reexec()
-    out = bench(args)
+    out = one_case(args) if args.kernel else bench(args)
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(out, indent=2) + "\n")

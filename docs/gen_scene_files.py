@@ -6,9 +6,9 @@ Usage (from the repository root):
     .venv/bin/python docs/gen_scene_files.py --check    # exit 1 if docs/scene-files.md is out of date
 
 The part between the markers ``<!-- BEGIN GENERATED: schema -->`` and ``<!-- END GENERATED:
-schema -->`` is `difflattice.scene.schema_markdown()` (every section and key, from
-`difflattice.scene.SCHEMA`) followed by the materials table (`difflattice.lattice.medium.MATERIALS`); the
-rest of the page is written by hand.
+schema -->`` is `difflattice.scene.schema_markdown()` (every section and key, from the typed
+declarations in `difflattice/scene/schema.py`) followed by the materials table
+(`difflattice.lattice.medium.MATERIALS`); the rest of the page is written by hand.
 """
 
 from __future__ import annotations

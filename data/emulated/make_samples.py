@@ -20,7 +20,9 @@ from difflattice.capture.groundtruth import Piston, TableTransducer, speed_of_so
 from difflattice.capture.host import capture_lobe, capture_wave
 
 HERE = Path(__file__).resolve().parent
-PISTON = {"kind": "piston", "diameter_m": 0.0384, "sensitivity_uV": 50_000.0}
+# "fraunhofer": these files hold the far-field pattern spread as 1/range (the emulator's default is now
+# the Rayleigh integral at the range itself: see make_disc_samples.py)
+PISTON = {"kind": "piston", "diameter_m": 0.0384, "sensitivity_uV": 50_000.0, "lobe": "fraunhofer"}
 RIG = {"rig_id": "EMU-0001", "range_m": 1.0, "temperature_c": 21.0, "drift_c_per_h": 0.5, "wobble_c": 0.05}
 FREQ_HZ = 40_000
 META = {
@@ -68,7 +70,7 @@ def _run(tmp: Path, name: str, capture, scan: dict, faults: dict | None = None, 
 
 def write_truth() -> None:
     """The noise-free ground truth at the capture conditions (21 degC), as a transducer table."""
-    piston = Piston(PISTON["diameter_m"], PISTON["sensitivity_uV"])
+    piston = Piston(PISTON["diameter_m"], PISTON["sensitivity_uV"], lobe="fraunhofer")
     c = speed_of_sound(RIG["temperature_c"])
     angles = np.arange(-90.0, 90.5, 0.5)
     x = np.arange(-0.03, 0.03 + 1e-9, 0.00025)

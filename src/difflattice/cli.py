@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 from pathlib import Path
 
 
@@ -27,10 +28,15 @@ def _simulate(args) -> int:
           f"expected phase error {s['accuracy']['expected_phase_error_periods']:.3f} periods")
     if "farfield" in s:
         f = s["farfield"]
-        print(f"lobe at {f['range_m']} m: -6 dB width {f['width_6db_deg']} deg, first null {f.get('first_null_deg')} deg, "
-              f"first side lobe {f.get('first_sidelobe_db')} dB")
+        print(f"lobe at {_num(f['range_m'], 'g')} m: -6 dB width {_num(f['width_6db_deg'], '.2f')} deg, "
+              f"first null {_num(f.get('first_null_deg'), '.2f')} deg, first side lobe {_num(f.get('first_sidelobe_db'), '.1f')} dB")
     print(f"wrote {files['summary']}")
     return 0
+
+
+def _num(value, fmt: str) -> str:
+    """A number for the console (`fmt`), or "none" when there is none (e.g. no null in range)."""
+    return "none" if value is None else format(value, fmt)
 
 
 def _gallery(args) -> int:
@@ -66,6 +72,10 @@ def _accuracy(args) -> int:
         res = acc.sweep(cpw or (6, 8, 10, 14, 20, 28, 40), tuple(args.dtype), repeats=args.repeats)
         acc.write(res, args.out)
         print(f"wrote {args.out}/accuracy.json, accuracy_table.md, accuracy.png")
+    elif args.case == "piston":
+        res = acc.piston_sweep(cpw or (6, 8, 10, 14, 20, 28, 40), dtype=args.dtype[-1], repeats=args.repeats)
+        acc.write_piston(res, args.out)
+        print(f"wrote {args.out}/accuracy_piston.json, accuracy_piston_table.md, accuracy_piston.png")
     elif args.case == "wall":
         res = acc.wall_sweep(cpw or (6, 8, 10, 14, 20, 30), tuple(args.dtype), repeats=args.repeats)
         acc.write_wall(res, args.out)
@@ -90,8 +100,27 @@ def _design(args) -> int:
     return 0
 
 
+def _bench(args) -> int:  # issue 15: forward speed, interleaved with the reference loops
+    from .apps.bench import bench, markdown
+
+    try:
+        result = bench(reference=args.reference, rounds=args.rounds, force=args.force, quick=args.quick)
+    except RuntimeError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    if args.out is not None:
+        import json
+
+        args.out.mkdir(parents=True, exist_ok=True)
+        (args.out / "bench.json").write_text(json.dumps(result, indent=2) + "\n")
+        (args.out / "bench.md").write_text(markdown(result))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="difflattice", description="Differentiable lattice-gas ultrasound simulator")
+    from .config import Parser  # its help shows every option's default; sub-parsers inherit it
+
+    p = Parser(prog="difflattice", description="Differentiable lattice-gas ultrasound simulator")
     sub = p.add_subparsers(dest="command", required=True)
 
     s = sub.add_parser("simulate", help="simulate a scene file and write sensor data, images and a summary")
@@ -108,48 +137,68 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=_simulate)
 
     g = sub.add_parser("gallery", help="render the paper's figures (data/scenes/*.toml)")
-    g.add_argument("--out", type=Path, default=Path("out/gallery"))
+    g.add_argument("--out", type=Path, default=Path("out/gallery"), help="output directory")
     g.add_argument("--scale", type=float, default=1.0, help="grid scale (e.g. 0.5 for a quick look)")
-    g.add_argument("--only", nargs="*", help="scene names to render")
-    g.add_argument("--quiet", action="store_true")
+    g.add_argument("--only", nargs="*", help="scene names to render (default: all)")
+    g.add_argument("--quiet", action="store_true", help="no progress bar")
     g.set_defaults(func=_gallery)
 
     d = sub.add_parser("demo", help="main job: emulated rig -> capture -> fit -> report")
-    d.add_argument("--out", type=Path, default=Path("out/demo"))
+    d.add_argument("--out", type=Path, default=Path("out/demo"), help="output directory (its data/ folder is emptied first)")
     d.add_argument("--quick", action="store_true", help="smaller scans (for tests)")
     d.set_defaults(func=_demo)
 
-    f = sub.add_parser("fit", help="fit a transducer model to captured data (config file)")
+    from .config import keys_help
+    from .fit.config import SECTIONS as FIT_SECTIONS
+
+    f = sub.add_parser("fit", help="fit a transducer model to captured data (config file)",
+                       description="Fit a transducer model to captured data, as a TOML config file says. A config "
+                                   "that cannot be used exits with code 2 and one line naming the key; a fit that "
+                                   "did not converge exits with code 3.",
+                       epilog="config keys (every unit, allowed range and meaning in docs/fitting.md):\n"
+                              + keys_help(FIT_SECTIONS, width=96))
     f.add_argument("config", type=Path, help="fit config (TOML, see docs/fitting.md)")
     f.add_argument("--out", type=Path, default=None, help="report directory (default: from the config)")
     f.add_argument("--quick", action="store_true", help="coarse settings (for tests)")
     f.set_defaults(func=_fit)
 
     a = sub.add_parser("accuracy", help="error against run time over a resolution sweep (built-in cases, analytic references)")
-    a.add_argument("--case", choices=["polaroid", "wall", "edges"], default="polaroid",
-                   help="polaroid: the Polaroid line's lobe and wavefront vs the continuous line; wall: a point "
+    a.add_argument("--case", choices=["polaroid", "piston", "wall", "edges"], default="polaroid",
+                   help="polaroid: the Polaroid line's lobe and wavefront vs the continuous line; piston: a baffled "
+                        "38.4 mm disc on the axisymmetric lattice (on-axis field, lobe, the z = 16.5 mm line) vs "
+                        "the exact on-axis formula, 2 J1(x)/x and a Rayleigh-integral quadrature; wall: a point "
                         "source's echo from a rigid and a soft wall vs the image-source solution; edges: the "
                         "reflection of pml/sponge/mur edges vs a window too large to reach")
     a.add_argument("--cells-per-wavelength", type=float, nargs="+", default=None,
-                   help="resolutions (default: polaroid 6 8 10 14 20 28 40; wall 6 8 10 14 20 30; edges 10 20)")
+                   help="resolutions (default: polaroid and piston 6 8 10 14 20 28 40; wall 6 8 10 14 20 30; edges 10 20)")
     a.add_argument("--thickness-cells", type=int, nargs="+", default=[5, 10, 20, 40],
                    help="edges case: pml and sponge thicknesses, cells")
     a.add_argument("--dtype", nargs="+", default=["float32", "float64"], choices=["float32", "float64"],
                    help="precisions (the edges case uses the first)")
     a.add_argument("--repeats", type=int, default=3, help="timed repeats after a compiling run (polaroid: their median; wall, edges: the fastest)")
-    a.add_argument("--out", type=Path, default=Path("out/accuracy"))
+    a.add_argument("--out", type=Path, default=Path("out/accuracy"), help="output directory")
     a.set_defaults(func=_accuracy)
 
     z = sub.add_parser("design", help="optimise a horn (target beam width) or a reflector (on-axis gain) from the paper's shapes")
-    z.add_argument("what", choices=["horn", "reflector"])
+    z.add_argument("what", choices=["horn", "reflector"], help="what to design")
     z.add_argument("--out", type=Path, required=True, help="report directory")
-    z.add_argument("--cells-per-wavelength", type=float, default=8.0)
+    z.add_argument("--cells-per-wavelength", type=float, default=8.0, help="lattice resolution of the design runs")
     z.add_argument("--target-deg", type=float, default=8.0, help="horn: target -6 dB beam width at 1 m, deg")
     z.add_argument("--wall", default="soft", help="soft (the paper's speed-zero walls), rigid or a fluid material")
     z.add_argument("--steps", type=int, default=15, help="BFGS steps")
-    z.add_argument("--no-gradient-check", action="store_true")
-    z.add_argument("--quiet", action="store_true")
+    z.add_argument("--no-gradient-check", action="store_true", help="skip the finite-difference check of the gradient")
+    z.add_argument("--quiet", action="store_true", help="no progress bar")
     z.set_defaults(func=_design)
+
+    b = sub.add_parser("bench", help="forward speed (MLUPS) of the time loop: native, JAX and, with --reference, numba/NumPy")
+    b.add_argument("--reference", action="store_true",
+                   help="also run the numba (1 thread, all cores) and NumPy loops of benchmarks/reference_kernels.py "
+                        "(a source checkout; their own venv .venv-bench), interleaved, and print the ratios")
+    b.add_argument("--rounds", type=int, default=2, help="interleaved rounds (each case in its own process per round)")
+    b.add_argument("--force", action="store_true", help="run on a busy machine (1-min load > 1): results marked provisional")
+    b.add_argument("--out", type=Path, default=None, help="also write bench.json and bench.md here (default: print only)")
+    b.add_argument("--quick", action="store_true", help="a tenth of the steps (checks that it runs; not a measurement)")
+    b.set_defaults(func=_bench)
 
     try:
         from .capture.cli import register
@@ -160,23 +209,38 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Configuration warnings as one line on stderr (`warning: ...`); others as Python prints them."""
+    from .config import ConfigWarning
+
+    if issubclass(category, ConfigWarning):
+        print(f"warning: {' '.join(str(message).split())}", file=sys.stderr)
+    else:
+        sys.stderr.write(warnings.formatwarning(message, category, filename, lineno, line))
+
+
 def main(argv: list[str] | None = None) -> int:
+    """Run a `difflattice` subcommand. Precision is set here, for the whole process
+    (`apps.jaxconfig.configure`: float64 on, compilation cache), never inside the library.
+    A configuration error prints one line (`error: ...`) and returns 2."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command in ("simulate", "gallery", "demo", "fit", "accuracy", "design"):
         from .apps.jaxconfig import configure
 
         configure()
-    from .scene.schema import ConfigError
+    from .config import ConfigError
 
-    try:
-        return int(args.func(args) or 0)
-    except ConfigError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
-    except FileNotFoundError as e:
-        print(f"error: {e}", file=sys.stderr)
-        return 2
+    with warnings.catch_warnings():
+        warnings.showwarning = _show_warning
+        try:
+            return int(args.func(args) or 0)
+        except ConfigError as e:
+            print(f"error: {' '.join(str(e).split())}", file=sys.stderr)
+            return 2
+        except FileNotFoundError as e:
+            print(f"error: {e}", file=sys.stderr)
+            return 2
 
 
 if __name__ == "__main__":  # pragma: no cover

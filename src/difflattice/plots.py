@@ -1,20 +1,27 @@
 """Pictures: pressure fields like the paper's figures, lobe patterns, wavefronts, time series,
 aperture profiles and animations. Matplotlib is imported here only (the core never imports it);
-every function takes numpy-convertible arrays and returns the matplotlib Figure or writes a file.
+every function takes numpy-convertible arrays and returns a `matplotlib.figure.Figure` or writes
+a file.
+
+Figures are built with `Figure` directly, not pyplot: no backend is chosen or forced at import,
+nothing is registered in pyplot's global figure list (so library calls are re-entrant and need
+no closing), and `save` writes through the figure's own canvas. In a notebook a returned Figure
+displays as usual; `plt.figure()`-made figures passed to `save` are closed there.
 """
 
 from __future__ import annotations
 
+import sys
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
+from typing import Any, cast
 
 import matplotlib
+import numpy as np
+from matplotlib.figure import Figure
+from matplotlib.projections.polar import PolarAxes
 
-matplotlib.use("Agg") if matplotlib.get_backend().lower() not in ("agg", "pdf", "svg") else None
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from .scene.model import MIN_PIXELS_PER_WAVELENGTH, PAPER_RENDER_EVERY, render_stride  # noqa: E402,F401
+from .scene.model import MIN_PIXELS_PER_WAVELENGTH, PAPER_RENDER_EVERY, render_stride  # noqa: F401
 
 
 def field_image(
@@ -30,13 +37,17 @@ def field_image(
     title: str | None = None,
     ax=None,
     size_m: tuple[float, float] | None = None,
+    colorbar: bool | None = None,
+    units: str = "Pa",
 ):
     """Grayscale pressure image with a symmetric scale (white = +, black = -), rendering every
     `every`-th cell (the paper used every third; `render_stride` picks it from the resolution),
-    obstacle outlines, transducer cells, axes in mm and a time stamp in steps and microseconds.
-    `clip` sets the scale as a fraction of max |p|. `dx_m` is the simulation's cell (obstacles and
-    source cells are in its cells); `size_m` is the window's size, default `p.shape * dx_m` (give
-    it when `p` was already thinned, e.g. a snapshot kept at every n-th cell, with `every=1`)."""
+    obstacle outlines, transducer cells, axes in mm, a time stamp in steps and microseconds and a
+    colour bar of the pressure (`units`; values beyond the scale are saturated). `clip` sets the
+    scale as a fraction of max |p|. `dx_m` is the simulation's cell (obstacles and source cells
+    are in its cells); `size_m` is the window's size, default `p.shape * dx_m` (give it when `p`
+    was already thinned, e.g. a snapshot kept at every n-th cell, with `every=1`). `colorbar`:
+    default on for a new figure, off when drawing into a given `ax` (panels, animations)."""
     p = np.asarray(p)
     if isinstance(every, bool) or int(every) != every or every < 1:
         raise ValueError(f"every = {every!r}: render every n-th cell, n a whole number >= 1")
@@ -45,9 +56,14 @@ def field_image(
     fig = None
     w_m, h_m = size_m if size_m is not None else (p.shape[0] * dx_m, p.shape[1] * dx_m)
     if ax is None:
-        fig, ax = plt.subplots(figsize=(7, 7 * h_m / w_m + 0.6))
+        fig = Figure(figsize=(7.8, 7 * h_m / w_m + 0.6))
+        ax = fig.add_subplot()
+    if colorbar is None:
+        colorbar = fig is not None
     ext_mm = [0, w_m * 1e3, 0, h_m * 1e3]
-    ax.imshow(sub.T, origin="lower", cmap="gray", vmin=-vmax, vmax=vmax, extent=ext_mm, interpolation="nearest")
+    im = ax.imshow(sub.T, origin="lower", cmap="gray", vmin=-vmax, vmax=vmax, extent=ext_mm, interpolation="nearest")
+    if colorbar:
+        ax.figure.colorbar(im, ax=ax, shrink=0.8, extend="both", label=f"pressure ({units})")
     if obstacles is not None:
         occ = np.asarray(obstacles)
         if occ.max() > 0:
@@ -74,9 +90,16 @@ def level_image(p_max, dx_m: float, *, floor_db: float = -60.0, sources=(), titl
     """Peak |p| map in dB (for beam patterns)."""
     a = np.asarray(p_max)
     db = 20 * np.log10(np.maximum(a / max(float(a.max()), 1e-30), 10 ** (floor_db / 20)))
-    fig, ax = plt.subplots(figsize=(7, 7 * a.shape[1] / a.shape[0] + 0.6))
-    im = ax.imshow(db.T, origin="lower", cmap="magma", vmin=floor_db, vmax=0,
-                   extent=[0, a.shape[0] * dx_m * 1e3, 0, a.shape[1] * dx_m * 1e3])
+    fig = Figure(figsize=(7, 7 * a.shape[1] / a.shape[0] + 0.6))
+    ax = fig.add_subplot()
+    im = ax.imshow(
+        db.T,
+        origin="lower",
+        cmap="magma",
+        vmin=floor_db,
+        vmax=0,
+        extent=(0, a.shape[0] * dx_m * 1e3, 0, a.shape[1] * dx_m * 1e3),
+    )
     for cells in sources:
         c = np.asarray(cells)
         ax.plot(c[:, 0] * dx_m * 1e3, c[:, 1] * dx_m * 1e3, color="cyan", lw=2)
@@ -89,35 +112,56 @@ def level_image(p_max, dx_m: float, *, floor_db: float = -60.0, sources=(), titl
 
 def lobe_plots(angles_deg, curves: dict, *, floor_db: float = -50.0, title: str = "lobe pattern"):
     """Polar and cartesian lobe patterns in dB; `curves` maps a label to levels in dB (or
-    (levels, style) pairs). Measured data can be given as (levels, "o")."""
-    fig = plt.figure(figsize=(12, 5))
-    axp = fig.add_subplot(1, 2, 1, projection="polar")
+    (levels, style) pairs). Measured data can be given as (levels, "o"). The polar plot's rings
+    are labelled in dB re the peak (0 dB outermost), both panels carry the legend."""
+    fig = Figure(figsize=(12, 5.2))
+    axp = cast(PolarAxes, fig.add_subplot(1, 2, 1, projection="polar"))
     axc = fig.add_subplot(1, 2, 2)
     a = np.asarray(angles_deg)
     for label, v in curves.items():
-        lv, style = (v if isinstance(v, tuple) else (v, "-"))
+        lv, style = v if isinstance(v, tuple) else (v, "-")
         lv = np.maximum(np.asarray(lv), floor_db)
-        kw = {"ms": 3} if style not in ("-", "--", ":") else {}
+        kw: dict[str, Any] = {"ms": 3} if style not in ("-", "--", ":") else {}
         axp.plot(np.radians(a), lv - floor_db, style, label=label, **kw)
         axc.plot(a, lv, style, label=label, **kw)
     axp.set_thetamin(float(a.min()))
     axp.set_thetamax(float(a.max()))
-    axp.set_rticks([10, 20, 30, 40, 50][: int(-floor_db // 10)])
-    axp.set_yticklabels([f"{floor_db + r:.0f}" for r in axp.get_yticks()])
-    axp.set_title(title + " (polar, dB)")
+    axp.set_theta_zero_location("N")
+    axp.set_theta_direction(-1)
+    rings = np.arange(0.0, -floor_db + 1e-9, 10.0)
+    axp.set_rlim(0, -floor_db + 2)
+    axp.set_rticks(rings[1:])
+    axp.set_yticklabels([])
+    label_at = np.radians(min(float(a.max()), 180.0) * 0.85)  # ring labels along one ray, where side lobes are low
+    for r in rings[1:]:
+        axp.text(
+            label_at,
+            r,
+            f"{floor_db + r:.0f} dB",
+            fontsize=7,
+            ha="center",
+            va="center",
+            bbox={"boxstyle": "round,pad=0.1", "fc": "white", "ec": "none", "alpha": 0.8},
+        )
+    axp.set_xlabel("angle from the axis (deg); rings: level re peak")
+    axp.set_title(title + " (polar)", pad=12)
+    axp.legend(loc="upper left", bbox_to_anchor=(-0.12, 1.0), fontsize=7)
     axc.set_xlabel("angle (deg)")
-    axc.set_ylabel("level (dB)")
+    axc.set_ylabel("level (dB re peak)")
     axc.set_ylim(floor_db, 3)
     axc.grid(True, alpha=0.3)
-    axc.legend()
+    axc.legend(fontsize=8)
+    axc.set_title(title)
     fig.tight_layout()
     return fig
 
 
 def wavefront_plot(x_m, curves: dict, *, ylabel="arrival (µs)", title="near-field wavefront"):
-    fig, ax = plt.subplots(figsize=(7, 4))
+    """Curves against lateral position (mm); `curves` maps a label to values or (values, style)."""
+    fig = Figure(figsize=(7, 4))
+    ax = fig.add_subplot()
     for label, v in curves.items():
-        y, style = (v if isinstance(v, tuple) else (v, "-"))
+        y, style = v if isinstance(v, tuple) else (v, "-")
         ax.plot(np.asarray(x_m) * 1e3, y, style, label=label, ms=4)
     ax.set_xlabel("lateral position x (mm)")
     ax.set_ylabel(ylabel)
@@ -127,21 +171,57 @@ def wavefront_plot(x_m, curves: dict, *, ylabel="arrival (µs)", title="near-fie
     return fig
 
 
-def aperture_plot(y_m, weights, lags_s, *, labels=("fitted",), title="aperture"):
-    """Weights and lags across the aperture; `weights`/`lags_s` may be lists of arrays."""
+def aperture_plot(
+    y_m,
+    weights,
+    lags_s,
+    *,
+    labels=("fitted",),
+    title="aperture",
+    weight_err=None,
+    lag_err_s=None,
+    truth: dict | None = None,
+    weight_label: str = "weight",
+    band_label: str = "± total uncertainty",
+):
+    """Weights and lags across the aperture; `weights`/`lags_s` may be lists of arrays (one per
+    label). `weight_err`/`lag_err_s` (same length as the first curve, NaN where undetermined)
+    draw a shaded band around the first curve; `truth` ({"y_m", "weights", "lags_s"}) is
+    overlaid as a dashed black line when known (e.g. emulated data)."""
     ws = weights if isinstance(weights, (list, tuple)) else [weights]
     ls = lags_s if isinstance(lags_s, (list, tuple)) else [lags_s]
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(11, 4))
-    for w, lag, lab in zip(ws, ls, labels):
-        a1.plot(np.asarray(y_m) * 1e3, np.asarray(w), label=lab)
-        a2.plot(np.asarray(y_m) * 1e3, np.asarray(lag) * 1e6, label=lab)
+    fig = Figure(figsize=(11, 4))
+    a1, a2 = fig.subplots(1, 2)
+    y_mm = np.asarray(y_m) * 1e3
+    for i, (w, lag, lab) in enumerate(zip(ws, ls, labels)):
+        a1.plot(y_mm, np.asarray(w), label=lab)
+        a2.plot(y_mm, np.asarray(lag) * 1e6, label=lab)
+        if i == 0:
+            for ax, v, e, scale in ((a1, w, weight_err, 1.0), (a2, lag, lag_err_s, 1e6)):
+                if e is not None:
+                    v, e = np.asarray(v, float) * scale, np.asarray(e, float) * scale
+                    ok = np.isfinite(e)
+                    ax.fill_between(
+                        y_mm,
+                        np.where(ok, v - e, np.nan),
+                        np.where(ok, v + e, np.nan),
+                        alpha=0.25,
+                        color="tab:blue",
+                        label=band_label,
+                    )
+    if truth is not None:
+        ty = np.asarray(truth["y_m"]) * 1e3
+        if truth.get("weights") is not None:
+            a1.plot(ty, np.asarray(truth["weights"]), "k--", lw=1.2, label="truth")
+        if truth.get("lags_s") is not None:
+            a2.plot(ty, np.asarray(truth["lags_s"]) * 1e6, "k--", lw=1.2, label="truth")
     a1.set_xlabel("position across the face (mm)")
-    a1.set_ylabel("weight")
+    a1.set_ylabel(weight_label)
     a2.set_xlabel("position across the face (mm)")
     a2.set_ylabel("lag (µs)")
     for a in (a1, a2):
         a.grid(True, alpha=0.3)
-        a.legend()
+        a.legend(fontsize=8)
     fig.suptitle(title)
     fig.tight_layout()
     return fig
@@ -156,14 +236,15 @@ def time_series_plot(t_s, series, labels):
     curves get a legend entry each; more are coloured by their index with a colour bar."""
     series = np.asarray(series).reshape(len(np.asarray(t_s)), -1)
     n = series.shape[1]
-    fig, ax = plt.subplots(figsize=(8, 4))
+    fig = Figure(figsize=(8, 4))
+    ax = fig.add_subplot()
     if n <= MAX_LEGEND_ENTRIES:
         for s, lab in zip(series.T, labels):
             ax.plot(np.asarray(t_s) * 1e6, s, label=lab)
         if n:
             ax.legend()
     else:
-        cmap = plt.get_cmap("viridis")
+        cmap = matplotlib.colormaps["viridis"]
         norm = matplotlib.colors.Normalize(vmin=0, vmax=n - 1)
         for i, s in enumerate(series.T):
             ax.plot(np.asarray(t_s) * 1e6, s, color=cmap(norm(i)), lw=0.8)
@@ -184,7 +265,8 @@ def animate(frames, steps, dx_m: float, dt_s: float, path: str | Path, *, every:
     frames = np.asarray(frames)
     size_m = kw.get("size_m")
     aspect = size_m[1] / size_m[0] if size_m is not None else frames.shape[2] / frames.shape[1]
-    fig, ax = plt.subplots(figsize=(6, 6 * aspect + 0.6))
+    fig = Figure(figsize=(6, 6 * aspect + 0.6))
+    ax = fig.add_subplot()
     vmax = float(np.abs(frames).max()) * 0.5 or 1.0
 
     def draw(i):
@@ -193,19 +275,121 @@ def animate(frames, steps, dx_m: float, dt_s: float, path: str | Path, *, every:
         return []
 
     if path.suffix == ".mp4" and animation.writers.is_available("ffmpeg"):
-        writer = animation.FFMpegWriter(fps=fps)
+        writer: animation.AbstractMovieWriter = animation.FFMpegWriter(fps=fps)
     else:
         path = path.with_suffix(".gif")
         writer = animation.PillowWriter(fps=fps)
     anim = animation.FuncAnimation(fig, draw, frames=len(frames), blit=False)
     anim.save(str(path), writer=writer)
-    plt.close(fig)
     return path
 
 
 def save(fig, path: str | Path, dpi: int = 110) -> Path:
+    """Write `fig` (any matplotlib Figure) to `path`; a pyplot-managed figure is closed."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=dpi, bbox_inches="tight")
-    plt.close(fig)
+    plt = sys.modules.get("matplotlib.pyplot")
+    if plt is not None and plt.fignum_exists(getattr(fig, "number", -1)):
+        plt.close(fig)
     return path
+
+
+# ------------------------------------------------------------------------------------------
+# 3-D fields (issue 16): slices through the transducer axis, projections, echo against angle
+
+
+def slices_3d(
+    slices: dict,
+    dx_m: float,
+    *,
+    floor_db: float | None = None,
+    clip: float = 0.5,
+    marks: dict | None = None,
+    outlines: dict | None = None,
+    title: str = "3-D field, orthogonal slices",
+):
+    """Orthogonal slices of a 3-D field side by side. `slices` maps a label (e.g. "x-y at z = 12 mm")
+    to ((horizontal axis name, vertical axis name), 2-D array indexed [horizontal, vertical]).
+    With `floor_db` each panel is the level in dB re the largest |p| of all panels (for p_max or
+    p_rms maps); otherwise a symmetric gray scale clipped at `clip` x max |p| (a snapshot).
+    `marks` maps a label to (n, 2) cell positions (e.g. the transducer cells) drawn in cyan;
+    `outlines` maps a label to a 2-D occupancy on the same plane (an obstacle), outlined at 0.5."""
+    items = list(slices.items())
+    if not items:
+        raise ValueError("slices is empty: give at least one labelled 2-D array")
+    peak = max(float(np.abs(np.asarray(a)).max()) for _, (_, a) in items) or 1.0
+    fig = Figure(figsize=(5.2 * len(items), 4.8))
+    axes = fig.subplots(1, len(items), squeeze=False)
+    for ax, (label, (names, arr)) in zip(axes[0], items):
+        a = np.asarray(arr, dtype=float)
+        ext = [0, a.shape[0] * dx_m * 1e3, 0, a.shape[1] * dx_m * 1e3]
+        if floor_db is not None:
+            db = 20 * np.log10(np.maximum(np.abs(a) / peak, 10 ** (floor_db / 20)))
+            im = ax.imshow(db.T, origin="lower", cmap="magma", vmin=floor_db, vmax=0, extent=ext)
+        else:
+            im = ax.imshow(a.T, origin="lower", cmap="gray", vmin=-clip * peak, vmax=clip * peak, extent=ext)
+        occ = (outlines or {}).get(label)
+        if occ is not None and np.asarray(occ).max() > 0.5:
+            o = np.asarray(occ, dtype=float)
+            ax.contour(
+                np.arange(o.shape[0]) * dx_m * 1e3,
+                np.arange(o.shape[1]) * dx_m * 1e3,
+                o.T,
+                levels=[0.5],
+                colors="tab:orange",
+                linewidths=1.0,
+            )
+        for c in (marks or {}).get(label, ()):
+            c = np.asarray(c, dtype=float).reshape(-1, 2)
+            ax.plot(c[:, 0] * dx_m * 1e3, c[:, 1] * dx_m * 1e3, ".", color="cyan", ms=2)
+        ax.set_xlabel(f"{names[0]} (mm)")
+        ax.set_ylabel(f"{names[1]} (mm)")
+        ax.set_title(label, fontsize=10)
+    fig.colorbar(im, ax=list(axes[0]), label="dB" if floor_db is not None else "Pa", shrink=0.8)
+    fig.suptitle(title)
+    return fig
+
+
+def max_intensity_projection(volume, dx_m: float, *, axis: int = 2, floor_db: float = -40.0, title: str | None = None):
+    """Maximum of |volume| along `axis` (0 = x, 1 = y, 2 = z) in dB re its peak: a 3-D beam or
+    echo field seen through the volume (give p_max or p_rms of a 3-D run)."""
+    v = np.abs(np.asarray(volume, dtype=float))
+    if v.ndim != 3:
+        raise ValueError(f"max_intensity_projection needs a 3-D array, got shape {v.shape}")
+    m = v.max(axis=axis)
+    names = [n for i, n in enumerate("xyz") if i != axis]
+    db = 20 * np.log10(np.maximum(m / max(float(m.max()), 1e-30), 10 ** (floor_db / 20)))
+    fig = Figure(figsize=(7, 7 * m.shape[1] / m.shape[0] + 0.6))
+    ax = fig.add_subplot()
+    im = ax.imshow(
+        db.T,
+        origin="lower",
+        cmap="magma",
+        vmin=floor_db,
+        vmax=0,
+        extent=(0, m.shape[0] * dx_m * 1e3, 0, m.shape[1] * dx_m * 1e3),
+    )
+    fig.colorbar(im, ax=ax, label="dB")
+    ax.set_xlabel(f"{names[0]} (mm)")
+    ax.set_ylabel(f"{names[1]} (mm)")
+    ax.set_title(title or f"maximum-intensity projection along {'xyz'[axis]} (dB re max)")
+    return fig
+
+
+def echo_angle_plot(angles_deg, curves: dict, *, title: str = "echo amplitude against incidence angle"):
+    """Echo amplitude (dB) against angle; `curves` maps a label to levels in dB, or to (levels,
+    style) pairs (e.g. the 3-D lattice as "o-" and the image-source reference as "--")."""
+    fig = Figure(figsize=(7, 4.5))
+    ax = fig.add_subplot()
+    a = np.asarray(angles_deg, dtype=float)
+    for label, v in curves.items():
+        lv, style = v if isinstance(v, tuple) else (v, "o-")
+        ax.plot(a, np.asarray(lv, dtype=float), style, label=label, ms=4)
+    ax.set_xlabel("incidence angle (deg)")
+    ax.set_ylabel("echo level (dB)")
+    ax.grid(True, alpha=0.3)
+    ax.legend()
+    ax.set_title(title)
+    fig.tight_layout()
+    return fig

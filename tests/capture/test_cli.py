@@ -130,3 +130,31 @@ def test_emulator_options_are_checked() -> None:
         ]
         == 1.0
     )
+
+
+def test_metadata_options_are_checked_by_their_declaration(capsys: pytest.CaptureFixture[str]) -> None:
+    """The metadata options come from `files.Measurement`: a value outside its declared range is
+    refused by argparse (exit 2) with the allowed range, before any rig is contacted."""
+    with pytest.raises(SystemExit) as e:
+        main(
+            [
+                "capture",
+                "lobe",
+                "x.csv",
+                "--port",
+                "/nonexistent",
+                "--freq-hz",
+                "40000",
+                "--range-m",
+                "1",
+                "--temperature-c",
+                "250",
+            ]
+        )
+    assert e.value.code == 2
+    err = capsys.readouterr().err
+    assert "--temperature-c" in err and "250 is out of range; allowed: -40 <= x <= 60 degC" in err
+    with pytest.raises(SystemExit):
+        main(["capture", "lobe", "--help"])
+    out = capsys.readouterr().out
+    assert "--humidity-pct NUMBER" in out and "(default: 8)" in out  # --n-avg shows its default

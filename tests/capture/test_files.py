@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 
 from difflattice.capture.errors import CaptureFileError
-from difflattice.capture.files import COLUMNS, CaptureWriter, load_capture
+from difflattice.capture.files import COLUMNS, CaptureWriter, is_capture_file, load_capture, load_lobe_table
 
 LOBE_HEADER = {
     "kind": "lobe",
@@ -67,13 +67,43 @@ def test_lobe_round_trip_and_pandas(tmp_path: Path) -> None:
 def test_wave_round_trip(tmp_path: Path) -> None:
     with CaptureWriter.create(tmp_path / "w.csv", WAVE_HEADER) as w:
         for s in range(3):
-            w.append((s, -500 + 500 * s, 16500, 48000, -90000 + s, 60000, 2100), 1.0)
+            w.append((s, -500 + 500 * s, 16500, 48000, (0, 359_999, 270_000)[s], 60000, 2100), 1.0)
         w.finish()
     cap = load_capture(tmp_path / "w.csv")
     np.testing.assert_allclose(cap.x_m, [-5e-4, 0, 5e-4])
     np.testing.assert_allclose(cap.z_m, 0.0165)
-    np.testing.assert_allclose(cap.phase_deg, [-90, -89.999, -89.998])
+    np.testing.assert_allclose(cap.phase_deg, [0, 359.999, 270])  # the rig's lag, [0, 360) deg
     assert cap.metadata["z_m"] == pytest.approx(0.0165)
+
+
+@pytest.mark.parametrize("phase_mdeg", [-1, -90_000, 360_000])
+def test_phase_outside_one_period_is_refused(tmp_path: Path, phase_mdeg: int) -> None:
+    """phase_mdeg is the lag in [0, 360000) (rig protocol, "Field conventions"): a file with
+    other values (e.g. the emulator's -arg p in [-180, 180) deg before 2026-11-23) is refused,
+    not silently read with the wrong sign."""
+    with CaptureWriter.create(tmp_path / "w.csv", WAVE_HEADER) as w:
+        for s in range(3):
+            w.append((s, -500 + 500 * s, 16500, 48000, phase_mdeg if s == 1 else 1000, 60000, 2100), 1.0)
+        w.finish()
+    with pytest.raises(CaptureFileError, match=rf"w.csv:\d+: phase_mdeg {phase_mdeg} outside \[0, 360000\)"):
+        load_capture(tmp_path / "w.csv")
+
+
+def test_plain_lobe_table(tmp_path: Path) -> None:
+    """A digitised datasheet pattern: optional header (either column order), comments, any of
+    comma/semicolon/tab/space; errors name file and line."""
+    path = tmp_path / "sheet.csv"
+    path.write_text("# digitised from a datasheet\nlevel_db;angle_deg\n0;0\n-3.5;10\n\n-12\t20\n")
+    t = load_lobe_table(path)
+    np.testing.assert_allclose(t.angle_deg, [0, 10, 20])
+    np.testing.assert_allclose(t.level_db, [0, -3.5, -12])
+    assert not is_capture_file(path) and is_capture_file(write_lobe(tmp_path / "c.csv", [0], finish=False))
+    path.write_text("0,0\n10,-3\n200,-9\n")
+    with pytest.raises(CaptureFileError, match=r"sheet.csv:3: angle 200 deg outside \[-180, 180\]"):
+        load_lobe_table(path)
+    path.write_text("0,0\n10,-3\n")
+    with pytest.raises(CaptureFileError, match="at least 3 rows"):
+        load_lobe_table(path)
 
 
 def test_incomplete_file(tmp_path: Path) -> None:

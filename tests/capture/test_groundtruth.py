@@ -18,6 +18,7 @@ from difflattice.capture.groundtruth import (
 
 F = 40_000.0
 PISTON = Piston(0.0384, sensitivity_uV=50_000.0)
+FRAUNHOFER = Piston(0.0384, sensitivity_uV=50_000.0, lobe="fraunhofer")  # the far-field pattern spread as 1/r
 
 
 def test_speed_of_sound() -> None:
@@ -52,21 +53,28 @@ def test_near_field_tends_to_lobe_in_far_field() -> None:
 
 def test_lobe_conventions() -> None:
     amp, _ = lobe_truth(PISTON, [0.0, 30.0, -30.0, 90.0, 135.0], range_m=2.0, freq_hz=F, temperature_c=21.0)
-    assert amp[0] == pytest.approx(25_000.0)  # sensitivity at 1 m, spread as 1/r
+    k, a = 2 * np.pi * F / speed_of_sound(21.0), PISTON.radius_m  # on axis at 2 m: the Rayleigh integral's closed form
+    assert amp[0] == pytest.approx(50_000.0 * 4 * abs(np.sin(k * (np.hypot(2.0, a) - 2.0) / 2)) / (k * a**2), rel=1e-9)
+    far, _ = lobe_truth(FRAUNHOFER, [0.0], range_m=2.0, freq_hz=F, temperature_c=21.0)
+    assert far[0] == pytest.approx(25_000.0) and amp[0] == pytest.approx(25_000.0, rel=1e-3)  # sensitivity at 1 m, 1/r
     assert amp[1] == pytest.approx(amp[2])
-    assert amp[3] == 0 and amp[4] == 0  # nothing behind the baffle
+    assert amp[4] == 0 and 0 < amp[3] < 0.05 * amp[0]  # nothing behind the baffle; grazing in its plane
 
 
 def test_wave_conventions() -> None:
     c = speed_of_sound(21.0)
     tof, phase, amp = wave_truth(PISTON, [0.0, 0.0192, 0.03], z_m=0.0165, freq_hz=F, temperature_c=21.0)
     np.testing.assert_allclose(tof, [0.0165 / c, 0.0165 / c, np.hypot(0.0165, 0.03 - 0.0192) / c])
-    # far on axis the received carrier lags by k z - 90 deg: phase = 90 - k z (wrapped)
+    # far on axis the received carrier lags the drive by k z - 90 deg (the rig's phase_mdeg is
+    # that lag, reduced to [0, 360) deg: rig protocol, "Field conventions")
     z = 50.0
     _, phase_far, _ = wave_truth(PISTON, [0.0], z_m=z, freq_hz=F, temperature_c=21.0)
-    expected = (90.0 - np.rad2deg(2 * np.pi * F / c * z) + 180) % 360 - 180
-    assert phase_far[0] == pytest.approx(expected, abs=0.5)
-    assert np.all((-180 <= phase) & (phase < 180)) and np.all(amp > 0)
+    expected = (np.rad2deg(2 * np.pi * F / c * z) - 90.0) % 360
+    assert (phase_far[0] - expected + 180) % 360 - 180 == pytest.approx(0.0, abs=0.5)
+    assert np.all((0 <= phase) & (phase < 360)) and np.all(amp > 0)
+    # moving the microphone away by a small dz delays the carrier by dz / c: the lag grows
+    _, phase_near, _ = wave_truth(PISTON, [0.0], z_m=z - 0.001, freq_hz=F, temperature_c=21.0)
+    assert (phase_far[0] - phase_near[0]) % 360 == pytest.approx(360 * F * 0.001 / c, abs=0.05)
 
 
 def test_table_round_trip_and_interpolation(tmp_path: Path) -> None:
@@ -85,7 +93,7 @@ def test_table_round_trip_and_interpolation(tmp_path: Path) -> None:
     path = table.save(tmp_path / "truth.json")
     loaded = make_transducer({"kind": "table", "path": str(path), "sensitivity_uV": 50_000.0})
     a_t, _ = lobe_truth(loaded, angles, range_m=1.0, freq_hz=F, temperature_c=21.0)
-    a_p, _ = lobe_truth(PISTON, angles, range_m=1.0, freq_hz=F, temperature_c=21.0)
+    a_p, _ = lobe_truth(FRAUNHOFER, angles, range_m=1.0, freq_hz=F, temperature_c=21.0)
     np.testing.assert_allclose(a_t, a_p, atol=1e-6)
     w_t, w_p = (wave_truth(t, x, z_m=0.0165, freq_hz=F, temperature_c=21.0) for t in (loaded, PISTON))
     for got, want in zip(w_t, w_p, strict=True):

@@ -125,6 +125,11 @@ def test_rig_refuses_out_of_range_scan(start_rig: Callable[..., EmulatorHandle],
         capture_lobe(
             str(rig.path), tmp_path / "x.csv", **{**LOBE, "stop_deg": 200.0}, metadata=META, timeout_s=TIMEOUT_S
         )
+    # no header-only file is left behind: the corrected command starts afresh instead of being
+    # refused as "a scan with other parameters"
+    assert not (tmp_path / "x.csv").exists() and not (tmp_path / "x.log").exists()
+    capture_lobe(str(rig.path), tmp_path / "x.csv", **LOBE, metadata=META, timeout_s=TIMEOUT_S)
+    assert load_capture(tmp_path / "x.csv").complete
 
 
 def test_bad_options_fail_before_the_rig(tmp_path: Path) -> None:
@@ -132,3 +137,7 @@ def test_bad_options_fail_before_the_rig(tmp_path: Path) -> None:
         capture_lobe("/nonexistent", tmp_path / "x.csv", **{**LOBE, "step_deg": 3.0}, metadata=META)
     with pytest.raises(ValueError, match="metadata needs range_m"):
         capture_lobe("/nonexistent", tmp_path / "x.csv", **LOBE, metadata={"temperature_c": 20})
+    with pytest.raises(
+        ValueError, match=r"\[metadata.temperature_c\] = 250 is out of range; allowed: -40 <= x <= 60 degC"
+    ):
+        capture_lobe("/nonexistent", tmp_path / "x.csv", **LOBE, metadata={**META, "temperature_c": 250})

@@ -24,8 +24,16 @@ XS = np.linspace(-0.024, 0.024, 49)
 
 @pytest.fixture(scope="module")
 def transfer():
-    return free_field_transfer(frequency_hz=F, c_m_s=C, n_cells=70, cells_per_wavelength=12.0, lobe_angle_deg=ANG,
-                               lobe_range_m=1.0, wave_x_m=XS, wave_z_m=0.0165)
+    return free_field_transfer(
+        frequency_hz=F,
+        c_m_s=C,
+        n_cells=70,
+        cells_per_wavelength=12.0,
+        lobe_angle_deg=ANG,
+        lobe_range_m=1.0,
+        wave_x_m=XS,
+        wave_z_m=0.0165,
+    )
 
 
 def _spec(T, **kw):
@@ -34,8 +42,13 @@ def _spec(T, **kw):
 
 def _truth(spec):
     frac = 0.8
-    return {"w": jnp.array([-0.4, 0.1, 0.0]), "lag": jnp.array([0.4, 0.1, 0.0]), "diam": jnp.asarray(math.log(frac / (1 - frac))),
-            "gain_db": jnp.asarray(80.0), "phase0": jnp.asarray(0.3)}
+    return {
+        "w": jnp.array([-0.4, 0.1, 0.0]),
+        "lag": jnp.array([0.4, 0.1, 0.0]),
+        "diam": jnp.asarray(math.log(frac / (1 - frac))),
+        "gain_db": jnp.asarray(80.0),
+        "phase0": jnp.asarray(0.3),
+    }
 
 
 def _data(T, spec, pt, sig_db=0.2, sig_deg=0.5, seed=1):
@@ -61,7 +74,10 @@ def test_joint_fit_recovers_truth_within_errors(transfer):
     for k in range(0, spec.n_cells, 7):
         if float(true_phys["weights"][k]) > 0.5:
             assert abs(r.physical["weights"][k] - float(true_phys["weights"][k])) < 4 * r.stderr[f"w[{k}]"] + 1e-9
-            assert abs(r.physical["lags_s"][k] * 1e6 - float(true_phys["lags_s"][k]) * 1e6) < 4 * r.stderr[f"lag_us[{k}]"] + 1e-9
+            assert (
+                abs(r.physical["lags_s"][k] * 1e6 - float(true_phys["lags_s"][k]) * 1e6)
+                < 4 * r.stderr[f"lag_us[{k}]"] + 1e-9
+            )
 
 
 @pytest.mark.parametrize("which", ["lobe", "wave"])
@@ -70,7 +86,6 @@ def test_single_observable_fits(transfer, which):
     pt = _truth(_spec(transfer))
     lobe, wave = _data(transfer, _spec(transfer), pt)
     if which == "wave":
-        pt_w = {k: v for k, v in pt.items()}
         spec = _spec(transfer, fit_diameter=False, diameter_m=float(_spec(transfer).physical(pt)["diameter_m"]))
         lobe = None
     else:
@@ -96,7 +111,9 @@ def test_piston_lobe_reaches_noise_floor():
     dispersion does not shift the nulls either."""
     ang = np.arange(-85, 85.1, 1.0)
     n = int(round(0.042 / (C / (F * 20.0))))  # a 42 mm line: room for the 38.4 mm piston
-    T = free_field_transfer(frequency_hz=F, c_m_s=C, n_cells=n, cells_per_wavelength=20.0, lobe_angle_deg=ang, lobe_range_m=1000.0)
+    T = free_field_transfer(
+        frequency_hz=F, c_m_s=C, n_cells=n, cells_per_wavelength=20.0, lobe_angle_deg=ang, lobe_range_m=1000.0
+    )
     amp = np.abs(Piston(diameter_m=0.0384, sensitivity_uV=5e4).far_field(ang, F, C))
     rng = np.random.default_rng(3)
     sd = np.sqrt((0.005 * amp) ** 2 + 20.0**2) / math.sqrt(8)
@@ -124,8 +141,9 @@ def test_unidentifiable_parameters_are_flagged(transfer):
     Jacobian is rank deficient: the fit must say so, never return NaN. With the default prior the
     problem is well posed."""
     spec = ModelSpec(transfer.n_cells, transfer.grid.dx_m, F, weights="free", lags="uniform", fit_diameter=False)
-    lobe, _ = _data(transfer, spec, {"gain_db": jnp.asarray(80.0), "phase0": jnp.asarray(0.0),
-                                     "w": jnp.zeros(transfer.n_cells - 1)})
+    lobe, _ = _data(
+        transfer, spec, {"gain_db": jnp.asarray(80.0), "phase0": jnp.asarray(0.0), "w": jnp.zeros(transfer.n_cells - 1)}
+    )
     r = fit(spec, transfer, lobe, None, FitOptions(max_steps=30, smoothness_sigma=1e12))
     assert np.all(np.isfinite(r.physical["weights"]))
     assert r.rank_deficient

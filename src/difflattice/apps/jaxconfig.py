@@ -3,7 +3,8 @@ library): float64 available, and a persistent compilation cache so that a re-run
 scene in a new process does not compile again.
 
 The cache lives in ``$DIFFLATTICE_CACHE_DIR`` (default ``~/.cache/difflattice/xla``); set it to
-``0`` to disable.
+``0`` to disable. ``$DIFFLATTICE_CACHE_MIN_COMPILE_S`` (default 0: cache every program) is the
+compile time below which a program is not cached.
 """
 
 from __future__ import annotations
@@ -22,6 +23,9 @@ def configure(*, x64: bool = True) -> None:
         try:
             Path(where).mkdir(parents=True, exist_ok=True)
             jax.config.update("jax_compilation_cache_dir", where)
-            jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
+            # every program, however small: a fit compiles ~150 small ones (eager jnp ops,
+            # 20-60 ms each, 4.5 s in all), which a 0.2 s threshold never cached (issue 15)
+            min_s = float(os.environ.get("DIFFLATTICE_CACHE_MIN_COMPILE_S", "0"))
+            jax.config.update("jax_persistent_cache_min_compile_time_secs", min_s)
         except OSError:  # read-only home: run without the cache
             pass

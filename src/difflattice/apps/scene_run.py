@@ -141,7 +141,7 @@ def run_scene(scene: Scene, *, progress: bool = True) -> SceneRun:
         "scene": scene.path,
         "grid": {
             "shape": list(grid.shape), "dx_m": grid.dx_m, "dt_s": grid.dt_s,
-            "size_m": list(grid.size_m), "frequency_hz": grid.frequency_hz,
+            "kind": grid.kind, "size_m": list(grid.size_m), "frequency_hz": grid.frequency_hz,
             "cells_per_wavelength": grid.cells_per_wavelength, "courant": grid.courant,
             "steps_per_period": grid.steps_per_period, "dtype": grid.dtype,
         },
@@ -175,15 +175,37 @@ def run_scene(scene: Scene, *, progress: bool = True) -> SceneRun:
         ff = scene.farfield
         a0, a1, da = ff["angles_deg"]
         angles = np.arange(a0, a1 + da / 2, da)
-        src = sources[built.farfield_source]
-        centre = tuple(src.cells_array.mean(0))
-        p = far_field(result.phasors, contour, grid, angles, ff["range_m"], centre)
+        if grid.kind == "rz":
+            p = _lobe_rz(result.phasors, contour, grid, angles, ff["range_m"],
+                         scene.transducers[built.farfield_source]["centre_m"][0])
+        else:
+            src = sources[built.farfield_source]
+            centre = tuple(src.cells_array.mean(0))
+            p = far_field(result.phasors, contour, grid, angles, ff["range_m"], centre)
         lv = np.asarray(level_db(p, floor_db=-100))
         lobe = (angles, lv)
         summary["farfield"] = {"range_m": ff["range_m"], **lobe_metrics(angles, lv)}
     summary["output"] = {"render_every_cells": every, "pixels_per_wavelength": grid.cells_per_wavelength / every,
                          "show_steps": sorted(moments)}
     return SceneRun(scene, grid, stepper, result, summary, lobe, snaps, snap_steps, moments, every)
+
+
+def _lobe_rz(phasors, surface, grid: Grid, angles_deg, range_m: float, face_z_m: float):
+    """The lobe of an axisymmetric source at `range_m` from the centre of its face (on the axis at
+    z = `face_z_m`), by the 3-D Kirchhoff-Helmholtz integral over the recorded cylinder: exact at
+    any range. Angles from the +z axis; the pattern is symmetric, so |angle| is used."""
+    from ..observe.farfield_rz import field_at_rz
+
+    th = np.radians(np.asarray(angles_deg, float))
+    r_cells = range_m / grid.dx_m
+    pts = np.stack([face_z_m / grid.dx_m + r_cells * np.cos(th), r_cells * np.abs(np.sin(th))], axis=1)
+    return field_at_rz(phasors, surface, grid, pts)
+
+
+def _mirror_rz(field):
+    """An rz field (nz, nr) as the full meridian section (nz, 2 nr): r < 0 mirrored, axis at the middle."""
+    f = np.asarray(field)
+    return np.concatenate([f[:, ::-1], f], axis=1)
 
 
 def write_outputs(sr: SceneRun, out_dir: str | Path, *, animate: bool = True, frames: bool | None = None,
@@ -231,17 +253,25 @@ def write_outputs(sr: SceneRun, out_dir: str | Path, *, animate: bool = True, fr
 
     obst = obstacle_map(st)
     src_cells = [s.cells_array for s in st.sources]
+    view = (lambda f: f) if g.kind != "rz" else _mirror_rz  # rz: show the whole meridian section
+    size_m = g.size_m if g.kind != "rz" else (g.size_m[0], 2 * g.size_m[1])
+    if g.kind == "rz":
+        nr = g.shape[1]
+        obst = None if obst is None else _mirror_rz(obst)
+        src_cells = [np.concatenate([c[:, :1], nr + c[:, 1:]], axis=1) for c in src_cells] + [
+            np.concatenate([c[:, :1], nr - 1 - c[:, 1:]], axis=1) for c in src_cells]
     n_steps = sr.summary["run"]["n_steps"]
-    fig = plots.field_image(res.final.pressure, g.dx_m, every=every, step=n_steps, dt_s=g.dt_s,
+    fig = plots.field_image(view(res.final.pressure), g.dx_m, every=every, step=n_steps, dt_s=g.dt_s,
                             obstacles=obst, sources=src_cells)
     files["field"] = str(plots.save(fig, out / "field.png"))
     if sr.moments:
         files["moments"] = []
         for step, f in sorted(sr.moments.items()):
-            fig = plots.field_image(f, g.dx_m, every=every, step=step, dt_s=g.dt_s, obstacles=obst, sources=src_cells)
+            fig = plots.field_image(view(f), g.dx_m, every=every, step=step, dt_s=g.dt_s, obstacles=obst,
+                                    sources=src_cells)
             files["moments"].append(str(plots.save(fig, out / f"moment_{step:06d}.png")))
     if res.p_max is not None:
-        files["peak_level"] = str(plots.save(plots.level_image(res.p_max, g.dx_m, sources=src_cells), out / "peak_level.png"))
+        files["peak_level"] = str(plots.save(plots.level_image(view(res.p_max), g.dx_m, sources=src_cells), out / "peak_level.png"))
     if sr.lobe is not None:
         a, lv = sr.lobe
         files["lobe"] = str(plots.save(plots.lobe_plots(a, {"model": lv}), out / "lobe.png"))
@@ -253,13 +283,13 @@ def write_outputs(sr: SceneRun, out_dir: str | Path, *, animate: bool = True, fr
         # snapshots are already thinned to every `every`-th cell: draw each as one pixel per sample
         if frames:
             for k, (f, s) in enumerate(zip(sr.snapshots, sr.snapshot_steps)):
-                plots.save(plots.field_image(f, g.dx_m, every=1, step=s, dt_s=g.dt_s, obstacles=obst,
-                                             sources=src_cells, size_m=g.size_m), out / "frames" / f"frame_{k:04d}.png")
+                plots.save(plots.field_image(view(f), g.dx_m, every=1, step=s, dt_s=g.dt_s, obstacles=obst,
+                                             sources=src_cells, size_m=size_m), out / "frames" / f"frame_{k:04d}.png")
             files["frames"] = str(out / "frames")
         if animation != "none":
-            files["animation"] = str(plots.animate(sr.snapshots, sr.snapshot_steps, g.dx_m, g.dt_s,
-                                                   out / f"animation.{animation}", every=1, obstacles=obst,
-                                                   sources=src_cells, size_m=g.size_m))
+            files["animation"] = str(plots.animate([view(f) for f in sr.snapshots], sr.snapshot_steps, g.dx_m,
+                                                   g.dt_s, out / f"animation.{animation}", every=1, obstacles=obst,
+                                                   sources=src_cells, size_m=size_m))
     sr.summary["files"] = files
     (out / "summary.json").write_text(json.dumps(sr.summary, indent=2, default=_json_default))
     files["summary"] = str(out / "summary.json")

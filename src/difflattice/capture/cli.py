@@ -15,20 +15,11 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from ..config import Parser, add_options, specs
 from . import emulator
 from .errors import CaptureFileError, RigError
-from .files import load_capture
+from .files import Measurement, load_capture
 from .host import capture_lobe, capture_wave
-
-_META_OPTIONS = {
-    "transducer_id": (str, "transducer under test"),
-    "microphone": (str, "measurement microphone"),
-    "range_m": (float, "microphone range from the centre of the face [m] (lobe: required)"),
-    "temperature_c": (float, "air temperature [degC] (required)"),
-    "humidity_pct": (float, "relative humidity [%%]"),
-    "pressure_hpa": (float, "air pressure [hPa]"),
-    "operator": (str, "who measures"),
-}
 
 
 def read_metadata_file(path: Path) -> dict[str, Any]:
@@ -53,7 +44,7 @@ def read_metadata_file(path: Path) -> dict[str, Any]:
 
 def _metadata(args: argparse.Namespace) -> dict[str, Any]:
     meta = read_metadata_file(args.meta) if args.meta else {}
-    for key in _META_OPTIONS:
+    for key in (s.name for s in specs(Measurement)):
         if getattr(args, key) is not None:
             meta[key] = getattr(args, key)
     return meta
@@ -68,15 +59,14 @@ def _add_common(p: argparse.ArgumentParser) -> None:
         required=port is None,
         help="stable serial path of the rig, e.g. /dev/serial/by-id/... (default: $DIFFLATTICE_PORT)",
     )
-    p.add_argument("--n-avg", type=int, default=8, help="bursts averaged per point (default 8)")
-    p.add_argument("--cycles", type=int, default=16, help="burst length [cycles] (default 16)")
+    p.add_argument("--n-avg", type=int, default=8, help="bursts averaged per point")
+    p.add_argument("--cycles", type=int, default=16, help="burst length [cycles]")
     p.add_argument("--freq-hz", type=float, required=True, help="drive frequency [Hz] (sent as an integer)")
-    meta = p.add_argument_group("measurement metadata (options override --meta)")
-    meta.add_argument("--meta", type=Path, help="metadata file: JSON object or 'key: value' lines")
-    for key, (kind, text) in _META_OPTIONS.items():
-        meta.add_argument("--" + key.replace("_", "-"), dest=key, type=kind, help=text)
-    p.add_argument("--timeout-s", type=float, default=3.0, help="silence that means the link is down [s] (default 3)")
-    p.add_argument("--reconnect-s", type=float, default=30.0, help="how long to wait for a lost link [s] (default 30)")
+    meta = p.add_argument_group("measurement metadata (options override --meta; none by default)")
+    meta.add_argument("--meta", type=Path, help="metadata file: JSON object or 'key: value' lines (default: none)")
+    add_options(meta, Measurement)
+    p.add_argument("--timeout-s", type=float, default=3.0, help="silence that means the link is down [s]")
+    p.add_argument("--reconnect-s", type=float, default=30.0, help="how long to wait for a lost link [s]")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -147,9 +137,9 @@ def register(subparsers: Any) -> None:
         description="Capture a lobe pattern; re-running the same command on an unfinished file continues it.",
     )
     _add_common(lobe)
-    lobe.add_argument("--start-deg", type=float, default=-90.0, help="first angle [deg] (default -90)")
-    lobe.add_argument("--stop-deg", type=float, default=90.0, help="last angle [deg] (default 90)")
-    lobe.add_argument("--step-deg", type=float, default=1.0, help="angle step [deg] (default 1)")
+    lobe.add_argument("--start-deg", type=float, default=-90.0, help="first angle [deg]")
+    lobe.add_argument("--stop-deg", type=float, default=90.0, help="last angle [deg]")
+    lobe.add_argument("--step-deg", type=float, default=1.0, help="angle step [deg]")
     lobe.set_defaults(func=_capture_lobe)
     wave = kinds.add_parser(
         "wave",
@@ -157,10 +147,10 @@ def register(subparsers: Any) -> None:
         description="Capture a wavefront scan; re-running the same command on an unfinished file continues it.",
     )
     _add_common(wave)
-    wave.add_argument("--x0-mm", type=float, default=-30.0, help="first x [mm] (default -30)")
-    wave.add_argument("--x1-mm", type=float, default=30.0, help="last x [mm] (default 30)")
-    wave.add_argument("--dx-mm", type=float, default=0.5, help="x step [mm] (default 0.5)")
-    wave.add_argument("--z-mm", type=float, default=16.5, help="distance from the face [mm] (default 16.5)")
+    wave.add_argument("--x0-mm", type=float, default=-30.0, help="first x [mm]")
+    wave.add_argument("--x1-mm", type=float, default=30.0, help="last x [mm]")
+    wave.add_argument("--dx-mm", type=float, default=0.5, help="x step [mm]")
+    wave.add_argument("--z-mm", type=float, default=16.5, help="distance from the face [mm]")
     wave.set_defaults(func=_capture_wave)
 
     rig = subparsers.add_parser("rig", help="rig tools")
@@ -176,7 +166,7 @@ def register(subparsers: Any) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m difflattice.capture.cli``: the capture commands on their own."""
-    parser = argparse.ArgumentParser(prog="difflattice")
+    parser = Parser(prog="difflattice")
     register(parser.add_subparsers(dest="command", required=True))
     args = parser.parse_args(argv)
     return args.func(args)

@@ -35,10 +35,11 @@ import tty
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
+from ..config import Parser, Section, add_options, setting
 from . import protocol as P
 from .groundtruth import Piston, TableTransducer, lobe_truth, make_transducer, wave_truth
 
@@ -48,26 +49,29 @@ STAGE_Z_LIMIT_UM = (1, 500_000)
 
 
 @dataclass(frozen=True)
-class RigConfig:
+class RigConfig(Section):
     """The emulated rig: identity, geometry, environment and pace.
 
-    ``range_m`` [m]: microphone distance on the lobe rig. ``temperature_c`` [degC] drifts by
-    ``drift_c_per_h`` [degC/h] plus a 10-minute oscillation of amplitude ``wobble_c`` [degC].
-    ``heartbeat_s`` [s]: silence before a heartbeat (1 s in the firmware). ``point_s`` [s]:
-    measurement time per point. ``home_s`` [s]: homing time. ``baud``: the line rate the output is
-    paced at (10 bits per byte; 0 = as fast as the pseudo-terminal takes it).
+    The air temperature drifts by ``drift_c_per_h`` plus a 10-minute oscillation of amplitude
+    ``wobble_c`` (:meth:`temperature_at`). Each key is declared once here; the emulator's
+    command-line options and the docs table come from these declarations.
     """
 
-    rig_id: str = "EMU-0001"
-    fw_version: str = "0.3.1-emu"
-    range_m: float = 1.0
-    temperature_c: float = 21.0
-    drift_c_per_h: float = 0.5
-    wobble_c: float = 0.05
-    heartbeat_s: float = 1.0
-    point_s: float = 0.005
-    home_s: float = 0.5
-    baud: int = 115_200
+    SECTION: ClassVar[str] = "rig"
+    rig_id: str = setting("EMU-0001", kind="str", doc="rig id reported in IDN")
+    fw_version: str = setting("0.3.1-emu", kind="str", doc="firmware version reported in IDN and BOOT")
+    range_m: float = setting(1.0, kind="number", gt=0, le=100, unit="m", doc="microphone range of the lobe rig")
+    temperature_c: float = setting(21.0, kind="number", ge=-40, le=60, unit="degC", doc="air temperature at start")
+    drift_c_per_h: float = setting(0.5, kind="number", unit="degC/h", doc="temperature drift")
+    wobble_c: float = setting(
+        0.05, kind="number", ge=0, unit="degC", doc="amplitude of a 10-minute temperature oscillation"
+    )
+    heartbeat_s: float = setting(1.0, kind="number", gt=0, unit="s", doc="silence before a heartbeat (firmware: 1 s)")
+    point_s: float = setting(0.005, kind="number", ge=0, unit="s", doc="measurement time per point")
+    home_s: float = setting(0.5, kind="number", ge=0, unit="s", doc="homing time")
+    baud: int = setting(
+        115_200, kind="int", ge=0, unit="bit/s", doc="line rate the output is paced at, 10 bits per byte (0: unpaced)"
+    )
 
     def temperature_at(self, t_s: float) -> float:
         """Air temperature [degC] ``t_s`` seconds after the emulator started."""
@@ -75,47 +79,55 @@ class RigConfig:
 
 
 @dataclass(frozen=True)
-class Noise:
-    """Measurement noise (standard deviations of a single burst; reports average ``n_avg``).
+class Noise(Section):
+    """Measurement noise: standard deviations of a single burst; reports average ``n_avg``.
 
     Each burst's envelope peak is ``|A + e|`` with ``e ~ N(0, (amp_rel A)^2 + amp_uV^2)``; the rig
-    reports their mean and sample sd. Arrival time and phase get Gaussian noise of ``tof_ns``
-    [ns] and ``phase_mdeg`` [mdeg] divided by ``sqrt(n_avg)``.
+    reports their mean and sample sd. Arrival time and phase get Gaussian noise of ``tof_ns`` and
+    ``phase_mdeg`` divided by ``sqrt(n_avg)``.
     """
 
-    amp_rel: float = 0.005
-    amp_uV: float = 20.0
-    tof_ns: float = 50.0
-    phase_mdeg: float = 300.0
+    SECTION: ClassVar[str] = "noise"
+    amp_rel: float = setting(0.005, kind="number", ge=0, unit="1", doc="relative amplitude noise per burst")
+    amp_uV: float = setting(20.0, kind="number", ge=0, unit="uV", doc="absolute amplitude noise per burst")
+    tof_ns: float = setting(50.0, kind="number", ge=0, unit="ns", doc="arrival-time noise per burst")
+    phase_mdeg: float = setting(300.0, kind="number", ge=0, unit="mdeg", doc="phase noise per burst")
 
 
 @dataclass(frozen=True)
-class Faults:
+class Faults(Section):
     """Injectable faults.
 
-    Per line sent, with the given probability: ``garbage`` (1-16 random bytes inserted before or
-    inside the line), ``bad_crc`` (one byte of the line changed), ``truncate`` (the line cut
-    short; half of the time the next line is glued on). At given points ``seq`` (each once, the
-    first time the rig is about to send that seq): ``pause_at`` (no point for ``pause_s`` seconds,
-    heartbeats go on), ``freeze_at`` (the firmware hangs ``freeze_s`` seconds: total silence,
-    input not read), ``reset_at`` (half the line, then a watchdog reset: ``BOOT``, idle, not
-    homed), ``unplug_at`` (the cable is pulled: the pseudo-terminal and the link disappear for
-    ``unplug_s`` seconds; the rig, USB-powered, reboots). ``version``: the protocol version the rig
-    answers HELLO with. ``silent``: the rig never sends anything.
+    Per line sent, with the given probability: ``garbage``, ``bad_crc``, ``truncate`` (half of the
+    time the next line is glued on). At given points ``seq`` (each once, the first time the rig is
+    about to send that seq): ``pause_at``, ``freeze_at`` (input not read either), ``reset_at``
+    (half the line, then a watchdog reset: ``BOOT``, idle, not homed), ``unplug_at`` (the
+    pseudo-terminal and the link disappear; the rig, USB-powered, reboots).
     """
 
-    garbage: float = 0.0
-    bad_crc: float = 0.0
-    truncate: float = 0.0
-    pause_at: tuple[int, ...] = ()
-    pause_s: float = 4.0
-    freeze_at: tuple[int, ...] = ()
-    freeze_s: float = 4.0
-    reset_at: tuple[int, ...] = ()
-    unplug_at: tuple[int, ...] = ()
-    unplug_s: float = 1.0
-    version: int = P.PROTOCOL_VERSION
-    silent: bool = False
+    SECTION: ClassVar[str] = "faults"
+    garbage: float = setting(
+        0.0, kind="number", ge=0, le=1, doc="probability per line of 1-16 random bytes inserted before or inside it"
+    )
+    bad_crc: float = setting(0.0, kind="number", ge=0, le=1, doc="probability per line of one corrupted byte")
+    truncate: float = setting(0.0, kind="number", ge=0, le=1, doc="probability per line of a truncated line")
+    pause_at: tuple[int, ...] = setting(
+        (), kind="list", items="int", ge=0, doc="seqs before which the rig pauses (heartbeats go on)"
+    )
+    pause_s: float = setting(4.0, kind="number", ge=0, unit="s", doc="pause length")
+    freeze_at: tuple[int, ...] = setting(
+        (), kind="list", items="int", ge=0, doc="seqs before which the firmware hangs (total silence)"
+    )
+    freeze_s: float = setting(4.0, kind="number", ge=0, unit="s", doc="freeze length")
+    reset_at: tuple[int, ...] = setting(
+        (), kind="list", items="int", ge=0, doc="seqs at which the rig resets (half a line, then BOOT)"
+    )
+    unplug_at: tuple[int, ...] = setting(
+        (), kind="list", items="int", ge=0, doc="seqs at which the cable is pulled (link gone, then back, rig rebooted)"
+    )
+    unplug_s: float = setting(1.0, kind="number", ge=0, unit="s", doc="time unplugged")
+    version: int = setting(P.PROTOCOL_VERSION, kind="int", ge=0, doc="protocol version answered to HELLO")
+    silent: bool = setting(False, kind="bool", doc="never send anything")
 
 
 @dataclass(frozen=True)
@@ -236,8 +248,9 @@ class RigModel:
         )
         amp_uV, _ = self._bursts(rng, float(amp[0]), cmd.n_avg)
         tof_ns = round(float(tof[0]) * 1e9 + self.noise.tof_ns * jitter * rng.standard_normal())
+        # the lag behind the drive, reduced to [0, 360000) mdeg (rig protocol, "Field conventions")
         phase_mdeg = round(float(phase[0]) * 1000 + self.noise.phase_mdeg * jitter * rng.standard_normal())
-        phase_mdeg = (phase_mdeg + 180_000) % 360_000 - 180_000
+        phase_mdeg %= 360_000
         return P.Wav(cmd.scan, seq, x_um, cmd.z_um, tof_ns, phase_mdeg, amp_uV, temp_cC)
 
 
@@ -523,60 +536,26 @@ class Emulator:
 
 DEFAULT_LINK = "/tmp/difflattice-rig"
 
-_RIG_HELP = {
-    "rig_id": "rig id reported in IDN",
-    "fw_version": "firmware version reported in IDN and BOOT",
-    "range_m": "microphone range of the lobe rig [m]",
-    "temperature_c": "air temperature at start [degC]",
-    "drift_c_per_h": "temperature drift [degC/h]",
-    "wobble_c": "amplitude of a 10-min temperature oscillation [degC]",
-    "heartbeat_s": "silence before a heartbeat [s] (firmware: 1)",
-    "point_s": "measurement time per point [s]",
-    "home_s": "homing time [s]",
-    "baud": "line rate the output is paced at (0: unpaced)",
-}
-_FAULT_HELP = {
-    "garbage": "probability per line of inserted random bytes",
-    "bad_crc": "probability per line of one corrupted byte",
-    "truncate": "probability per line of a truncated line",
-    "pause_at": "seqs before which the rig pauses (heartbeats go on)",
-    "pause_s": "pause length [s]",
-    "freeze_at": "seqs before which the firmware hangs (total silence)",
-    "freeze_s": "freeze length [s]",
-    "reset_at": "seqs at which the rig resets (half a line, then BOOT)",
-    "unplug_at": "seqs at which the cable is pulled (link gone, then back, rig rebooted)",
-    "unplug_s": "time unplugged [s]",
-    "version": "protocol version answered to HELLO",
-    "silent": "never send anything",
-}
-
-
-def _add_options(parser: argparse.ArgumentParser, cls: type, helps: dict[str, str], prefix: str) -> None:
-    group = parser.add_argument_group(prefix)
-    for f in dataclasses.fields(cls):
-        flag = "--" + f.name.replace("_", "-")
-        kw: dict[str, Any] = {"dest": f"{prefix}.{f.name}", "default": argparse.SUPPRESS, "help": helps[f.name]}
-        if isinstance(f.default, bool):
-            group.add_argument(flag, action="store_true", **kw)
-        elif isinstance(f.default, tuple):
-            group.add_argument(flag, type=int, nargs="+", metavar="SEQ", **kw)
-        else:
-            group.add_argument(flag, type=type(f.default), metavar=type(f.default).__name__.upper(), **kw)
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the emulator's options to ``parser`` (shared by ``difflattice rig emulate``)."""
-    parser.add_argument("--link", default=DEFAULT_LINK, help=f"stable path to publish (default {DEFAULT_LINK})")
+    parser.add_argument("--link", default=DEFAULT_LINK, help="stable path to publish")
     truth = parser.add_mutually_exclusive_group()
     truth.add_argument("--piston-diameter-mm", type=float, default=38.4, help="ground truth: circular piston [mm]")
     truth.add_argument(
-        "--table", type=Path, help="ground truth: transducer table JSON (see groundtruth.TableTransducer)"
+        "--table",
+        type=Path,
+        help="ground truth: transducer table JSON (see groundtruth.TableTransducer; default: the piston)",
     )
-    parser.add_argument("--sensitivity-uV", type=float, help="on-axis amplitude at 1 m [uV] (piston) or table scale")
+    parser.add_argument(
+        "--sensitivity-uV",
+        type=float,
+        help="on-axis amplitude at 1 m [uV] (piston) or table scale (default: 50000 for the piston, 1 for a table)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="seed of noise and faults")
     parser.add_argument("--no-noise", action="store_true", help="report noise-free values")
-    _add_options(parser, RigConfig, _RIG_HELP, "rig")
-    _add_options(parser, Faults, _FAULT_HELP, "faults")
+    add_options(parser.add_argument_group("rig"), RigConfig, dest_prefix="rig.", suppress_defaults=True)
+    add_options(parser.add_argument_group("faults"), Faults, dest_prefix="faults.", suppress_defaults=True)
     parser.add_argument("--config", help=argparse.SUPPRESS)  # whole config as JSON (start_emulator)
 
 
@@ -680,9 +659,7 @@ def start_emulator(
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m difflattice.capture.emulator``: run an emulator, print its link path."""
-    parser = argparse.ArgumentParser(
-        prog="python -m difflattice.capture.emulator", description=__doc__.split("\n\n")[0]
-    )
+    parser = Parser(prog="python -m difflattice.capture.emulator", description=__doc__.split("\n\n")[0])
     add_arguments(parser)
     serve(config_from_args(parser.parse_args(argv)))
     return 0

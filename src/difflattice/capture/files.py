@@ -5,7 +5,7 @@ comment="#")`` loads as is::
 
     # format: difflattice-capture/1
     # kind: lobe
-    # ... one "# key: value" line per header key (see HEADER_KEYS) ...
+    # ... one "# key: value" line per header key (see ScanHeader, Measurement) ...
     seq,angle_mdeg,amp_uV,amp_sd_uV,tof_ns,temp_cC,t_unix_s
     0,-90000,61,33,2906203,2149,1732245600.123
     # event: 2025-11-22T03:00:01.5Z reset: boot_id 13903 -> 20441, re-homed
@@ -17,6 +17,12 @@ time of reception; they are in arrival order, each ``seq`` exactly once. Every r
 ``write`` followed by ``fsync``, so a crash loses no acknowledged point; a torn last line is
 dropped when the scan is resumed. The trailer's ``crc32`` (CRC-32 of all record lines, in file
 order, with their newlines) marks the scan complete. ``# event:`` lines record link events.
+
+Header keys are declared once (:class:`ScanHeader`, :class:`Measurement`; the docs table and the
+capture command's options are generated from them). ``phase_mdeg`` is the rig's lag of the
+received carrier behind the drive in [0, 360000) (rig protocol, "Field conventions"); the loader
+refuses other values rather than guess a convention. :func:`load_lobe_table` reads a plain
+two-column lobe table (angle_deg, level_db), e.g. a digitised datasheet pattern.
 """
 
 from __future__ import annotations
@@ -29,11 +35,13 @@ import zlib
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
 
+from ..config import REQUIRED as CONFIG_REQUIRED
+from ..config import Section, Spec, setting, specs
 from .errors import CaptureFileError
 
 FORMAT = "difflattice-capture/1"
@@ -44,44 +52,87 @@ COLUMNS: dict[str, tuple[str, ...]] = {
 }
 """Record columns by scan kind: the protocol's integers (units in the names), then host time."""
 
+PHASE_PERIOD_MDEG = 360_000
+"""`phase_mdeg` is the carrier's lag behind the drive reduced to [0, 360000) (rig protocol, "Field
+conventions"); the loader refuses other values."""
+
+
+@dataclass(frozen=True)
+class ScanHeader(Section):
+    """Header keys the capture writes itself, from the rig's `IDN` and the scan command."""
+
+    SECTION: ClassVar[str] = "capture header"
+    format: str = setting(kind="str", doc=f"file format, `{FORMAT}`")
+    kind: str = setting(kind="str", choices=("lobe", "wave"), doc="scan kind")
+    created_utc: str = setting(kind="str", doc="when the file was started, ISO 8601 UTC")
+    protocol: int = setting(kind="int", ge=1, doc="rig protocol version")
+    rig_id: str = setting(kind="str", doc="rig identity from IDN (a file is only continued on the same rig)")
+    fw_version: str = setting(kind="str", doc="rig firmware version from IDN")
+    boot_id: int = setting(kind="int", doc="rig boot id when the file was started (later ones: events)")
+    scan_id: int = setting(kind="int", doc="scan number used on the wire for this file")
+    n_points: int = setting(kind="int", ge=1, doc="points in the scan, seq 0..n_points-1")
+    start_mdeg: int | None = setting(None, kind="int", unit="mdeg", doc="lobe: angle of seq 0 (lobe: required)")
+    step_mdeg: int | None = setting(None, kind="int", unit="mdeg", doc="lobe: angle step (lobe: required)")
+    x0_um: int | None = setting(None, kind="int", unit="um", doc="wave: x of seq 0 (wave: required)")
+    dx_um: int | None = setting(None, kind="int", unit="um", doc="wave: x step (wave: required)")
+    z_um: int | None = setting(
+        None, kind="int", unit="um", doc="wave: distance of the scan line from the face (wave: required)"
+    )
+    n_avg: int = setting(kind="int", ge=1, doc="bursts averaged per point")
+    cycles: int = setting(kind="int", ge=1, unit="cycles", doc="burst length")
+    freq_hz: int = setting(
+        kind="int", ge=1, unit="Hz", doc="drive frequency sent to the rig and used (the requested one rounded)"
+    )
+    speed_of_sound_m_s: float = setting(
+        kind="number", gt=0, unit="m/s", doc="speed of sound used, 331.3 sqrt(1 + temperature_c/273.15), 3 decimals"
+    )
+
+
+@dataclass(frozen=True)
+class Measurement(Section):
+    """Measurement metadata the operator gives (`difflattice capture` options or `--meta`); any
+    other `lower_snake_case` key is kept as text (e.g. `note`)."""
+
+    SECTION: ClassVar[str] = "metadata"
+    range_m: float | None = setting(
+        None,
+        kind="number",
+        gt=0,
+        le=100,
+        unit="m",
+        doc="microphone range from the centre of the face (lobe: required)",
+        fix="measure it from the centre of the face to the microphone",
+    )
+    temperature_c: float = setting(
+        kind="number",
+        ge=-40,
+        le=60,
+        unit="degC",
+        doc="air temperature (required)",
+        fix="give the air temperature in degrees Celsius",
+    )
+    humidity_pct: float | None = setting(None, kind="number", ge=0, le=100, unit="%", doc="relative humidity")
+    pressure_hpa: float | None = setting(None, kind="number", ge=300, le=1200, unit="hPa", doc="air pressure")
+    transducer_id: str | None = setting(None, kind="str", doc="transducer under test")
+    microphone: str | None = setting(None, kind="str", doc="measurement microphone")
+    operator: str | None = setting(None, kind="str", doc="who measured")
+
+
+_PY_TYPES = {"int": int, "number": float, "str": str, "bool": bool}
+HEADER_SPECS: dict[str, Spec] = {s.name: s for cls in (ScanHeader, Measurement) for s in specs(cls)}
+"""Every known header key's declaration (kind, unit, meaning); other keys are kept as text."""
 HEADER_KEYS: dict[str, tuple[type, str]] = {
-    "format": (str, "file format, difflattice-capture/1"),
-    "kind": (str, "lobe or wave"),
-    "created_utc": (str, "when the file was started, ISO 8601 UTC"),
-    "protocol": (int, "rig protocol version"),
-    "rig_id": (str, "rig identity from IDN"),
-    "fw_version": (str, "rig firmware version from IDN"),
-    "boot_id": (int, "rig boot id when the file was started (later ones: events)"),
-    "scan_id": (int, "scan number used in the protocol for this file"),
-    "n_points": (int, "points in the scan, seq 0..n_points-1"),
-    "start_mdeg": (int, "lobe: angle of seq 0 [mdeg]"),
-    "step_mdeg": (int, "lobe: angle step [mdeg]"),
-    "x0_um": (int, "wave: x of seq 0 [um]"),
-    "dx_um": (int, "wave: x step [um]"),
-    "z_um": (int, "wave: distance of the scan line from the face [um]"),
-    "n_avg": (int, "bursts averaged per point"),
-    "cycles": (int, "burst length [cycles]"),
-    "freq_hz": (int, "drive frequency sent to the rig and used [Hz]"),
-    "range_m": (float, "microphone range from the centre of the face [m] (required for lobe)"),
-    "temperature_c": (float, "air temperature [degC]"),
-    "humidity_pct": (float, "relative humidity [%]"),
-    "pressure_hpa": (float, "air pressure [hPa]"),
-    "speed_of_sound_m_s": (float, "speed of sound used, 331.3 sqrt(1 + temperature_c/273.15) [m/s]"),
-    "transducer_id": (str, "transducer under test"),
-    "microphone": (str, "measurement microphone"),
-    "operator": (str, "who measured"),
+    k: (_PY_TYPES[s.kind], s.doc + (f" [{s.unit}]" if s.unit else "")) for k, s in HEADER_SPECS.items()
 }
-"""Known header keys: type and meaning (with unit). Other keys are kept as text."""
+"""Known header keys: Python type and meaning (with unit), derived from `ScanHeader` and `Measurement`."""
 
 REQUIRED: dict[str, tuple[str, ...]] = {
     "lobe": ("start_mdeg", "step_mdeg", "range_m"),
     "wave": ("x0_um", "dx_um", "z_um"),
 }
-COMMON_REQUIRED = (
-    "format", "kind", "created_utc", "protocol", "rig_id", "fw_version", "boot_id", "scan_id",
-    "n_points", "n_avg", "cycles", "freq_hz", "temperature_c", "speed_of_sound_m_s",
-)  # fmt: skip
+COMMON_REQUIRED = tuple(s.name for cls in (ScanHeader, Measurement) for s in specs(cls) if s.default is CONFIG_REQUIRED)
 
+_PHASE = COLUMNS["wave"].index("phase_mdeg")
 HEADER_KEY = re.compile(r"[a-z][a-z0-9_]*\Z")
 """What a header key looks like (lower_snake_case)."""
 _INT = re.compile(r"-?[0-9]+\Z")
@@ -355,6 +406,14 @@ def load_capture(path: str | Path, *, allow_incomplete: bool = False) -> LobeCap
         if tuple(values[1 : 1 + len(expected)]) != expected:
             names = ",".join(columns[1 : 1 + len(expected)])
             raise fail(lineno, f"seq {seq}: {names} should be {expected}, got {tuple(values[1 : 1 + len(expected)])}")
+        if kind == "wave" and not 0 <= values[_PHASE] < PHASE_PERIOD_MDEG:
+            raise fail(
+                lineno,
+                f"phase_mdeg {values[_PHASE]} outside [0, {PHASE_PERIOD_MDEG}): the rig reports the "
+                "carrier's lag behind the drive reduced to one period (rig protocol, Field conventions); "
+                "files with negative phases come from the emulator before 2026-11-23 and have the opposite "
+                "sign: capture them again",
+            )
         rows[seq], first_line[seq], times[seq] = values, lineno, float(fields[-1])
         crc = zlib.crc32((line + "\n").encode(), crc)
     missing = tuple(s for s in range(n_points) if s not in rows)
@@ -451,3 +510,81 @@ def _build(
         amp_uV=raw["amp_uV"].astype(float),
         temp_c=temp_c,
     )
+
+
+# --------------------------------------------------------------------------------------------
+# Plain lobe tables (no capture header)
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class LobeTable:
+    """A plain two-column lobe table: angle [deg] and level [dB, any reference], e.g. a digitised
+    datasheet beam pattern. It carries no frequency, range, temperature or uncertainty: whoever
+    uses it must state them. Rows in file order."""
+
+    path: Path
+    angle_deg: NDArray[np.float64]
+    level_db: NDArray[np.float64]
+
+
+_SPLIT = re.compile(r"[,;\t ]+")
+
+
+def is_capture_file(path: str | Path) -> bool:
+    """True when ``path`` starts like a capture file (``# format: difflattice-capture/1``)."""
+    try:
+        with open(path, "rb") as f:
+            return f.readline().rstrip(b"\r\n") == f"# format: {FORMAT}".encode()
+    except OSError as exc:
+        raise CaptureFileError(f"{path}: cannot read: {exc.strerror}") from None
+
+
+def load_lobe_table(path: str | Path) -> LobeTable:
+    """Load a plain lobe table: lines of ``angle_deg,level_db`` (comma, semicolon, tab or spaces
+    between them), an optional header line naming the two columns (``angle_deg`` and ``level_db``
+    in either order; other names: angle first), ``#`` comments and blank lines ignored.
+
+    Raises :class:`CaptureFileError` naming the file and line for a row that is not two finite
+    numbers, an angle outside [-180, 180] deg, or fewer than 3 rows."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise CaptureFileError(
+            f"{path}: cannot read as a text table: {getattr(exc, 'strerror', None) or exc}"
+        ) from None
+    order = (0, 1)
+    rows: list[tuple[float, float]] = []
+    header_seen = False
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        line = line.split("#", 1)[0].strip()
+        if not line:
+            continue
+        cells = [c for c in _SPLIT.split(line) if c]
+        if len(cells) != 2:
+            raise CaptureFileError(
+                f"{path}:{lineno}: expected 2 columns (angle_deg, level_db), got {len(cells)}: {line!r}"
+            )
+        try:
+            a, b = float(cells[0]), float(cells[1])
+        except ValueError:
+            if rows or header_seen:
+                raise CaptureFileError(
+                    f"{path}:{lineno}: expected two numbers (angle_deg, level_db), got {line!r}"
+                ) from None
+            names = [c.strip().lower() for c in cells]
+            if set(names) == {"angle_deg", "level_db"}:
+                order = (names.index("angle_deg"), names.index("level_db"))
+            header_seen = True
+            continue
+        ang, lev = (a, b)[order[0]], (a, b)[order[1]]
+        if not (np.isfinite(ang) and np.isfinite(lev)):
+            raise CaptureFileError(f"{path}:{lineno}: non-finite value in {line!r}")
+        if not -180.0 <= ang <= 180.0:
+            raise CaptureFileError(f"{path}:{lineno}: angle {ang:g} deg outside [-180, 180]")
+        rows.append((ang, lev))
+    if len(rows) < 3:
+        raise CaptureFileError(f"{path}: a lobe table needs at least 3 rows of angle_deg, level_db; found {len(rows)}")
+    arr = np.asarray(rows, dtype=float)
+    return LobeTable(path=path, angle_deg=arr[:, 0], level_db=arr[:, 1])

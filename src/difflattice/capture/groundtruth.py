@@ -10,11 +10,14 @@ Conventions (the fitting code relies on them)
 
 Lobe rig (``LOB`` lines)
     The transducer turns about an axis through the centre of its face; the microphone is at
-    ``range_m`` from that centre. ``angle_deg = 0`` is on axis. ``amp_uV = |P(angle)| / range_m``
-    (spherical spreading, ``range_m`` in metres), where ``P`` is the far-field pressure referred
-    to 1 m. For a circular piston of radius ``a`` in an infinite baffle
-    ``P = S * 2 J1(k a sin(angle)) / (k a sin(angle))`` for ``|angle| < 90`` degrees and ``P = 0``
-    behind the baffle; ``S = sensitivity_uV`` is the on-axis amplitude at 1 m.
+    ``range_m`` from that centre. ``angle_deg = 0`` is on axis. For a circular piston or disc
+    (:class:`Piston`, :class:`Disc`) ``amp_uV = |p|`` with ``p`` the Rayleigh integral (below) at the
+    microphone itself, at the finite range: a real near field, not a far-field pattern (the
+    Fraunhofer pattern stands in only where it is exact to ``FRAUNHOFER_RTOL``), its grazing
+    limit in the baffle plane (``|angle| = 90``) and 0 behind the baffle (``|angle| > 90``). In the far field this is ``|P(angle)| / range_m`` with
+    ``P = S * 2 J1(k a sin(angle)) / (k a sin(angle))`` for a piston of radius ``a``;
+    ``S = sensitivity_uV`` is the on-axis amplitude at 1 m. Other ground truths (tables) give the
+    far-field pressure ``P`` referred to 1 m, and ``amp_uV = |P(angle)| / range_m``.
     ``tof_s = range_m / c``: the travel time from the centre of the face.
 
 Wavefront rig (``WAV`` lines)
@@ -25,9 +28,13 @@ Wavefront rig (``WAV`` lines)
     to the microphone), normalised so that on axis in the far field ``|p| -> S / r``.
 
     * ``amp_uV = |p|``.
-    * ``phase_deg = -arg(p)``, wrapped to ``[-180, 180)``: the received carrier is
-      ``amp * cos(omega t + phase)`` against the drive ``cos(omega t)``; the phase falls (the
-      carrier lags more) with distance, ``phase ~ 90 deg - k R`` in the far field.
+    * ``phase_deg = arg(p)`` reduced to ``[0, 360)``: the LAG of the received carrier behind the
+      drive, as the rig protocol defines ``phase_mdeg`` ("Field conventions"). With
+      ``exp(-i omega t)`` the received carrier is ``Re{p exp(-i omega t)} = amp * cos(omega t -
+      arg p)``, so ``arg p`` is the lag: a pure delay ``t`` gives ``360 f t`` (mod 360), and the
+      lag grows with distance, ``phase ~ k R - 90 deg`` in the far field (mod 360). (The
+      protocol writes fields as ``|p| exp(+i(omega t - phi))``, the conjugate convention: its
+      ``phi`` is the same lag.)
     * ``tof_s`` = arrival time of the wavefront: the geometric first arrival, the travel time from
       the nearest point of the face, ``sqrt(z^2 + max(|x| - a, 0)^2) / c``. It is the leading edge
       of the direct wave; it depends on neither the burst length nor the frequency.
@@ -39,6 +46,7 @@ without the emulator importing JAX; it is used as tabulated, whatever the temper
 
 from __future__ import annotations
 
+import functools
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -47,14 +55,15 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from ..air import speed_of_sound_m_s
+
 TABLE_FORMAT = "difflattice-transducer-table/1"
 
 
 def speed_of_sound(temperature_c: ArrayLike) -> NDArray[np.float64] | float:
-    """Speed of sound in dry air [m/s] at ``temperature_c`` [degC]: ``331.3 sqrt(1 + T/273.15)``."""
-    t = np.asarray(temperature_c, dtype=float)
-    c = 331.3 * np.sqrt(1.0 + t / 273.15)
-    return float(c) if c.ndim == 0 else c
+    """Speed of sound in dry air [m/s] at ``temperature_c`` [degC]: ``331.3 sqrt(1 + T/273.15)``
+    (the package's one air model, :func:`difflattice.air.speed_of_sound_m_s`)."""
+    return speed_of_sound_m_s(temperature_c)
 
 
 class Transducer(Protocol):
@@ -73,26 +82,84 @@ class Transducer(Protocol):
         ...
 
 
+@functools.lru_cache(maxsize=64)
+def _leggauss(n: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Gauss-Legendre nodes and weights on [-1, 1] (cached: the emulator asks per point)."""
+    return np.polynomial.legendre.leggauss(n)
+
+
+def _rayleigh(
+    rho_m: NDArray[np.float64],
+    z_m: NDArray[np.float64],
+    radius_m: float,
+    k: float,
+    n_quad: int,
+    profile=None,
+    knots: NDArray[np.float64] | None = None,
+) -> NDArray[np.complex128]:
+    """``integral over the disc of q(r) exp(i k R) / R dS`` at points ``(rho_m, z_m)`` (lateral and
+    axial distance from the face's centre), ``q = profile(r)`` (complex; 1 if None). Gauss-Legendre
+    in azimuth over ``[0, pi]`` (doubled: the integrand is even) and in radius, per interval
+    between ``knots`` (radii where ``q`` has a kink; default none). Nodes per dimension:
+    ``max(n_quad, 1.5 k a + 32)``, so the oscillation of ``exp(i k R)`` over the face is resolved."""
+    a = radius_m
+    n = max(n_quad, int(1.5 * k * a) + 32)
+    g, w = _leggauss(n)
+    edges = np.unique(np.concatenate([[0.0, a], np.clip(knots, 0, a)])) if knots is not None else np.array([0.0, a])
+    per = max(4, int(np.ceil(n / (len(edges) - 1))))
+    gr, wr = _leggauss(per)
+    lo, hi = edges[:-1, None], edges[1:, None]
+    rho_q = (0.5 * (lo + hi) + 0.5 * (hi - lo) * gr).ravel()
+    w_rho = (0.5 * (hi - lo) * wr).ravel() * rho_q
+    if profile is not None:
+        w_rho = w_rho * profile(rho_q)
+    phi, w_phi = 0.5 * np.pi * (g + 1), 0.5 * np.pi * w
+    out = np.empty(len(rho_m), complex)
+    for s in range(0, len(rho_m), 32):
+        x, z = rho_m[s : s + 32, None, None], z_m[s : s + 32, None, None]
+        r = np.sqrt(z**2 + x**2 + rho_q[None, :, None] ** 2 - 2 * x * rho_q[None, :, None] * np.cos(phi))
+        out[s : s + 32] = 2 * np.sum((np.exp(1j * k * r) / r) @ w_phi * w_rho, axis=1)
+    return out
+
+
+FRAUNHOFER_RTOL = 1e-6
+"""The Fraunhofer pattern stands in for the Rayleigh integral at a finite range only where its
+relative error bound, ``max(k a^2 / (2 range), a / range)``, is below this."""
+
+
 @dataclass(frozen=True)
 class Piston:
     """A rigid circular piston of diameter ``diameter_m`` [m] in an infinite baffle.
 
     ``sensitivity_uV`` is the on-axis far-field amplitude at 1 m [uV]. ``n_quad`` Gauss-Legendre
-    nodes per dimension integrate the Rayleigh integral (relative error below 1e-6 for
-    ``z_m >= 5 mm`` at 40 kHz for a 38 mm piston).
+    nodes per dimension (at least ``1.5 k a + 32``) integrate the Rayleigh integral (relative error
+    below 1e-6 for ``z_m >= 5 mm`` at 40 kHz for a 38 mm piston). ``lobe``: what the lobe rig
+    measures at its range: ``"rayleigh"`` (default: the Rayleigh integral at the microphone, a real
+    near field; the Fraunhofer pattern stands in only where it is exact to ``FRAUNHOFER_RTOL``) or
+    ``"fraunhofer"`` (the far-field pattern spread as ``1/range``, as earlier emulated data).
     """
 
     diameter_m: float
     sensitivity_uV: float = 50_000.0
     n_quad: int = 96
+    lobe: str = "rayleigh"
 
     def __post_init__(self) -> None:
         if not self.diameter_m > 0:
             raise ValueError(f"piston diameter must be > 0 m, got {self.diameter_m}")
+        if self.lobe not in ("rayleigh", "fraunhofer"):
+            raise ValueError(f"piston lobe = {self.lobe!r}; allowed: 'rayleigh', 'fraunhofer'")
 
     @property
     def radius_m(self) -> float:
         return 0.5 * self.diameter_m
+
+    def _profile(self, freq_hz: float):
+        return None  # uniform normal velocity
+
+    @property
+    def _knots(self) -> NDArray[np.float64] | None:
+        return None  # radii where the velocity profile has a kink
 
     def far_field(self, angle_deg: NDArray[np.float64], freq_hz: float, c_m_s: float) -> NDArray[np.complex128]:
         from scipy.special import j1  # on first use: the capture host imports this module, not scipy
@@ -104,22 +171,82 @@ class Piston:
         front = np.cos(theta) > 1e-12
         return (self.sensitivity_uV * d * front).astype(complex)
 
+    def at_range(
+        self, angle_deg: NDArray[np.float64], range_m: float, freq_hz: float, c_m_s: float
+    ) -> NDArray[np.complex128]:
+        """Complex pressure [uV] at the lobe rig's microphone, ``range_m`` from the face's centre
+        at ``angle_deg`` off axis: the Rayleigh integral, normalised as :meth:`near_field`; at
+        ``|angle| = 90`` (in the baffle plane) its grazing limit, 0 behind the baffle."""
+        if not range_m > 0:
+            raise ValueError(f"range_m must be > 0, got {range_m}")
+        theta = np.deg2rad(np.atleast_1d(np.asarray(angle_deg, dtype=float)))
+        k, a = 2 * np.pi * freq_hz / c_m_s, self.radius_m
+        front = np.cos(theta) > -1e-12  # the baffle plane itself (90 deg) is the grazing limit of the field
+        if self.lobe == "fraunhofer" or max(k * a**2 / (2 * range_m), a / range_m) < FRAUNHOFER_RTOL:
+            return self.far_field(np.rad2deg(theta), freq_hz, c_m_s) * (-1j * np.exp(1j * k * range_m) / range_m)
+        rho, z = range_m * np.abs(np.sin(theta)), range_m * np.cos(theta)
+        p = np.zeros(len(theta), complex)
+        p[front] = self._field(rho[front], z[front], freq_hz, c_m_s)
+        return p
+
+    def _field(self, rho_m, z_m, freq_hz: float, c_m_s: float) -> NDArray[np.complex128]:
+        a, k = self.radius_m, 2 * np.pi * freq_hz / c_m_s
+        integral = _rayleigh(
+            np.asarray(rho_m, float), np.asarray(z_m, float), a, k, self.n_quad, self._profile(freq_hz), self._knots
+        )
+        return self.sensitivity_uV * (-1j / (np.pi * a**2)) * integral
+
     def near_field(self, x_m: NDArray[np.float64], z_m: float, freq_hz: float, c_m_s: float) -> NDArray[np.complex128]:
         if not z_m > 0:
             raise ValueError(f"z_m must be > 0 (in front of the face), got {z_m}")
-        a, k = self.radius_m, 2 * np.pi * freq_hz / c_m_s
-        g, w = np.polynomial.legendre.leggauss(self.n_quad)
-        rho, w_rho = 0.5 * a * (g + 1), 0.5 * a * w  # [0, a]
-        phi, w_phi = 0.5 * np.pi * (g + 1), 0.5 * np.pi * w  # [0, pi], doubled by symmetry
-        x = np.asarray(x_m, dtype=float)[:, None, None]
-        r = np.sqrt(z_m**2 + x**2 + rho[None, :, None] ** 2 - 2 * x * rho[None, :, None] * np.cos(phi))
-        weights = 2 * (w_rho * rho)[:, None] * w_phi[None, :]
-        integral = np.sum(weights * np.exp(1j * k * r) / r, axis=(1, 2))
-        return self.sensitivity_uV * (-1j / (np.pi * a**2)) * integral
+        x = np.abs(np.atleast_1d(np.asarray(x_m, dtype=float)))
+        return self._field(x, np.full_like(x, z_m), freq_hz, c_m_s)
 
     def arrival_s(self, x_m: NDArray[np.float64], z_m: float, c_m_s: float) -> NDArray[np.float64]:
         lateral = np.maximum(np.abs(np.asarray(x_m, dtype=float)) - self.radius_m, 0.0)
         return np.sqrt(z_m**2 + lateral**2) / c_m_s
+
+
+@dataclass(frozen=True)
+class Disc(Piston):
+    """A circular transducer whose normal velocity varies with radius: a :class:`Piston` (same
+    normalisation: a uniform disc is the piston) with relative amplitude ``weights`` and delay
+    ``lags_s`` [s] (> 0: moves later) tabulated at ``r_frac`` = r / radius (increasing, from 0
+    to 1), linearly interpolated. The Rayleigh quadrature integrates each interval between knots
+    separately, so the interpolated profile is integrated to the quadrature's accuracy."""
+
+    r_frac: tuple[float, ...] = (0.0, 1.0)
+    weights: tuple[float, ...] = (1.0, 1.0)
+    lags_s: tuple[float, ...] = (0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        r = np.asarray(self.r_frac, float)
+        if not (len(r) >= 2 and len(self.weights) == len(r) and len(self.lags_s) == len(r)):
+            raise ValueError("disc profile: r_frac, weights and lags_s need >= 2 entries each, of equal length")
+        if r[0] != 0 or r[-1] != 1 or np.any(np.diff(r) <= 0):
+            raise ValueError("disc profile: r_frac must increase from 0 to 1 (r / radius)")
+
+    @property
+    def _knots(self) -> NDArray[np.float64]:
+        return np.asarray(self.r_frac, float) * self.radius_m
+
+    def _profile(self, freq_hz: float):
+        r, w, lag = self._knots, np.asarray(self.weights, float), np.asarray(self.lags_s, float)
+        return lambda rho: np.interp(rho, r, w) * np.exp(2j * np.pi * freq_hz * np.interp(rho, r, lag))
+
+    def far_field(self, angle_deg: NDArray[np.float64], freq_hz: float, c_m_s: float) -> NDArray[np.complex128]:
+        from scipy.special import j0
+
+        theta = np.deg2rad(np.atleast_1d(np.asarray(angle_deg, dtype=float)))
+        a, k = self.radius_m, 2 * np.pi * freq_hz / c_m_s
+        edges = self._knots
+        g, w = _leggauss(max(8, int(np.ceil(max(self.n_quad, 1.5 * k * a + 32) / (len(edges) - 1)))))
+        lo, hi = edges[:-1, None], edges[1:, None]
+        r = (0.5 * (lo + hi) + 0.5 * (hi - lo) * g).ravel()
+        wr = (0.5 * (hi - lo) * w).ravel() * r * self._profile(freq_hz)(r)
+        d = (2 / a**2) * (j0(k * np.sin(theta)[:, None] * r[None, :]) @ wr)
+        return self.sensitivity_uV * d * (np.cos(theta) > 1e-12)
 
 
 @dataclass(frozen=True)
@@ -254,21 +381,28 @@ def _interp_complex(
 def make_transducer(spec: dict[str, Any]) -> Piston | TableTransducer:
     """Build a ground truth from its JSON-able spec.
 
-    ``{"kind": "piston", "diameter_m": 0.0384, "sensitivity_uV": 50000}`` or
-    ``{"kind": "table", "path": "truth.json", "sensitivity_uV": 1.0}``.
+    ``{"kind": "piston", "diameter_m": 0.0384, "sensitivity_uV": 50000}`` (optionally
+    ``"lobe": "fraunhofer"``), ``{"kind": "disc", "diameter_m": 0.0384, "r_frac": [...],
+    "weights": [...], "lags_s": [...]}`` or ``{"kind": "table", "path": "truth.json",
+    "sensitivity_uV": 1.0}``.
     """
     spec = dict(spec)
     kind = spec.pop("kind", None)
     if kind == "piston":
         return Piston(**spec)
+    if kind == "disc":
+        args: dict[str, Any] = {k: tuple(v) if isinstance(v, list) else v for k, v in spec.items()}
+        return Disc(**args)
     if kind == "table":
         return TableTransducer.load(spec.pop("path"), **spec)
-    raise ValueError(f"transducer kind must be 'piston' or 'table', got {kind!r}")
+    raise ValueError(f"transducer kind must be 'piston', 'disc' or 'table', got {kind!r}")
 
 
-def wrap_deg(angle_deg: ArrayLike) -> NDArray[np.float64]:
-    """Wrap angles [deg] to ``[-180, 180)``."""
-    return (np.asarray(angle_deg, dtype=float) + 180.0) % 360.0 - 180.0
+def lag_deg(p: ArrayLike) -> NDArray[np.float64]:
+    """The carrier's lag behind the drive [deg, in [0, 360)] of complex pressures ``p`` in the
+    ``exp(-i omega t)`` convention: ``arg p`` reduced to one period (rig protocol, "Field
+    conventions")."""
+    return np.mod(np.rad2deg(np.angle(np.asarray(p))), 360.0)
 
 
 def lobe_truth(
@@ -276,15 +410,18 @@ def lobe_truth(
 ) -> tuple[NDArray[np.float64], float]:
     """Noise-free lobe measurement: ``(amp_uV, tof_s)`` at ``angle_deg`` (conventions above)."""
     c = speed_of_sound(temperature_c)
-    amp = np.abs(tr.far_field(np.atleast_1d(np.asarray(angle_deg, float)), freq_hz, c)) / range_m
+    angles = np.atleast_1d(np.asarray(angle_deg, float))
+    at_range = getattr(tr, "at_range", None)  # a piston or disc: the field at the microphone itself
+    amp = np.abs(at_range(angles, range_m, freq_hz, c) if at_range else tr.far_field(angles, freq_hz, c) / range_m)
     return amp, range_m / c
 
 
 def wave_truth(
     tr: Transducer, x_m: ArrayLike, *, z_m: float, freq_hz: float, temperature_c: float
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Noise-free wavefront measurement: ``(tof_s, phase_deg, amp_uV)`` at ``x_m`` (conventions above)."""
+    """Noise-free wavefront measurement: ``(tof_s, phase_deg, amp_uV)`` at ``x_m`` (conventions
+    above: ``phase_deg`` is the lag in [0, 360))."""
     c = speed_of_sound(temperature_c)
     x = np.atleast_1d(np.asarray(x_m, float))
     p = tr.near_field(x, z_m, freq_hz, c)
-    return tr.arrival_s(x, z_m, c), wrap_deg(-np.rad2deg(np.angle(p))), np.abs(p)
+    return tr.arrival_s(x, z_m, c), lag_deg(p), np.abs(p)

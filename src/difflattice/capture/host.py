@@ -25,9 +25,10 @@ from typing import Any
 
 import serial
 
+from ..config import ConfigError, specs
 from . import protocol as P
 from .errors import CaptureFileError, PortBusy, PortNotFound, ProtocolVersionError, RigError, RigTimeout
-from .files import COLUMNS, HEADER_KEY, HEADER_KEYS, CaptureWriter, describe_seqs, utc_now
+from .files import COLUMNS, HEADER_KEY, HEADER_KEYS, CaptureWriter, Measurement, describe_seqs, utc_now
 from .groundtruth import speed_of_sound
 
 BAUD = 115_200
@@ -638,13 +639,15 @@ _SYSTEM_KEYS = ("format", "kind", "created_utc", "protocol", "rig_id", "fw_versi
 _SCAN_KEYS = ("n_points", "start_mdeg", "step_mdeg", "x0_um", "dx_um", "z_um", "n_avg", "cycles", "freq_hz")
 _LOADER_KEYS = ("start_deg", "step_deg", "stop_deg", "x0_m", "dx_m", "x1_m", "z_m")  # added by load_capture
 _DERIVED_KEYS = ("speed_of_sound_m_s",) + _LOADER_KEYS
+_MEASUREMENT_KEYS = tuple(s.name for s in specs(Measurement))
 
 
 def normalise_metadata(kind: str, metadata: dict[str, Any]) -> dict[str, Any]:
     """Check measurement metadata and give it its header types; adds ``speed_of_sound_m_s``.
 
-    ``temperature_c`` is required, and ``range_m`` for a lobe scan; known keys
-    (:data:`files.HEADER_KEYS`) get their types, other keys are kept as text.
+    ``temperature_c`` is required, and ``range_m`` for a lobe scan; the keys declared in
+    :class:`files.Measurement` get their types and allowed ranges checked, other keys are kept as
+    text. Raises ``ValueError`` naming the key, the value and what is allowed.
     """
     meta: dict[str, Any] = {}
     for key, value in metadata.items():
@@ -663,6 +666,11 @@ def normalise_metadata(kind: str, metadata: dict[str, Any]) -> dict[str, Any]:
     absent = [k for k in required if k not in meta]
     if absent:
         raise ValueError(f"metadata needs {', '.join(absent)} (see docs/capture.md)")
+    declared = {k: meta[k] for k in _MEASUREMENT_KEYS if k in meta}
+    try:
+        Measurement(**declared)
+    except ConfigError as exc:
+        raise ValueError(f"metadata {exc}") from None
     meta["speed_of_sound_m_s"] = round(float(speed_of_sound(meta["temperature_c"])), 3)
     return meta
 
@@ -715,6 +723,9 @@ def _capture(
     new_log = not log_path.exists()
     log = RawLog(log_path)
     bar = None
+    created = False  # this call created the file (so it may remove it again if it stays empty)
+    appended = [0]
+    done = False
     try:
         host = RigHost(port, timeouts=timeouts, log=log)
         with host:
@@ -733,6 +744,7 @@ def _capture(
                     **meta,
                 }
                 writer = CaptureWriter.create(path, header)
+                created = True
             elif info.rig_id != rig_id:
                 raise CaptureFileError(f"{path}: was captured on rig {rig_id}, but {port} is rig {info.rig_id}")
             else:
@@ -747,6 +759,7 @@ def _capture(
 
             def on_point(msg: P.Lob | P.Wav) -> None:
                 w.append(tuple(getattr(msg, c) for c in COLUMNS[plan.kind][:-1]), time.time())
+                appended[0] += 1
                 if bar is not None:
                     bar.update(1)
                     s = host.stats
@@ -765,14 +778,18 @@ def _capture(
                 f"complete: {plan.n} points; {s.rerequested} re-requested, {s.bad_lines} bad lines, {s.junk} junk, "
                 f"{s.duplicates} duplicates ignored, {s.resets} resets, {s.reconnects} reconnects"
             )
+        done = True
     finally:
         if bar is not None:
             bar.close()
         log.close()
+        empty = created and appended[0] == 0 and not done
         if writer is not None:
             writer.close()
-        elif new_log:
-            log_path.unlink()  # nothing captured: leave no stray log
+            if empty:  # refused or failed before the first point: leave no header-only file behind
+                path.unlink(missing_ok=True)
+        if (writer is None or empty) and new_log:
+            log_path.unlink(missing_ok=True)  # nothing captured: leave no stray log
     return path
 
 
@@ -796,7 +813,7 @@ def capture_lobe(
     Angles [deg] from ``start_deg`` to ``stop_deg`` (inclusive, a whole number of ``step_deg``),
     ``n_avg`` bursts of ``cycles`` cycles at ``freq_hz`` [Hz, rounded to an integer] per point.
     ``metadata`` needs ``temperature_c`` [degC] and ``range_m`` [m]; optional keys are listed in
-    :data:`files.HEADER_KEYS`. ``timeout_s``: silence that means the link is down (other timeouts
+    :class:`files.Measurement`. ``timeout_s``: silence that means the link is down (other timeouts
     scale with it, :meth:`Timeouts.scaled`); ``reconnect_s``: how long to wait for a lost link.
     Calling it again on an unfinished file continues the scan; on a complete file it does nothing.
     """

@@ -7,7 +7,15 @@ checkpointed simulation -> contour phasors -> Kirchhoff-Helmholtz far field -> b
 differentiable end to end. The grid and contour are sized from the limits, so every admissible
 design fits inside the contour, away from the absorbing layer.
 
-Build problems with `horn_design` and `reflector_design`.
+Build problems with `horn_design` and `reflector_design`. With ``lattice="rz"`` they build the
+axisymmetric counterpart (issue 12): the transducer is a transparent disc of the same diameter
+(soft ring sources, each ring weighted by its covered face fraction, as the 2-D line is a
+transparent soft line), the walls are bodies of revolution (the meridian-plane shape rasterised on
+the rz grid, cell centres r = (j + 1/2) dx: occupancy is the meridian-area fraction, not the
+ring-volume fraction, an O(dx / r) difference that matters only for walls within a few cells of
+the axis, and the horn and dish walls lie at r >= 18 mm), and the beam is the 3-D
+Kirchhoff-Helmholtz transform (`field_at_rz`) of the phasors on a closed cylinder around
+transducer and walls.
 """
 
 from __future__ import annotations
@@ -18,16 +26,20 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from ..observe.farfield import BoxContour, far_field
+from ..lattice.coefficients import Edges
 from ..lattice.geometry import rasterise
 from ..lattice.grid import Grid, make_grid
-from ..lattice.coefficients import Edges
 from ..lattice.medium import Medium, air, material
-from ..solver.sensors import Sensors
+from ..observe.farfield import BoxContour, far_field
+from ..observe.farfield_rz import CylinderSurface, field_at_rz
 from ..solver.loop import simulate
-from ..solver.sources import ToneBurst, line_transducer
+from ..solver.sensors import Sensors
+from ..solver.sources import PointSources, ToneBurst, line_transducer, ring_fractions
 from .objectives import Goal, pattern_metrics
-from .shapes import HornLimits, HornParams, ReflectorLimits, ReflectorParams
+from .shapes import HornLimits, ReflectorLimits
+
+LATTICES = ("2d", "rz")
+"""Lattice kinds of a design problem: the 2-D plane (wedges, troughs) or axisymmetric (cones, dishes)."""
 
 WALLS = ("rigid", "soft")
 """Ideal wall kinds; any fluid material of `medium.MATERIALS` (e.g. "pine") is also accepted."""
@@ -44,7 +56,7 @@ class DesignProblem(eqx.Module):
     direction_deg: float = eqx.field(static=True)
     cycles: float = eqx.field(static=True)
     wall: str = eqx.field(static=True)
-    contour: BoxContour
+    contour: BoxContour | CylinderSurface
     pml_cells: int = eqx.field(static=True)
     n_steps: int = eqx.field(static=True)
     range_m: float = eqx.field(static=True)
@@ -53,21 +65,33 @@ class DesignProblem(eqx.Module):
     sector_deg: float = eqx.field(static=True)
     reference_on_axis: float | None = eqx.field(static=True, default=None)
     ramp_cells: float = eqx.field(static=True, default=1.0)
+    lattice: str = eqx.field(static=True, default="2d")
+    face_m: float = eqx.field(static=True, default=0.0)
 
     # -- pieces --------------------------------------------------------------------------------
     def source(self):
         g = self.grid
-        return line_transducer(g, self.anchor_m, n_cells=self.n_cells, direction_deg=self.direction_deg,
-                               signal=ToneBurst(g.frequency_hz, self.cycles))
+        sig = ToneBurst(g.frequency_hz, self.cycles)
+        if self.lattice == "rz":  # a transparent disc of ring cells (n_cells rings), the 2-D line's counterpart
+            i_s = int(round(self.anchor_m[0] / g.dx_m - 0.5))
+            cells = np.stack([np.full(self.n_cells, i_s), np.arange(self.n_cells)], 1)
+            w = ring_fractions(jnp.asarray(0.5 * self.face_m / g.dx_m, g.jnp_dtype), self.n_cells).astype(g.jnp_dtype)
+            return PointSources(cells=cells, signal=sig, weights=w, lags_s=jnp.zeros(self.n_cells, g.jnp_dtype),
+                                injection="soft")
+        return line_transducer(g, self.anchor_m, n_cells=self.n_cells, direction_deg=self.direction_deg, signal=sig)
 
     @property
     def edges(self) -> Edges:
+        if self.lattice == "rz":
+            return Edges.axisymmetric(thickness_cells=self.pml_cells)
         return Edges(thickness_cells=self.pml_cells)
 
     def occupancy(self, params):
         """Smooth occupancy of the design's walls (None for no shape)."""
         if params is None:
             return None
+        if self.lattice == "rz":
+            return _smooth_occupancy_rz(params.shape(self.anchor_m), self.grid, self.ramp_cells)
         return rasterise(params.shape(self.anchor_m), self.grid, "smooth", ramp_cells=self.ramp_cells)
 
     def medium(self, params) -> Medium:
@@ -97,12 +121,32 @@ class DesignProblem(eqx.Module):
         g = self.grid
         r = simulate(g, self.medium(params), self.source(), Sensors(phasor_cells=self.contour.cells),
                      n_steps=self.n_steps, edges=self.edges, checkpoint="sqrt")
+        if self.lattice == "rz":
+            return self._pattern_rz(r.phasors, ranges_m)
         centre = (self.anchor_m[0] / g.dx_m, self.anchor_m[1] / g.dx_m)
         ff = lambda rng: far_field(r.phasors, self.contour, g, np.asarray(self.angles_deg), rng, centre,
                                    dispersion="continuum")
         if ranges_m is None:
             return ff(self.range_m)
         return tuple(ff(rng) for rng in ranges_m)
+
+    def _pattern_rz(self, phasors, ranges_m):
+        """The rz beam: pressure at `range_m` from the disc centre at polar angle |angle| from +z
+        (the pattern of a body of revolution is even in the angle, so the 2-D angle list is kept)."""
+        g = self.grid
+        ang = np.asarray(self.angles_deg)
+        th_u, inv = np.unique(np.abs(ang), return_inverse=True)
+        th = np.radians(th_u)
+        zc = self.anchor_m[0] / g.dx_m
+
+        def at(rng):
+            rc = rng / g.dx_m
+            pts = np.stack([zc + rc * np.cos(th), rc * np.sin(th)], 1)
+            return field_at_rz(phasors, self.contour, g, pts, dispersion="continuum")[inv]
+
+        if ranges_m is None:
+            return at(self.range_m)
+        return tuple(at(rng) for rng in ranges_m)
 
     def metrics_of(self, pattern) -> dict:
         return pattern_metrics(pattern, self.angles_deg, reference_on_axis=self.reference_on_axis,
@@ -122,7 +166,21 @@ class DesignProblem(eqx.Module):
         return np.asarray(r.snapshots), np.asarray(r.snapshot_steps), np.asarray(r.p_max)
 
 
-def _grid(frequency_hz, cells_per_wavelength, wall, shape, dtype) -> Grid:
+def _smooth_occupancy_rz(shape, grid: Grid, ramp_cells: float):
+    """`geometry.rasterise(shape, grid, "smooth")` on an rz grid (cell centres z = (i + 1/2) dx,
+    r = (j + 1/2) dx), written out here: under an outer `jax.jit`, reverse mode through
+    `rasterise` on an rz grid gave a shape gradient 7x off central differences (eager mode and
+    this form agree with them; see the report of the rz design work)."""
+    nx, ny = grid.shape
+    dx = grid.dx_m
+    z = (np.arange(nx) + 0.5) * dx
+    r = (np.arange(ny) + 0.5) * dx
+    zz, rr = (jnp.asarray(a, grid.jnp_dtype) for a in np.meshgrid(z, r, indexing="ij"))
+    u = jnp.clip(0.5 - shape.sdf(zz, rr) / (dx * ramp_cells), 0.0, 1.0)
+    return u * u * (3 - 2 * u)
+
+
+def _grid(frequency_hz, cells_per_wavelength, wall, shape, dtype, kind="2d") -> Grid:
     """A grid whose cell size resolves air at `cells_per_wavelength`, whatever the wall material."""
     c_air = air(20.0).speed_m_s
     c_max = c_air
@@ -132,7 +190,7 @@ def _grid(frequency_hz, cells_per_wavelength, wall, shape, dtype) -> Grid:
             raise ValueError(f"wall = {wall!r}: give 'rigid', 'soft' or a fluid material name")
         c_max = max(c_air, m.speed_m_s)
     return make_grid(frequency_hz=frequency_hz, cells_per_wavelength=cells_per_wavelength * c_max / c_air,
-                     c_max_m_s=c_max, shape=shape, dtype=dtype)
+                     c_max_m_s=c_max, shape=shape, dtype=dtype, kind=kind)
 
 
 def _dx(frequency_hz, cells_per_wavelength) -> float:
@@ -140,17 +198,21 @@ def _dx(frequency_hz, cells_per_wavelength) -> float:
 
 
 def _finish(kind, grid, limits, anchor_cells, n_cells, direction_deg, cycles, wall, contour, pml, n_steps,
-            range_m, angle_step_deg, field_of_view_deg, sector_deg, reference) -> DesignProblem:
+            range_m, angle_step_deg, field_of_view_deg, sector_deg, reference, lattice="2d", face_m=0.0) -> DesignProblem:
     n_a = int(round(360.0 / angle_step_deg))
     if abs(n_a * angle_step_deg - 360.0) > 1e-9 or n_a % 2:
         raise ValueError(f"angle_step_deg = {angle_step_deg} must divide 180 deg")
     angles = tuple(float(a) for a in -180.0 + angle_step_deg * np.arange(n_a))
     # an even line is centred between two cells: put the anchor (throat / focus) there too
-    anchor = (anchor_cells[0] * grid.dx_m, (anchor_cells[1] + 0.5 * (n_cells % 2 == 0)) * grid.dx_m)
+    if lattice == "rz":  # the disc centre: on the axis, at the source row's cell centre (rz cell centres are at + 1/2)
+        anchor = ((anchor_cells[0] + 0.5) * grid.dx_m, 0.0)
+    else:
+        anchor = (anchor_cells[0] * grid.dx_m, (anchor_cells[1] + 0.5 * (n_cells % 2 == 0)) * grid.dx_m)
     contour.check_inside(grid, margin=pml)
     args = dict(kind=kind, grid=grid, limits=limits, anchor_m=anchor, n_cells=n_cells, direction_deg=direction_deg,
                 cycles=cycles, wall=wall, contour=contour, pml_cells=pml, n_steps=n_steps, range_m=range_m,
-                angles_deg=angles, field_of_view_deg=field_of_view_deg, sector_deg=sector_deg)
+                angles_deg=angles, field_of_view_deg=field_of_view_deg, sector_deg=sector_deg, lattice=lattice,
+                face_m=face_m)
     bare = DesignProblem(**args)
     if not reference:
         return bare
@@ -159,8 +221,11 @@ def _finish(kind, grid, limits, anchor_cells, n_cells, direction_deg, cycles, wa
     return DesignProblem(**args, reference_on_axis=ref)
 
 
-def _n_steps(grid: Grid, contour: BoxContour, cycles: float, traversals: float) -> int:
-    diag = math.hypot(contour.ix1 - contour.ix0, contour.iy1 - contour.iy0)
+def _n_steps(grid: Grid, contour, cycles: float, traversals: float) -> int:
+    if isinstance(contour, CylinderSurface):  # the cylinder's diameter plays the box's height
+        diag = math.hypot(contour.iz1 - contour.iz0, 2 * contour.jr)
+    else:
+        diag = math.hypot(contour.ix1 - contour.ix0, contour.iy1 - contour.iy0)
     return int(math.ceil(traversals * diag / grid.courant + (cycles + 6) * grid.steps_per_period))
 
 
@@ -170,10 +235,26 @@ def _check_wall_resolved(wall_min_m: float, dx: float) -> None:
                          "the grid cannot resolve the wall; raise wall_min_m or cells_per_wavelength")
 
 
+def _check_lattice(lattice: str, wall: str) -> None:
+    if lattice not in LATTICES:
+        raise ValueError(f"lattice = {lattice!r}; allowed: {', '.join(map(repr, LATTICES))} (2-D plane or axisymmetric)")
+    if lattice == "rz" and wall == "soft":
+        raise ValueError("wall = 'soft' (the paper's speed-zero walls) has no ring-volume form on an rz lattice: "
+                         "use wall = 'rigid' or a fluid material with lattice = 'rz'")
+
+
 def _layout(back: int, fwd: int, half: int, gap_cells: int, pml_cells: int, frequency_hz, cells_per_wavelength,
-            wall, dtype):
+            wall, dtype, lattice="2d"):
     """Grid and contour around a transducer anchored `back` cells behind and `fwd` cells before
-    the walls' reach, `half` cells either side; returns (grid, contour, anchor cell)."""
+    the walls' reach, `half` cells either side (rz: `half` rings out from the axis); returns
+    (grid, contour, anchor cell)."""
+    if lattice == "rz":
+        iz0 = pml_cells + 3
+        iz_s = iz0 + gap_cells + back
+        iz1 = iz_s + fwd + gap_cells
+        jr = half + gap_cells
+        grid = _grid(frequency_hz, cells_per_wavelength, wall, (iz1 + 3 + pml_cells, jr + 3 + pml_cells), dtype, "rz")
+        return grid, CylinderSurface(iz0, iz1, jr, False), (iz_s, 0)
     ix0 = iy0 = pml_cells + 3
     ix_s = ix0 + gap_cells + back
     ix1 = ix_s + fwd + gap_cells
@@ -186,33 +267,43 @@ def _layout(back: int, fwd: int, half: int, gap_cells: int, pml_cells: int, freq
 def horn_design(*, limits: HornLimits, face_m: float, frequency_hz: float = 50e3, cells_per_wavelength: float = 8.0,
                 wall: str = "soft", cycles: float = 5.0, range_m: float = 1.0, angle_step_deg: float = 0.5,
                 field_of_view_deg: float = 90.0, sector_deg: float = 10.0, gap_cells: int = 4, pml_cells: int = 12,
-                traversals: float = 1.5, dtype: str = "float64", reference: bool = True) -> DesignProblem:
+                traversals: float = 1.5, dtype: str = "float64", reference: bool = True,
+                lattice: str = "2d") -> DesignProblem:
     """A horn problem: a line transducer of diameter `face_m` facing +x at the throat of any horn
-    within `limits`. The run lasts `traversals` crossings of the contour plus the burst and six
+    within `limits` (``lattice="rz"``: a disc of diameter `face_m` facing +z in a horn of
+    revolution). The run lasts `traversals` crossings of the contour plus the burst and six
     periods, so the burst has left the contour when the phasors are read. `reference` runs the bare
     transducer once for the gain's reference (False skips it: `on_axis_db` is then 0 for every design)."""
+    _check_lattice(lattice, wall)
     dx = _dx(frequency_hz, cells_per_wavelength)
     n_cells = max(1, int(round(face_m / dx)))
-    if limits.throat_min_m < n_cells * dx - 1e-12:
+    if lattice == "rz" and limits.throat_min_m < face_m - 1e-12:
+        raise ValueError(f"throat_min_m = {limits.throat_min_m:.6g} m is narrower than the disc (face_m = {face_m:.6g} m): "
+                         "the walls would cover source rings")
+    if lattice == "2d" and limits.throat_min_m < n_cells * dx - 1e-12:
         raise ValueError(f"throat_min_m = {limits.throat_min_m:.6g} m is narrower than the transducer "
                          f"({n_cells} cells = {n_cells * dx:.6g} m at this resolution): the walls would cover source cells")
     _check_wall_resolved(limits.wall_min_m, dx)
     back = int(math.ceil(limits.wall_max_m / dx)) + 1
     fwd = int(math.ceil((limits.length_max_m + limits.wall_max_m) / dx)) + 1
     half = int(math.ceil((0.5 * limits.mouth_max_m + limits.wall_max_m) / dx)) + 1
-    grid, contour, anchor = _layout(back, fwd, half, gap_cells, pml_cells, frequency_hz, cells_per_wavelength, wall, dtype)
-    return _finish("horn", grid, limits, anchor, n_cells, 0.0, cycles, wall, contour, pml_cells,
-                   _n_steps(grid, contour, cycles, traversals), range_m, angle_step_deg, field_of_view_deg, sector_deg,
-                   reference)
+    grid, contour, anchor = _layout(back, fwd, half, gap_cells, pml_cells, frequency_hz, cells_per_wavelength, wall, dtype,
+                                    lattice)
+    return _finish("horn", grid, limits, anchor, _n_source(lattice, n_cells, face_m, dx), 0.0, cycles, wall, contour,
+                   pml_cells, _n_steps(grid, contour, cycles, traversals), range_m, angle_step_deg, field_of_view_deg,
+                   sector_deg, reference, lattice, face_m)
 
 
 def reflector_design(*, limits: ReflectorLimits, face_m: float, frequency_hz: float = 50e3,
                      cells_per_wavelength: float = 8.0, wall: str = "soft", cycles: float = 10.0, range_m: float = 1.0,
                      angle_step_deg: float = 0.5, field_of_view_deg: float = 90.0, sector_deg: float = 10.0,
                      gap_cells: int = 4, pml_cells: int = 12, traversals: float = 2.0,
-                     dtype: str = "float64", reference: bool = True) -> DesignProblem:
+                     dtype: str = "float64", reference: bool = True, lattice: str = "2d") -> DesignProblem:
     """A reflector problem: a line transducer of diameter `face_m` at the focus of a parabolic
-    mirror opening towards +x, facing the vertex (as the paper's Fig. 10)."""
+    mirror opening towards +x, facing the vertex (as the paper's Fig. 10); ``lattice="rz"``: a disc
+    of diameter `face_m` at the focus of a paraboloidal dish opening towards +z (a transparent disc
+    radiates both ways, as the 2-D line does)."""
+    _check_lattice(lattice, wall)
     dx = _dx(frequency_hz, cells_per_wavelength)
     n_cells = max(1, int(round(face_m / dx)))
     _check_wall_resolved(limits.wall_min_m, dx)
@@ -227,7 +318,13 @@ def reflector_design(*, limits: ReflectorLimits, face_m: float, frequency_hz: fl
     back = int(math.ceil((limits.focal_max_m + limits.wall_max_m) / dx)) + 1
     fwd = max(int(math.ceil((rim + limits.wall_max_m) / dx)) + 1, 1)
     half = int(math.ceil((0.5 * max(limits.aperture_max_m, n_cells * dx) + limits.wall_max_m) / dx)) + 1
-    grid, contour, anchor = _layout(back, fwd, half, gap_cells, pml_cells, frequency_hz, cells_per_wavelength, wall, dtype)
-    return _finish("reflector", grid, limits, anchor, n_cells, 180.0, cycles, wall, contour, pml_cells,
-                   _n_steps(grid, contour, cycles, traversals), range_m, angle_step_deg, field_of_view_deg, sector_deg,
-                   reference)
+    grid, contour, anchor = _layout(back, fwd, half, gap_cells, pml_cells, frequency_hz, cells_per_wavelength, wall, dtype,
+                                    lattice)
+    return _finish("reflector", grid, limits, anchor, _n_source(lattice, n_cells, face_m, dx), 180.0, cycles, wall,
+                   contour, pml_cells, _n_steps(grid, contour, cycles, traversals), range_m, angle_step_deg,
+                   field_of_view_deg, sector_deg, reference, lattice, face_m)
+
+
+def _n_source(lattice: str, n_cells: int, face_m: float, dx: float) -> int:
+    """Source cells: the 2-D line's `n_cells`, or the rings a disc of diameter `face_m` touches."""
+    return max(1, math.ceil(0.5 * face_m / dx - 1e-9)) if lattice == "rz" else n_cells

@@ -1,86 +1,693 @@
-"""Reproducible fits: a TOML config (data files, model, solver, output) run by one command.
+"""Reproducible fits: a typed TOML config (data, model, solver, uncertainty, output) run by one command.
 
-    difflattice fit fitting/polaroid.toml
+    .venv/bin/difflattice fit fitting/polaroid_like.toml
 
-The report records package versions, the git commit and SHA-256 hashes of the config and data,
-so a re-run can be checked against it (`tests/fit/test_reproducible.py` re-runs a config and
-compares the numbers).
+`load_config(path)` reads and checks a file into a `FitConfig` (frozen, typed; its sections are
+declared once below, and docs/fitting.md's key tables are generated from the declarations);
+every impossible value is a one-line `ConfigError` naming the file, the key, the value, what is
+allowed and the fix, and legal but unwise values give a `ConfigWarning`. `run_fit(cfg)` loads the
+data (`load_fit_data`: capture files, complete or not, or a plain lobe table; masks; checks
+against the config), simulates the transfer, fits and writes the report. The report records
+package versions, the git commit and SHA-256 hashes of the config and data, so a re-run can be
+checked against it.
+
+Precision is the caller's choice: `run_fit` never changes JAX's configuration. The fit needs
+float64 (`jax.config.update("jax_enable_x64", True)` at start-up, as the command line does
+through `difflattice.apps.jaxconfig.configure()`); it warns when float64 is off.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
-import json
-import math
 import platform
 import subprocess
 import sys
 import time
 import tomllib
+import warnings
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any, ClassVar, cast
 
 import numpy as np
 
-from ..scene.schema import NUM, REQUIRED, ConfigError, schema_markdown, validate_table
+from ..config import ConfigError, ConfigWarning, Section, message, parse_section, setting, show, specs
 
-SCHEMA = {
-    "data": {
-        "lobe": (str, None, "lobe capture file (CSV from `difflattice capture lobe`), relative to the config"),
-        "wave": (str, None, "wavefront capture file (CSV from `difflattice capture wave`)"),
-    },
-    "model": {
-        "line_length_m": (NUM, REQUIRED, "length of the modelled line of source cells, m (>= the largest diameter to try)"),
-        "diameter_m": (NUM, None, "initial active diameter, m (default: a scan)"),
-        "cells_per_wavelength": (NUM, 20.0, "lattice resolution of the transfer simulation"),
-        "weights": (str, "smooth", "uniform, free, symmetric or smooth"),
-        "lags": (str, "smooth", "uniform, free, symmetric or smooth"),
-        "n_basis": (int, 4, "number of smooth basis functions per profile"),
-        "symmetric": (bool, True, "smooth profiles use even polynomials only"),
-        "fit_diameter": (bool, True, "fit the active diameter"),
-        "lobe_range_m": (NUM, None, "range at which the lobe is modelled, m (default: the file's range_m; "
-                                    "use e.g. 1000 for data that are a Fraunhofer pattern)"),
-    },
-    "solver": {
-        "name": (str, "levenberg_marquardt", "levenberg_marquardt, dogleg, gauss_newton or bfgs"),
-        "max_steps": (int, 200, "iteration limit"),
-        "rtol": (NUM, 1e-7, "relative tolerance"),
-        "atol": (NUM, 1e-7, "absolute tolerance"),
-        "floor_db": (NUM, 40.0, "lobe residual floor below the measured peak, dB"),
-        "lobe_weight": (NUM, 1.0, "weight of the lobe residuals"),
-        "wave_weight": (NUM, 1.0, "weight of the wavefront residuals"),
-        "wave_sigma_deg": (NUM, 1.0, "1-sigma of the measured phase, deg"),
-    },
-    "output": {
-        "dir": (str, "out/fit", "report directory, relative to the working directory"),
-        "field_image": (bool, True, "simulate and render the fitted transducer's field"),
-    },
-}
+PROFILES = ("uniform", "free", "symmetric", "smooth")  # fit.model.PROFILES (not imported: no JAX here)
+SOLVERS = ("levenberg_marquardt", "dogleg", "gauss_newton", "bfgs")  # fit.solve.SOLVERS
+LOSSES = ("l2", "huber", "cauchy")
+MIN_FIT_CELLS_PER_WAVELENGTH = 8.0
+"""Below this a fit's transfer simulation carries a phase error large enough to bias the fitted
+parameters (docs/accuracy.md); it is allowed, with a warning."""
 
 
-def load_config(path: str | Path) -> dict:
+@dataclass(frozen=True)
+class DataSection(Section):
+    """What is fitted. Paths are relative to the config file. A lobe file is a capture file
+    (`difflattice capture lobe`) or a plain two-column table (angle_deg, level_db), e.g. a
+    digitised datasheet beam pattern; a plain table carries no metadata, so `frequency_hz`,
+    `range_m`, `temperature_c` and `lobe_sigma_db` must then be given here. An incomplete capture
+    (a gap of missing points) is fitted with the points it holds, and the report says so."""
+
+    SECTION: ClassVar[str] = "data"
+    lobe: str | None = setting(
+        None,
+        kind="str",
+        doc="lobe file: capture or plain angle_deg, level_db table",
+        fix="give the path relative to the config file",
+    )
+    wave: str | None = setting(
+        None,
+        kind="str",
+        doc="wavefront capture file (`difflattice capture wave`)",
+        fix="give the path relative to the config file",
+    )
+    lobe_mask_deg: tuple = setting(
+        [],
+        kind="list",
+        items="range",
+        ge=-180,
+        le=180,
+        unit="deg",
+        doc="angle ranges [lo, hi] left out of the fit (inclusive), e.g. [[-90, -60], [60, 90]]",
+        fix="give [[lo, hi], ...] in degrees with lo < hi",
+    )
+    wave_mask_m: tuple = setting(
+        [],
+        kind="list",
+        items="range",
+        unit="m",
+        doc="positions x ranges [lo, hi] left out of the fit (inclusive)",
+        fix="give [[lo, hi], ...] in metres with lo < hi",
+    )
+    frequency_hz: float | None = setting(
+        None,
+        kind="number",
+        gt=0,
+        le=10e6,
+        unit="Hz",
+        doc="drive frequency: required for a plain table; with capture files it must agree with their header",
+        fix="give the drive frequency in Hz",
+    )
+    range_m: float | None = setting(
+        None,
+        kind="number",
+        gt=0,
+        le=1000,
+        unit="m",
+        doc="microphone range of a plain lobe table; with a capture file it must agree with its header",
+        fix="give the range of the measurement in metres",
+    )
+    temperature_c: float | None = setting(
+        None,
+        kind="number",
+        ge=-40,
+        le=60,
+        unit="degC",
+        doc="air temperature: required for a plain table; with capture files it replaces the temperature they record (the report says so)",
+        fix="give the air temperature in degrees Celsius",
+    )
+    lobe_sigma_db: float | None = setting(
+        None,
+        kind="number",
+        gt=0,
+        le=20,
+        unit="dB",
+        doc="1-sigma of the lobe levels: required for a plain table; with a capture file, a floor on the sigma from the burst-to-burst sd (default 0.05 dB)",
+        fix="give the uncertainty of the levels in dB, e.g. 0.5 for a digitised datasheet",
+    )
+
+
+@dataclass(frozen=True)
+class ModelSection(Section):
+    """The transducer model: a line of source cells with weight and lag profiles and an active
+    diameter (docs/fitting.md, "How it works")."""
+
+    SECTION: ClassVar[str] = "model"
+    model: str = setting(
+        "line",
+        kind="str",
+        choices=("line", "disc"),
+        unavailable={"disc": "the axisymmetric disc model comes in a later version"},
+        doc="model family: line (a 2-D line of cells); disc (axisymmetric circular transducer) is planned",
+        fix='use model = "line"',
+    )
+    line_length_m: float = setting(
+        kind="number",
+        gt=0,
+        le=10,
+        unit="m",
+        doc="length of the modelled line of source cells (>= the largest diameter to try)",
+        fix="give the length of the transducer face plus a margin, e.g. 0.04",
+    )
+    diameter_m: float | None = setting(
+        None,
+        kind="number",
+        gt=0,
+        unit="m",
+        doc="active diameter: the fixed value when fit_diameter = false, else the initial value (default: a scan over 0.5-0.98 x line_length_m)",
+        fix="give the active diameter in metres, <= line_length_m",
+    )
+    cells_per_wavelength: float = setting(
+        20.0,
+        kind="number",
+        ge=4,
+        le=200,
+        unit="cells/λ",
+        doc="lattice resolution of the transfer simulation (a fit should use >= 8)",
+        fix="use 20 (the default); below 4 the lattice cannot carry the wave",
+        warn=(
+            (
+                lambda v: v < MIN_FIT_CELLS_PER_WAVELENGTH,
+                "= {value} cells per wavelength is coarse for a fit: the transfer's phase error biases the "
+                f"fitted parameters; use >= {MIN_FIT_CELLS_PER_WAVELENGTH:g} (20 is the default)",
+            ),
+        ),
+    )
+    weights: str = setting(
+        "smooth",
+        kind="str",
+        choices=PROFILES,
+        doc="weight profile across the face",
+        fix="choose one of the profile families",
+    )
+    lags: str = setting(
+        "smooth",
+        kind="str",
+        choices=PROFILES,
+        doc="lag profile across the face",
+        fix="choose one of the profile families",
+    )
+    n_basis: int = setting(
+        4, kind="int", ge=1, le=16, doc="number of smooth basis functions (Chebyshev) per profile", fix="use 2-6"
+    )
+    symmetric: bool = setting(True, kind="bool", doc="smooth profiles use even polynomials only (a symmetric aperture)")
+    fit_diameter: bool = setting(True, kind="bool", doc="fit the active diameter")
+    lobe_range_m: float | None = setting(
+        None,
+        kind="number",
+        gt=0,
+        le=1e6,
+        unit="m",
+        doc="range at which the lobe is modelled (default: the data's range; e.g. 1000 for data that are a Fraunhofer pattern)",
+        fix="give a range in metres, > 0",
+    )
+
+
+@dataclass(frozen=True)
+class SolverSection(Section):
+    """How the least-squares problem is solved (optimistix) and how the residuals are weighted."""
+
+    SECTION: ClassVar[str] = "solver"
+    name: str = setting(
+        "levenberg_marquardt",
+        kind="str",
+        choices=SOLVERS,
+        doc="optimistix solver",
+        fix="levenberg_marquardt is the robust default",
+    )
+    max_steps: int = setting(200, kind="int", ge=1, le=100_000, doc="iteration limit per stage", fix="use e.g. 200")
+    rtol: float = setting(1e-7, kind="number", gt=0, lt=1, doc="relative tolerance of the optimistix solver")
+    atol: float = setting(1e-7, kind="number", gt=0, doc="absolute tolerance of the optimistix solver")
+    rtol_cost: float = setting(
+        1e-6,
+        kind="number",
+        gt=0,
+        lt=1,
+        doc="convergence: relative change of the cost over the last accepted steps below which the fit has converged",
+    )
+    rtol_step: float = setting(
+        0.05,
+        kind="number",
+        gt=0,
+        le=100,
+        unit="SE",
+        doc="convergence: the last step, in the parameters' standard errors, below which the fit has converged",
+    )
+    loss: str = setting(
+        "l2",
+        kind="str",
+        choices=LOSSES,
+        doc="residual loss: l2 (least squares), huber or cauchy (robust against outliers)",
+    )
+    loss_scale: float = setting(
+        3.0,
+        kind="number",
+        gt=0,
+        le=100,
+        unit="sigma",
+        doc="scale of the robust loss in units of each point's 1-sigma: residuals beyond it count less",
+    )
+    floor_db: float = setting(
+        40.0,
+        kind="number",
+        gt=0,
+        le=200,
+        unit="dB",
+        doc="lobe residual floor below the measured peak (deep nulls count as the floor)",
+        fix="use a few dB less than the data's dynamic range, e.g. 40",
+    )
+    lobe_weight: float = setting(1.0, kind="number", ge=0, le=1e6, doc="weight of the lobe residuals")
+    wave_weight: float = setting(1.0, kind="number", ge=0, le=1e6, doc="weight of the wavefront residuals")
+    wave_sigma_deg: float = setting(
+        1.0,
+        kind="number",
+        ge=0.001,
+        le=90,
+        unit="deg",
+        doc="1-sigma of the measured phase, used as given (the rig reports phases in mdeg)",
+        fix="give the phase noise of the mean of the bursts, e.g. 0.3 deg / sqrt(n_avg)",
+    )
+
+
+@dataclass(frozen=True)
+class UncertaintySection(Section):
+    """The systematic part of the error budget: a refit at a second resolution (discretisation
+    error) and refits with other model families (model inadequacy)."""
+
+    SECTION: ClassVar[str] = "uncertainty"
+    second_cells_per_wavelength: float | None = setting(
+        None,
+        kind="number",
+        ge=4,
+        le=200,
+        unit="cells/λ",
+        doc="resolution of the refit that measures the discretisation error (default: the fit's choice)",
+        fix="give a resolution different from [model] cells_per_wavelength, e.g. 1.5 x",
+    )
+    model_families: tuple = setting(
+        [],
+        kind="list",
+        items="str",
+        choices=PROFILES,
+        doc="profile families (weights and lags) refitted to measure the model-inadequacy spread",
+        fix='list profile families, e.g. ["smooth", "symmetric"]',
+    )
+
+
+@dataclass(frozen=True)
+class OutputSection(Section):
+    """Where the report goes."""
+
+    SECTION: ClassVar[str] = "output"
+    dir: str = setting("out/fit", kind="str", doc="report directory, relative to the working directory")
+    field_image: bool = setting(True, kind="bool", doc="simulate and render the fitted transducer's field")
+
+
+SECTIONS = (DataSection, ModelSection, SolverSection, UncertaintySection, OutputSection)
+
+
+@dataclass(frozen=True)
+class FitConfig:
+    """A checked fit configuration: the sections of the file and the file itself (`path`, None
+    for a config built in Python; data paths are relative to its folder, else to the working
+    directory). Cross-checks between keys run on construction."""
+
+    data: DataSection
+    model: ModelSection
+    solver: SolverSection = field(default_factory=SolverSection)
+    uncertainty: UncertaintySection = field(default_factory=UncertaintySection)
+    output: OutputSection = field(default_factory=OutputSection)
+    path: Path | None = None
+
+    @property
+    def base(self) -> Path:
+        """The folder data paths are relative to."""
+        return self.path.resolve().parent if self.path is not None else Path.cwd()
+
+    def error(self, key: str, problem: str) -> ConfigError:
+        """A one-line `ConfigError` about `[key]` of this config's file."""
+        return ConfigError(message(self.path, key, None, problem))
+
+    def __post_init__(self) -> None:
+        d, m, s, u = self.data, self.model, self.solver, self.uncertainty
+        if d.lobe is None and d.wave is None:
+            raise self.error(
+                "data", 'nothing to fit: give lobe = "...", wave = "..." or both (paths relative to the config file)'
+            )
+        if m.diameter_m is not None:
+            if m.diameter_m > m.line_length_m or (m.fit_diameter and m.diameter_m >= m.line_length_m):
+                rel = "<" if m.fit_diameter else "<="
+                raise self.error(
+                    "model.diameter_m",
+                    f"= {show(m.diameter_m)} m must be {rel} line_length_m = "
+                    f"{show(m.line_length_m)} m (the active aperture lies on the modelled line); fix: "
+                    "lengthen line_length_m or correct diameter_m",
+                )
+        if d.lobe_mask_deg and d.lobe is None:
+            raise self.error(
+                "data.lobe_mask_deg", 'is given but there is no lobe file; fix: remove it or give lobe = "..."'
+            )
+        if d.wave_mask_m and d.wave is None:
+            raise self.error(
+                "data.wave_mask_m", 'is given but there is no wave file; fix: remove it or give wave = "..."'
+            )
+        weighted = (d.lobe is not None and s.lobe_weight > 0) or (d.wave is not None and s.wave_weight > 0)
+        if not weighted:
+            raise self.error(
+                "solver",
+                f"nothing to fit: lobe_weight = {show(s.lobe_weight)}, wave_weight = "
+                f"{show(s.wave_weight)} leave no given data with a positive weight; fix: give the data a weight > 0",
+            )
+        if u.second_cells_per_wavelength is not None and u.second_cells_per_wavelength == m.cells_per_wavelength:
+            raise self.error(
+                "uncertainty.second_cells_per_wavelength",
+                f"= {show(u.second_cells_per_wavelength)} equals [model] cells_per_wavelength: the refit "
+                "would measure nothing; fix: give another resolution, e.g. 1.5 x",
+            )
+
+
+def load_config(path: str | Path) -> FitConfig:
+    """Read and check a fit config file (TOML). Raises `ConfigError` (one line) for anything that
+    cannot be used; issues `ConfigWarning` for legal but unwise values."""
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text())
+        text = path.read_text()
     except OSError as e:
-        raise ConfigError(f"{path}: cannot read the fit config ({e.strerror})") from None
+        raise ConfigError(f"{path}: cannot read the fit config ({e.strerror}); fix: check the path") from None
+    except UnicodeDecodeError:
+        raise ConfigError(f"{path}: not a text file; a fit config is TOML") from None
+    try:
+        raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as e:
-        raise ConfigError(f"{path}: not valid TOML: {e}") from None
-    for k in data:
-        if k not in SCHEMA:
-            raise ConfigError(f"{path}: [{k}] unknown section; allowed: {', '.join(SCHEMA)}")
-    cfg = {s: validate_table(path, SCHEMA[s], data.get(s, {}), s) for s in SCHEMA}
-    if not cfg["data"]["lobe"] and not cfg["data"]["wave"]:
-        raise ConfigError(f"{path}: [data] give a lobe file, a wave file or both")
-    cfg["_path"] = str(path)
-    cfg["_base"] = path.resolve().parent
-    return cfg
+        raise ConfigError(f"{path}: not valid TOML: {' '.join(str(e).split())}") from None
+    return config_from_dict(raw, path=path)
+
+
+def config_from_dict(raw: dict[str, Any], *, path: str | Path | None = None) -> FitConfig:
+    """Check a parsed config (as `tomllib` returns it) into a `FitConfig`."""
+    path = None if path is None else Path(path)
+    names = {c.SECTION: c for c in SECTIONS}
+    for k in raw:
+        if k not in names:
+            raise ConfigError(message(path, k, None, f"unknown section; allowed: {', '.join(names)}"))
+    for required in ("data", "model"):
+        if required not in raw:
+            what = "the data files (lobe, wave)" if required == "data" else "at least line_length_m"
+            raise ConfigError(message(path, required, None, f"section is required: give [{required}] with {what}"))
+    sections = {k: parse_section(c, raw.get(k), file=path) for k, c in names.items()}
+    return FitConfig(**sections, path=path)
+
+
+# --------------------------------------------------------------------------------------------
+# Data
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class FitData:
+    """The data a config names, loaded and checked: lobe and wave (or None), the files read, and
+    notes on what was done with them (incomplete captures, masks, overrides) for the report."""
+
+    lobe: Any
+    wave: Any
+    paths: tuple[Path, ...]
+    notes: tuple[str, ...]
+    frequency_hz: float
+    temperature_c: float
+
+
+def _resolve(cfg: FitConfig, key: str, value: str | None) -> Path:
+    assert value is not None
+    p = Path(value).expanduser()
+    p = p if p.is_absolute() else cfg.base / p
+    if not p.is_file():
+        where = "not a file" if p.exists() else "not found"
+        raise cfg.error(key, f"= {show(value)}: {where} ({p}); fix: paths are relative to the config file's folder")
+    return p
+
+
+def _capture(cfg: FitConfig, key: str, value: str | None, p: Path, notes: list[str]):
+    from ..capture.errors import CaptureFileError
+    from ..capture.files import describe_seqs, load_capture
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # incompleteness is reported below, once
+            cap = load_capture(p, allow_incomplete=True)
+    except CaptureFileError as e:
+        raise cfg.error(key, f"= {show(value)} cannot be used: {e}") from None
+    kind = key.split(".")[1]
+    if cap.kind != kind:
+        other = "wave" if kind == "lobe" else "lobe"
+        raise cfg.error(
+            key,
+            f"= {show(value)} is a {cap.kind} capture (its header says kind: {cap.kind}); "
+            f"fix: give it as {other} = {show(value)}",
+        )
+    n, total = len(cap.seq), cap.metadata["n_points"]
+    if n == 0:
+        raise cfg.error(
+            key,
+            f"= {show(value)} holds no points (0 of {total}); fix: capture the scan (re-run the "
+            "capture command to continue it)",
+        )
+    if not cap.complete:
+        notes.append(
+            f"{p.name}: incomplete capture, fitted the {n} of {total} points present "
+            f"(seq {describe_seqs(cap.missing)} missing); re-run the capture command to complete it"
+        )
+    return cap
+
+
+def _check_agrees(
+    cfg: FitConfig, key: str, given: float | None, actual: float, what: str, tol: float, unit: str
+) -> None:
+    if given is not None and abs(given - actual) > tol:
+        raise cfg.error(
+            key,
+            f"= {show(given)} {unit} but {what} says {actual:g} {unit}; fix: correct it or leave it "
+            "out (capture files carry their own)",
+        )
+
+
+def _lobe_data(cfg: FitConfig, notes: list[str]):
+    from ..capture.errors import CaptureFileError
+    from ..capture.files import is_capture_file, load_lobe_table
+    from .data import lobe_from_capture, lobe_from_table
+
+    d = cfg.data
+    p = _resolve(cfg, "data.lobe", d.lobe)
+    try:
+        capture = is_capture_file(p)
+    except CaptureFileError as e:
+        raise cfg.error("data.lobe", f"= {show(d.lobe)} cannot be read: {e}") from None
+    if capture:
+        cap = _capture(cfg, "data.lobe", d.lobe, p, notes)
+        _check_agrees(cfg, "data.frequency_hz", d.frequency_hz, cap.metadata["freq_hz"], p.name, 0.5, "Hz")
+        _check_agrees(
+            cfg, "data.range_m", d.range_m, cap.metadata["range_m"], p.name, 1e-6 + 1e-3 * cap.metadata["range_m"], "m"
+        )
+        if len(cap.seq) < 3:
+            raise cfg.error("data.lobe", f"= {show(d.lobe)} holds only {len(cap.seq)} points; a fit needs >= 3")
+        return lobe_from_capture(cap, min_sigma_db=d.lobe_sigma_db or 0.05), p, True
+    try:
+        table = load_lobe_table(p)
+    except CaptureFileError as e:
+        raise cfg.error(
+            "data.lobe", f"= {show(d.lobe)} is neither a capture file nor a plain angle_deg, level_db table: {e}"
+        ) from None
+    for k, what in (
+        ("frequency_hz", "the drive frequency in Hz"),
+        ("range_m", "the measurement range in m"),
+        ("temperature_c", "the air temperature in degC"),
+        ("lobe_sigma_db", "the 1-sigma of the levels in dB"),
+    ):
+        if getattr(d, k) is None:
+            raise cfg.error(f"data.{k}", f"is required: {p.name} is a plain table without metadata; fix: give {what}")
+    assert d.frequency_hz is not None and d.range_m is not None  # checked just above
+    assert d.temperature_c is not None and d.lobe_sigma_db is not None
+    notes.append(
+        f"{p.name}: plain lobe table ({len(table.angle_deg)} points), with frequency {d.frequency_hz:g} Hz, "
+        f"range {d.range_m:g} m, {d.temperature_c:g} degC and sigma {d.lobe_sigma_db:g} dB from the config"
+    )
+    return (
+        lobe_from_table(
+            table,
+            frequency_hz=d.frequency_hz,
+            range_m=d.range_m,
+            temperature_c=d.temperature_c,
+            sigma_db=d.lobe_sigma_db,
+        ),
+        p,
+        False,
+    )
+
+
+def _wave_data(cfg: FitConfig, notes: list[str]):
+    from ..capture.errors import CaptureFileError
+    from ..capture.files import is_capture_file
+    from .data import wave_from_capture
+
+    d = cfg.data
+    p = _resolve(cfg, "data.wave", d.wave)
+    try:
+        capture = is_capture_file(p)
+    except CaptureFileError as e:
+        raise cfg.error("data.wave", f"= {show(d.wave)} cannot be read: {e}") from None
+    if not capture:
+        raise cfg.error(
+            "data.wave",
+            f"= {show(d.wave)} is not a capture file (first line '# format: "
+            "difflattice-capture/1'); wavefront data must come from `difflattice capture wave`",
+        )
+    cap = _capture(cfg, "data.wave", d.wave, p, notes)
+    _check_agrees(cfg, "data.frequency_hz", d.frequency_hz, cap.metadata["freq_hz"], p.name, 0.5, "Hz")
+    if len(cap.seq) < 3:
+        raise cfg.error("data.wave", f"= {show(d.wave)} holds only {len(cap.seq)} points; a fit needs >= 3")
+    return wave_from_capture(cap, sigma_deg=cfg.solver.wave_sigma_deg), p
+
+
+def load_fit_data(cfg: FitConfig) -> FitData:
+    """Load and check the data `cfg` names. Raises `ConfigError` naming the key for a missing or
+    unreadable file, a wave capture given as lobe (or the reverse), a plain table without the
+    metadata it needs, disagreeing frequencies or ranges, no points, or a mask that leaves fewer
+    than 3; issues `ConfigWarning` for a mask that excludes nothing, a floor below the data's
+    dynamic range and a one-sided scan fitted with an asymmetric model."""
+    from .data import mask_counts, mask_lobe, mask_wave
+
+    d = cfg.data
+    notes: list[str] = []
+    paths: list[Path] = []
+    lobe = wave = None
+    if d.lobe is not None:
+        lobe, p, is_capture = _lobe_data(cfg, notes)
+        paths.append(p)
+        if d.lobe_mask_deg:
+            n_out = mask_counts(lobe.angle_deg, d.lobe_mask_deg)
+            left = len(lobe.angle_deg) - n_out
+            if left < 3:
+                raise cfg.error(
+                    "data.lobe_mask_deg",
+                    f"= {show(d.lobe_mask_deg)} leaves {left} of "
+                    f"{len(lobe.angle_deg)} lobe points; a fit needs >= 3; fix: narrow the ranges",
+                )
+            if n_out == 0:
+                warnings.warn(
+                    message(
+                        cfg.path,
+                        "data.lobe_mask_deg",
+                        None,
+                        f"= {show(d.lobe_mask_deg)} excludes no "
+                        f"point of {p.name} (angles {lobe.angle_deg.min():g}..{lobe.angle_deg.max():g} deg)",
+                    ),
+                    ConfigWarning,
+                    stacklevel=2,
+                )
+            lobe = mask_lobe(lobe, d.lobe_mask_deg)
+            notes.append(f"{p.name}: lobe_mask_deg {show(d.lobe_mask_deg)} left out {n_out} points")
+        if d.temperature_c is not None and is_capture:
+            notes.append(
+                f"{p.name}: temperature {d.temperature_c:g} degC from the config replaces the "
+                f"capture's {lobe.temperature_c:.2f} degC"
+            )
+            lobe = dataclasses.replace(lobe, temperature_c=d.temperature_c)
+    if d.wave is not None:
+        wave, p = _wave_data(cfg, notes)
+        paths.append(p)
+        if d.wave_mask_m:
+            n_out = mask_counts(wave.x_m, d.wave_mask_m)
+            left = len(wave.x_m) - n_out
+            if left < 3:
+                raise cfg.error(
+                    "data.wave_mask_m",
+                    f"= {show(d.wave_mask_m)} leaves {left} of {len(wave.x_m)} "
+                    "wavefront points; a fit needs >= 3; fix: narrow the ranges",
+                )
+            if n_out == 0:
+                warnings.warn(
+                    message(
+                        cfg.path,
+                        "data.wave_mask_m",
+                        None,
+                        f"= {show(d.wave_mask_m)} excludes no "
+                        f"point of {p.name} (x {wave.x_m.min():g}..{wave.x_m.max():g} m)",
+                    ),
+                    ConfigWarning,
+                    stacklevel=2,
+                )
+            wave = mask_wave(wave, d.wave_mask_m)
+            notes.append(f"{p.name}: wave_mask_m {show(d.wave_mask_m)} left out {n_out} points")
+        if d.temperature_c is not None:
+            notes.append(
+                f"{p.name}: temperature {d.temperature_c:g} degC from the config replaces the "
+                f"capture's {wave.temperature_c:.2f} degC"
+            )
+            wave = dataclasses.replace(wave, temperature_c=d.temperature_c)
+    freqs = sorted({x.frequency_hz for x in (lobe, wave) if x is not None})
+    if len(freqs) > 1:
+        raise cfg.error(
+            "data",
+            f"the lobe and wave files were captured at different frequencies {freqs} Hz; "
+            "fix: fit data of one drive frequency",
+        )
+    temps = [x.temperature_c for x in (lobe, wave) if x is not None]
+    _unwise_data_warnings(cfg, lobe, wave)
+    return FitData(
+        lobe=lobe,
+        wave=wave,
+        paths=tuple(paths),
+        notes=tuple(notes),
+        frequency_hz=freqs[0],
+        temperature_c=float(np.mean(temps)),
+    )
+
+
+def _symmetric_model(m: ModelSection) -> bool:
+    return all(p in ("uniform", "symmetric") or (p == "smooth" and m.symmetric) for p in (m.weights, m.lags))
+
+
+def _unwise_data_warnings(cfg: FitConfig, lobe, wave) -> None:
+    from .data import floor_limited_level_db, one_sided
+
+    if lobe is not None:
+        bottom = floor_limited_level_db(lobe)
+        span = None if bottom is None else float(np.max(lobe.level_db)) - bottom
+        if span is not None and cfg.solver.floor_db > span:
+            warnings.warn(
+                message(
+                    cfg.path,
+                    "solver.floor_db",
+                    None,
+                    f"= {show(cfg.solver.floor_db)} dB reaches below the data's dynamic range ({span:.1f} dB "
+                    "from the peak to the noise floor or clipped bottom of the lobe data): the nulls "
+                    f"there are fitted at face value; use floor_db <= {max(span - 3, 1):.0f}",
+                ),
+                ConfigWarning,
+                stacklevel=3,
+            )
+    sides = [
+        v
+        for v in ((lobe.angle_deg if lobe is not None else None), (wave.x_m if wave is not None else None))
+        if v is not None
+    ]
+    if sides and all(one_sided(v) for v in sides) and not _symmetric_model(cfg.model):
+        warnings.warn(
+            message(
+                cfg.path,
+                "model",
+                None,
+                "the data cover one side of the axis only, but the model is not symmetric (weights = "
+                f"{show(cfg.model.weights)}, lags = {show(cfg.model.lags)}, symmetric = "
+                f"{show(cfg.model.symmetric)}): its other half is not determined; use symmetric profiles",
+            ),
+            ConfigWarning,
+            stacklevel=3,
+        )
+
+
+# --------------------------------------------------------------------------------------------
+# Running
+# --------------------------------------------------------------------------------------------
 
 
 def _sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-def provenance(config_path: Path | None, data_paths: list[Path]) -> dict:
+def provenance(config_path: Path | None, data_paths: list[Path] | tuple[Path, ...]) -> dict:
+    """Package versions, git commit, machine, device and SHA-256 of the config and data files."""
     import equinox
     import jax
     import optimistix
@@ -88,14 +695,23 @@ def provenance(config_path: Path | None, data_paths: list[Path]) -> dict:
     from .. import __version__
 
     try:
-        commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5,
-                                cwd=Path(__file__).parent).stdout.strip() or None
+        commit = (
+            subprocess.run(
+                ["git", "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5, cwd=Path(__file__).parent
+            ).stdout.strip()
+            or None
+        )
     except (OSError, subprocess.SubprocessError):
         commit = None
     return {
         "difflattice": __version__,
-        "versions": {"python": sys.version.split()[0], "jax": jax.__version__, "equinox": equinox.__version__,
-                     "optimistix": optimistix.__version__, "numpy": np.__version__},
+        "versions": {
+            "python": sys.version.split()[0],
+            "jax": jax.__version__,
+            "equinox": equinox.__version__,
+            "optimistix": optimistix.__version__,
+            "numpy": np.__version__,
+        },
         "git_commit": commit,
         "machine": platform.machine(),
         "device": str(jax.devices()[0]),
@@ -105,67 +721,185 @@ def provenance(config_path: Path | None, data_paths: list[Path]) -> dict:
     }
 
 
-def run_fit(cfg: dict, *, out: str | Path | None = None, quick: bool = False, verbose: bool = True) -> dict:
-    """Run a validated config; returns the report dict (also written to the output dir)."""
+def fit_options(cfg: FitConfig):
+    """The solver's `FitOptions` for `cfg`. The robust-loss and convergence keys are passed on
+    where this version's `FitOptions` accepts them; a non-default value it does not accept gives
+    a `ConfigWarning`."""
+    from .solve import FitOptions
+
+    s = cfg.solver
+    kw: dict[str, Any] = dict(
+        solver=s.name,
+        rtol=s.rtol,
+        atol=s.atol,
+        max_steps=s.max_steps,
+        floor_db=s.floor_db,
+        lobe_weight=s.lobe_weight,
+        wave_weight=s.wave_weight,
+    )
+    accepted = {f.name for f in dataclasses.fields(FitOptions)}
+    newer = {"loss": s.loss, "loss_scale": s.loss_scale, "rtol_cost": s.rtol_cost, "rtol_step": s.rtol_step}
+    defaults = {sp.name: sp.default for sp in specs(SolverSection)}
+    for k, v in newer.items():
+        if k in accepted:
+            kw[k] = v
+        elif v != defaults[k]:
+            warnings.warn(
+                message(
+                    cfg.path, f"solver.{k}", None, f"= {show(v)} is ignored: this version's solver does not support it"
+                ),
+                ConfigWarning,
+                stacklevel=2,
+            )
+    try:
+        return FitOptions(**kw)
+    except ValueError as e:
+        raise cfg.error("solver", str(e)) from None
+
+
+def _warn_unused_uncertainty(cfg: FitConfig) -> None:
+    """[uncertainty] is declared for the error budget (`fit.uncertainty`); where this version has
+    no such module, a key that is set is said to be unused rather than silently ignored."""
+    import importlib.util
+
+    u = cfg.uncertainty
+    given = {
+        k: v
+        for k, v in (
+            ("second_cells_per_wavelength", u.second_cells_per_wavelength),
+            ("model_families", u.model_families),
+        )
+        if v not in (None, ())
+    }
+    if given and importlib.util.find_spec("difflattice.fit.uncertainty") is None:
+        for k, v in given.items():
+            warnings.warn(
+                message(
+                    cfg.path,
+                    f"uncertainty.{k}",
+                    None,
+                    f"= {show(v)} is not used: this version has no uncertainty budget (fit.uncertainty)",
+                ),
+                ConfigWarning,
+                stacklevel=3,
+            )
+
+
+def run_fit(cfg: FitConfig, *, out: str | Path | None = None, quick: bool = False, verbose: bool = True) -> dict:
+    """Run a checked config; returns the report dict (also written to the output dir).
+
+    Data problems are `ConfigError`s naming the key (see `load_fit_data`). Uses the JAX precision
+    the caller set (float64 expected; see the module docstring)."""
     import jax
 
-    jax.config.update("jax_enable_x64", True)
-    from ..capture.files import load_capture
-    from .data import lobe_from_capture, wave_from_capture
+    if not jax.config.read("jax_enable_x64"):
+        warnings.warn(
+            "run_fit: JAX runs in float32 (jax_enable_x64 is off); fits expect float64: call "
+            "jax.config.update('jax_enable_x64', True) at start-up",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+    from ..air import speed_of_sound_m_s
     from .model import ModelSpec
     from .report import write_report
-    from .solve import FitOptions, fit
+    from .solve import fit
     from .transfer import free_field_transfer
 
-    base = cfg["_base"]
-    paths = []
-    lobe = wave = None
-    if cfg["data"]["lobe"]:
-        p = base / cfg["data"]["lobe"]
-        paths.append(p)
-        lobe = lobe_from_capture(load_capture(p))
-    if cfg["data"]["wave"]:
-        p = base / cfg["data"]["wave"]
-        paths.append(p)
-        wave = wave_from_capture(load_capture(p), sigma_deg=cfg["solver"]["wave_sigma_deg"])
-    freqs = {d.frequency_hz for d in (lobe, wave) if d is not None}
-    if len(freqs) > 1:
-        raise ConfigError(f"{cfg['_path']}: [data] the files were captured at different frequencies {sorted(freqs)} Hz")
-    f = freqs.pop()
-    temps = [d.temperature_c for d in (lobe, wave) if d is not None]
-    t_c = float(np.mean(temps))
-    c = 331.3 * math.sqrt(1 + t_c / 273.15)
-    m = cfg["model"]
-    ppw = 12.0 if quick else m["cells_per_wavelength"]
+    data = load_fit_data(cfg)
+    lobe, wave, f = data.lobe, data.wave, data.frequency_hz
+    c = speed_of_sound_m_s(data.temperature_c)
+    m = cfg.model
+    ppw = 12.0 if quick else m.cells_per_wavelength
     dx = c / (f * ppw)
-    n_cells = int(round(m["line_length_m"] / dx))
+    n_cells = int(round(m.line_length_m / dx))
+    if n_cells < 3:
+        raise cfg.error(
+            "model.line_length_m",
+            f"= {show(m.line_length_m)} m is {n_cells} cells at {ppw:g} cells per "
+            f"wavelength ({dx * 1e3:.2f} mm); the line needs >= 3 cells; fix: give the face length in metres",
+        )
+    opts = fit_options(cfg)
+    _warn_unused_uncertainty(cfg)
     t0 = time.perf_counter()
     transfer = free_field_transfer(
-        frequency_hz=f, c_m_s=c, n_cells=n_cells, cells_per_wavelength=ppw,
-        lobe_angle_deg=None if lobe is None else lobe.angle_deg, lobe_range_m=None if lobe is None else (m["lobe_range_m"] or lobe.range_m),
-        wave_x_m=None if wave is None else wave.x_m, wave_z_m=None if wave is None else wave.z_m,
+        frequency_hz=f,
+        c_m_s=c,
+        n_cells=n_cells,
+        cells_per_wavelength=ppw,
+        lobe_angle_deg=None if lobe is None else lobe.angle_deg,
+        lobe_range_m=None if lobe is None else (m.lobe_range_m or lobe.range_m),
+        wave_x_m=None if wave is None else wave.x_m,
+        wave_z_m=None if wave is None else wave.z_m,
     )
     t_transfer = time.perf_counter() - t0
-    s = cfg["solver"]
     try:
-        spec = ModelSpec(n_cells=n_cells, dx_m=dx, frequency_hz=f, weights=m["weights"], lags=m["lags"], n_basis=m["n_basis"],
-                         symmetric=m["symmetric"], fit_diameter=m["fit_diameter"], diameter_m=m["diameter_m"])
-        opts = FitOptions(solver=s["name"], rtol=s["rtol"], atol=s["atol"], max_steps=s["max_steps"], floor_db=s["floor_db"],
-                          lobe_weight=s["lobe_weight"], wave_weight=s["wave_weight"])
+        spec = ModelSpec(
+            n_cells=n_cells,
+            dx_m=dx,
+            frequency_hz=f,
+            weights=cast(Any, m.weights),  # checked against PROFILES by the declaration
+            lags=cast(Any, m.lags),
+            n_basis=m.n_basis,
+            symmetric=m.symmetric,
+            fit_diameter=m.fit_diameter,
+            diameter_m=m.diameter_m,
+        )
     except ValueError as e:
-        raise ConfigError(f"{cfg['_path']}: {e}") from None
-    fitted = fit(spec, transfer, lobe, wave, opts, progress=verbose)
-    uspec = ModelSpec(n_cells=n_cells, dx_m=dx, frequency_hz=f, weights="uniform", lags="uniform", fit_diameter=False,
-                      diameter_m=m["diameter_m"] or m["line_length_m"])
+        raise cfg.error("model", str(e)) from None
+    # a given diameter is the start of a fitted one (no scan over diameters)
+    params0 = spec.init_params() if (m.fit_diameter and m.diameter_m is not None) else None
+    fitted = fit(spec, transfer, lobe, wave, opts, progress=verbose, params0=params0)
+    fitted.warnings[:0] = [f"data: {n}" for n in data.notes]
+    uspec = ModelSpec(
+        n_cells=n_cells,
+        dx_m=dx,
+        frequency_hz=f,
+        weights="uniform",
+        lags="uniform",
+        fit_diameter=False,
+        diameter_m=m.diameter_m or m.line_length_m,
+    )
     uniform = fit(uspec, transfer, lobe, wave, opts)
-    prov = provenance(Path(cfg["_path"]) if cfg.get("_path") and Path(cfg["_path"]).exists() else None, paths)
-    prov["timing_s"] = {"transfer_simulation": t_transfer, "fit": fitted.wall_time_s, "total_to_fit": t_transfer + fitted.wall_time_s}
+    # error budget (fit.uncertainty): refits at a second resolution and with other model families
+    from .uncertainty import error_budget
+
+    def make_transfer(cpw: float):
+        dx2 = c / (f * cpw)
+        return free_field_transfer(
+            frequency_hz=f, c_m_s=c, n_cells=int(round(m.line_length_m / dx2)), cells_per_wavelength=cpw,
+            lobe_angle_deg=None if lobe is None else lobe.angle_deg,
+            lobe_range_m=None if lobe is None else (m.lobe_range_m or lobe.range_m),
+            wave_x_m=None if wave is None else wave.x_m, wave_z_m=None if wave is None else wave.z_m,
+        )
+
+    t1 = time.perf_counter()
+    budget = error_budget(fitted, transfer, lobe, wave, opts, make_transfer=make_transfer,
+                          second_cells_per_wavelength=None if quick else cfg.uncertainty.second_cells_per_wavelength,
+                          model_families=list(cfg.uncertainty.model_families) or None, progress=verbose)
+    t_budget = time.perf_counter() - t1
+    prov = provenance(cfg.path if cfg.path is not None and cfg.path.exists() else None, data.paths)
+    prov["timing_s"] = {
+        "transfer_simulation": t_transfer,
+        "fit": fitted.wall_time_s,
+        "total_to_fit": t_transfer + fitted.wall_time_s,
+        "error_budget": t_budget,
+    }
     prov["quick"] = quick
-    prov["temperature_c"] = t_c
+    prov["temperature_c"] = data.temperature_c
     prov["speed_of_sound_m_s"] = c
-    out_dir = Path(out) if out is not None else Path(cfg["output"]["dir"])
-    rep = write_report(out_dir, fitted, uniform, transfer, lobe, wave, provenance=prov,
-                       field_image=cfg["output"]["field_image"] and not quick)
+    prov["data_notes"] = list(data.notes)
+    out_dir = Path(out) if out is not None else Path(cfg.output.dir)
+    rep = write_report(
+        out_dir,
+        fitted,
+        uniform,
+        transfer,
+        lobe,
+        wave,
+        provenance=prov,
+        field_image=cfg.output.field_image and not quick,
+        budget=budget,
+    )
     if verbose:
         _print_summary(rep, out_dir)
     return rep
@@ -178,18 +912,35 @@ def _print_summary(rep: dict, out_dir: Path) -> None:
     for w in f["warnings"]:
         print(f"warning: {w}")
     p = f["parameters"]
-    rms = ", ".join(f"{k} {v:.3g}" for k, v in f["rms"].items() if "normalised" not in k and "all_points" not in k)
+    units = {"lobe_db": "dB", "wave_phase_deg": "deg"}
+    rms = ", ".join(
+        f"{k} {v:.3g} {units.get(k, '')}".rstrip()
+        for k, v in f["rms"].items()
+        if "normalised" not in k and "all_points" not in k
+    )
     t = rep["provenance"]["timing_s"]
-    print(f"fit: {f['result_code']} in {f['n_steps']} steps; D = {p['diameter_m'] * 1e3:.2f} ± {p['diameter_stderr_m'] * 1e3:.2f} mm; "
-          f"RMS {rms}; chi2_red {f['chi2_reduced']:.3g}; transfer {t['transfer_simulation']:.1f} s + fit {t['fit']:.1f} s")
+    d = next((e for e in rep.get("budget", {}).get("scalars", []) if e["name"] == "diameter_mm"), None)
+    dtxt = (f"{p['diameter_m'] * 1e3:.3f} ± {p['diameter_stderr_m'] * 1e3:.3f} (stat)" if d is None else
+            f"{d['limit']} ({d['status']})" if d["status"] == "at_bound" else
+            f"{d['value']:.3f} ± {d['stat']:.3f} (stat) ± {d['systematic']:.3f} (sys) = ± {d['total']:.3f}")
+    print(
+        f"fit: {f['result_code']} in {f['n_steps']} steps; D = {dtxt} mm; RMS {rms}; chi2_red {f['chi2_reduced']:.3g}; "
+        f"transfer {t['transfer_simulation']:.1f} s + fit {t['fit']:.1f} s + error budget {t.get('error_budget', 0):.1f} s"
+    )
+    for u in rep.get("budget", {}).get("undetermined", []):
+        print(f"not determined by the data: {u}")
     print(f"report: {out_dir / 'report.md'}")
 
 
 def run_fit_config(path: str | Path, *, out=None, quick: bool = False) -> int:
+    """`difflattice fit`: load, run, report; exit code 0 (converged) or 3 (did not converge)."""
     cfg = load_config(path)
     rep = run_fit(cfg, out=out, quick=quick)
     return 0 if rep["fit"]["converged"] else 3
 
 
 def config_markdown() -> str:
-    return schema_markdown(SCHEMA)
+    """The fit config's key tables (docs/fitting.md), generated from the declarations above."""
+    from ..config import markdown_tables
+
+    return markdown_tables(SECTIONS)

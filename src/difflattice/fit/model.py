@@ -27,6 +27,8 @@ import numpy as np
 
 Profile = Literal["uniform", "free", "symmetric", "smooth"]
 PROFILES = ("uniform", "free", "symmetric", "smooth")
+
+
 @dataclass(frozen=True)
 class ModelSpec:
     """Static description of a transducer model (what is fitted, how)."""
@@ -66,6 +68,13 @@ class ModelSpec:
     @property
     def period_s(self) -> float:
         return 1.0 / self.frequency_hz
+
+    @property
+    def reference_cells(self) -> tuple[int, ...]:
+        """The cell(s) profiles are referred to (relative weights and lags): the centre cell, or
+        the two central cells of an even line."""
+        n = self.n_cells
+        return (n // 2,) if n % 2 else (n // 2 - 1, n // 2)
 
     # -- basis ------------------------------------------------------------------------
     def _basis(self, first: int = 0) -> np.ndarray:
@@ -140,6 +149,104 @@ class ModelSpec:
         """Complex cell amplitudes a_k = w_k exp(i omega tau_k) (exp(-i omega t) convention)."""
         ph = self.physical(params)
         return ph["weights"] * jnp.exp(1j * 2 * math.pi * self.frequency_hz * ph["lags_s"])
+
+    # -- structure of the parameterisation (for error budgets, warm starts, labels) ------
+    def expansion(self, profile: str) -> np.ndarray:
+        """(n_cells, n_params) matrix E of the linear map from a profile's raw parameters to its
+        per-cell raw values (log weight, or artanh(2 lag / T)); (n_cells, 0) for "uniform"."""
+        n = self._n_params(profile, pinned=True)
+        if n == 0:
+            return np.zeros((self.n_cells, 0))
+        return np.asarray(jax.jacfwd(lambda p: self._expand(profile, p, pinned=True))(jnp.zeros(n)))
+
+    def raw_labels(self, params: dict) -> list[str]:
+        """Names of the raw parameters in `jax.flatten_util.ravel_pytree(params)` order: smooth
+        profile coefficients as `w.T2` (Chebyshev degree), per-cell ones as `w[k]` (free) or
+        `w[k|n-1-k]` (symmetric: one value for a mirror pair), `diameter.logit`, `gain_db`,
+        `phase0_rad`."""
+        out: list[str] = []
+        for key in sorted(params):
+            if key in ("w", "lag"):
+                profile = self.weights if key == "w" else self.lags
+                n = self.n_cells
+                if profile == "smooth":
+                    step = 2 if self.symmetric else 1
+                    out += [f"{key}.T{step * (i + 1)}" for i in range(self.n_basis)]
+                elif profile == "free":
+                    c = n // 2
+                    out += [f"{key}[{k}]" for k in range(n) if k != c]
+                else:
+                    out += [f"{key}[{k}|{n - 1 - k}]" for k in range(self._n_params(profile, pinned=True))]
+            else:
+                out.append({"diam": "diameter.logit", "gain_db": "gain_db", "phase0": "phase0_rad"}.get(key, key))
+        return out
+
+    def bounds(self) -> dict:
+        """Physical bounds the parameterisation imposes, for error budgets: `diameter_mm` in
+        (0, line length), `lag_us` in (-T/2, T/2) (a lag is defined modulo the period)."""
+        half_us = 0.5 * self.period_s * 1e6
+        return {"diameter_mm": (0.0, self.d_max_m * 1e3), "lag_us": (-half_us, half_us)}
+
+    def params_from_profiles(self, log_weights, lag_args, diameter_m: float | None, template: dict) -> dict:
+        """Raw parameters of this model closest (least squares) to per-cell raw values: `log_weights`
+        (log w_k) and `lag_args` (artanh(2 tau_k / T)) at this model's cells, and the active
+        `diameter_m`. Keys follow `template` (e.g. another fit's parameters, for a warm start across
+        resolutions or model families); offsets (gain, phase0) are copied and re-set by the fit."""
+        out = {}
+        for key, profile, v in (("w", self.weights, log_weights), ("lag", self.lags, lag_args)):
+            n = self._n_params(profile, pinned=True)
+            if n:
+                E = self.expansion(profile)
+                v = np.asarray(v, float)
+                pinned = ~np.any(E != 0, axis=1)  # cells held at 0 (the centre of free/symmetric)
+                if pinned.any():
+                    v = v - v[pinned].mean()
+                out[key] = jnp.asarray(np.linalg.lstsq(E, v, rcond=None)[0])
+        if self.fit_diameter:
+            frac = min(max((diameter_m or 0.97 * self.d_max_m) / self.d_max_m, 1e-3), 1 - 1e-3)
+            out["diam"] = jnp.asarray(math.log(frac / (1 - frac)))
+        for key in ("gain_db", "phase0"):
+            if key in template:
+                out[key] = jnp.asarray(template[key])
+        return out
+
+    def symmetries(self) -> dict:
+        """Candidate symmetries of the data: maps of the raw parameters that leave some observable
+        unchanged, named. `time reversal` (every lag -> -lag, phase offset negated: conjugates every
+        cell amplitude, which mirrors the far-field |lobe| in angle) and `mirror` (y -> -y across
+        the face, which mirrors it too), and both together (leaves the far-field |lobe| exactly
+        unchanged). Whether the DATA are symmetric under one is not decided here: the error budget
+        (`fit.uncertainty`) refits from the mapped parameters and compares the costs. Maps that
+        change nothing for this model (mirror of a symmetric profile) are left out."""
+
+        def per_cell(key, profile, p, sign, flip):
+            E = self.expansion(profile)
+            v = E @ np.asarray(p, float)
+            v = sign * (v[::-1] if flip else v)
+            return jnp.asarray(np.linalg.lstsq(E, v, rcond=None)[0])
+
+        def make(flip: bool, reverse: bool):
+            def g(params: dict) -> dict:
+                q = dict(params)
+                if "w" in q and flip:
+                    q["w"] = per_cell("w", self.weights, q["w"], 1.0, True)
+                if "lag" in q:
+                    q["lag"] = per_cell("lag", self.lags, q["lag"], -1.0 if reverse else 1.0, flip)
+                if "phase0" in q and reverse:
+                    q["phase0"] = -jnp.asarray(q["phase0"])
+                return q
+
+            return g
+
+        mirror_changes = any(p == "free" or (p == "smooth" and not self.symmetric) for p in (self.weights, self.lags))
+        out = {}
+        if self.lags != "uniform":
+            out["time reversal"] = make(False, True)
+        if mirror_changes:
+            out["mirror"] = make(True, False)
+            if self.lags != "uniform":
+                out["mirror and time reversal"] = make(True, True)
+        return out
 
 
 def soft_floor_db(level_db, floor_db):

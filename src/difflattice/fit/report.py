@@ -1,4 +1,13 @@
-"""Fit reports: JSON (machine-readable), PNG figures and a Markdown page."""
+"""Fit reports: JSON (machine-readable), PNG figures and a Markdown page.
+
+report.json: the fit summary (convergence, chi2, RMS, outliers, every parameter with its standard
+error), the error budget (`fit.uncertainty`), the model curves at the measured points (lobe dB
+against angle, wavefront phase against x, for the fitted and the untuned uniform model), beam
+metrics of each curve (null angles, side-lobe levels, -3/-6 dB widths), the per-cell aperture
+with its uncertainty, correlations of the fitted parameters and the convergence trace.
+report.md: the same for a reader, every fitted parameter with statistical, systematic and total
+uncertainty, and the figures.
+"""
 
 from __future__ import annotations
 
@@ -8,21 +17,77 @@ from pathlib import Path
 
 import numpy as np
 
+from ..observe.observables import lobe_metrics
 from .data import LobeData, WaveData
 from .solve import FitResult
 from .transfer import Transfer
 
+NULL_PROMINENCE_DB = 3.0
+"""A local minimum of a lobe is a null when it lies this far below the maxima on both sides."""
+
+
+def beam_metrics(angle_deg, level_db) -> dict:
+    """Beam metrics of a lobe (dB, any reference): peak angle, -3 and -6 dB full widths (deg),
+    every null (local minimum at least `NULL_PROMINENCE_DB` below the maxima on both sides; angle
+    and depth re peak) and every side lobe (the maximum between two nulls, or between a null and
+    the scan's end; angle and level re peak), with the highest side lobe."""
+    a = np.asarray(angle_deg, float)
+    lv = np.asarray(level_db, float)
+    lv = lv - lv.max()
+    base = lobe_metrics(a, lv)
+    out = {
+        "peak_angle_deg": base["peak_angle_deg"],
+        "width_3db_deg": base["width_3db_deg"],
+        "width_6db_deg": base["width_6db_deg"],
+    }
+    i0 = int(np.argmax(lv))
+    mins = [i for i in range(1, len(lv) - 1) if lv[i] < lv[i - 1] and lv[i] <= lv[i + 1]]
+    nulls = []
+    for i in mins:  # prominence against the nearest maxima on each side
+        if min(_nearest_max(lv, i, -1), _nearest_max(lv, i, +1)) - lv[i] >= NULL_PROMINENCE_DB:
+            nulls.append(i)
+    out["nulls"] = [{"angle_deg": float(a[i]), "level_db": float(lv[i])} for i in nulls]
+    out["null_angles_deg"] = [float(a[i]) for i in nulls]
+    bounds = sorted(set([0, *nulls, len(lv) - 1]))
+    lobes = []
+    for lo, hi in zip(bounds[:-1], bounds[1:]):
+        if lo <= i0 <= hi:
+            continue  # the main lobe
+        j = lo + int(np.argmax(lv[lo : hi + 1]))
+        if j in nulls:
+            continue
+        lobes.append({"angle_deg": float(a[j]), "level_db": float(lv[j])})
+    out["side_lobes"] = lobes
+    out["highest_side_lobe_db"] = max((s["level_db"] for s in lobes), default=None)
+    return out
+
+
+def _nearest_max(lv: np.ndarray, i: int, step: int) -> float:
+    """The level of the first local maximum (or the end) walking from i in direction `step`."""
+    j = i
+    while 0 <= j + step < len(lv) and lv[j + step] >= lv[j]:
+        j += step
+    return float(lv[j])
+
 
 def _summary(r: FitResult) -> dict:
     ph = r.physical
+    labels = r.correlation_labels
     return {
         "converged": r.converged,
         "result_code": r.result_code,
+        "convergence": r.convergence,
         "n_steps": r.n_steps,
         "wall_time_s": r.wall_time_s,
+        "compile_s": r.trace.compile_s if r.trace is not None else None,
         "cost": r.cost,
         "chi2_reduced": r.chi2_reduced,
+        "variance_factor": r.variance_factor,
+        "effective_params": r.effective_params,
+        "dof": r.dof,
+        "loss": r.loss,
         "rms": r.rms,
+        "outliers": r.outliers,
         "condition_number": r.condition_number,
         "rank_deficient": r.rank_deficient,
         "warnings": r.warnings,
@@ -35,17 +100,101 @@ def _summary(r: FitResult) -> dict:
             "weights_stderr": [r.stderr[f"w[{k}]"] for k in range(len(ph["weights"]))],
             "lags_s": ph["lags_s"].tolist(),
             "lags_stderr_s": [r.stderr[f"lag_us[{k}]"] * 1e-6 for k in range(len(ph["lags_s"]))],
+            "note": "stderr: statistical, inflated by max(variance_factor, 1); the full budget is in 'budget'",
         },
+        "fitted_parameters": {lab: float(v) for lab, v in zip(labels, _flat(r.params))},
         "correlation": {
-            "labels": r.correlation_labels,
+            "labels": labels,
             "matrix": np.round(np.nan_to_num(r.correlation), 4).tolist(),
-            "note": "from the Jacobian at the solution; |r| near 1 marks parameters the data cannot separate",
+            "strongest": _top_correlations(r, 5),
+            "note": "of the fitted (raw) parameters, from the Jacobian at the solution; |r| near 1 marks "
+            "parameters the data cannot separate",
         },
         "model": {
-            "n_cells": r.spec.n_cells, "dx_m": r.spec.dx_m, "weights": r.spec.weights, "lags": r.spec.lags,
-            "n_basis": r.spec.n_basis, "symmetric": r.spec.symmetric, "fit_diameter": r.spec.fit_diameter,
+            "n_cells": r.spec.n_cells,
+            "dx_m": r.spec.dx_m,
+            "weights": r.spec.weights,
+            "lags": r.spec.lags,
+            "n_basis": r.spec.n_basis,
+            "symmetric": r.spec.symmetric,
+            "fit_diameter": r.spec.fit_diameter,
         },
     }
+
+
+def _flat(params: dict) -> np.ndarray:
+    from jax.flatten_util import ravel_pytree
+
+    return np.asarray(ravel_pytree(params)[0])
+
+
+def aperture_arrays(fitted: FitResult, budget) -> dict:
+    """Per cell (every cell of the line): position, weight and lag relative to the centre cell,
+    their total uncertainties (NaN where not determined) and, where a symmetry leaves them
+    undetermined, the other solution's lags."""
+    spec = fitted.spec
+    n = spec.n_cells
+    by = {e.name: e for e in budget.all()}
+    out = {"y_m": spec.y_m.tolist()}
+    for prefix, key, scale in (("w[", "weights_re_centre", 1.0), ("lag_us[", "lags_re_centre_s", 1e-6)):
+        vals: list[float] = []
+        errs: list[float] = []
+        alts: list[float] = []
+        complete = True
+        for k in range(n):
+            e = by.get(f"{prefix}{k}]") or by.get(f"{prefix}{n - 1 - k}]")
+            if e is None:
+                complete = False
+                break
+            vals.append(e.value * scale)
+            ok = e.status in ("determined", "reference", "at_bound")
+            errs.append(e.total * scale if ok else float("nan"))
+            alts.append(e.alternatives[0] * scale if e.alternatives else e.value * scale)
+        if complete:
+            out[key] = vals
+            out[key.replace("_re_centre", "_total")] = errs
+            if any(a != v for a, v in zip(alts, vals)):
+                out[key.replace("_re_centre", "_alternative")] = alts
+    return out
+
+
+def aperture_figure(ap: dict, *, truth: dict | None = None, title: str = "fitted aperture"):
+    """The aperture plot from `aperture_arrays` (weights and lags relative to the centre cell with a
+    band of ± total uncertainty); `truth` ({"y_m", "weights", "lags_s"}, any normalisation) is
+    normalised the same way and overlaid."""
+    from .. import plots
+
+    y = np.asarray(ap["y_m"])
+    w = np.asarray(ap.get("weights_re_centre", np.ones_like(y)))
+    lag = np.asarray(ap.get("lags_re_centre_s", np.zeros_like(y)))
+    ws, ls, labels = [w], [lag], ["fitted"]
+    if "lags_alternative" in ap:
+        ws.append(w)
+        ls.append(np.asarray(ap["lags_alternative"]))
+        labels.append("equally good (other symmetry)")
+    t = None
+    if truth is not None:
+        ty = np.asarray(truth["y_m"], float)
+        t = {"y_m": ty}
+        if truth.get("weights") is not None:
+            tw = np.asarray(truth["weights"], float)
+            t["weights"] = tw / np.interp(0.0, ty, tw)
+        if truth.get("lags_s") is not None:
+            tl = np.asarray(truth["lags_s"], float)
+            t["lags_s"] = tl - np.interp(0.0, ty, tl)
+    we = ap.get("weights_total")
+    le = ap.get("lags_total")
+    return plots.aperture_plot(
+        y,
+        ws,
+        ls,
+        labels=labels,
+        title=title,
+        truth=t,
+        weight_label="weight re centre cell",
+        weight_err=None if we is None else np.asarray(we, float),
+        lag_err_s=None if le is None else np.asarray(le, float),
+    )
 
 
 def write_report(
@@ -58,71 +207,152 @@ def write_report(
     *,
     provenance: dict,
     field_image: bool = True,
+    budget=None,
+    truth: dict | None = None,
 ) -> dict:
-    """Write report.json, report.md and figures into `out_dir`; returns the report dict."""
+    """Write report.json, report.md and figures into `out_dir`; returns the report dict.
+    `budget`: the `fit.uncertainty.ErrorBudget` (without one, the statistical part alone is
+    reported and the report says the systematic parts were not measured). `truth` ({"y_m",
+    "weights", "lags_s"}): overlaid on the aperture plot (emulated data)."""
     from .. import plots
+    from .uncertainty import error_budget
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    rep = {"fit": _summary(fitted), "provenance": provenance, "transfer": transfer.info}
+    if budget is None:
+        budget = error_budget(fitted, transfer, lobe, wave, make_transfer=None, model_families=[], symmetries=False)
+        budget.notes.append(
+            "systematic parts not measured: this report was written without an error budget "
+            "(fit.uncertainty.error_budget); the totals are statistical (chi2-inflated) only"
+        )
+    rep = {"fit": _summary(fitted), "budget": budget.to_dict(), "provenance": provenance, "transfer": transfer.info}
     if uniform is not None:
-        rep["untuned_uniform_model"] = {"rms": uniform.rms, "chi2_reduced": uniform.chi2_reduced, "converged": uniform.converged}
-    rep["trace"] = [{"t_s": t, "cost": c, "stage": st} for t, c, st in fitted.trace]
+        rep["untuned_uniform_model"] = {
+            "rms": uniform.rms,
+            "chi2_reduced": uniform.chi2_reduced,
+            "converged": uniform.converged,
+        }
+    rep["trace"] = fitted.trace.to_dict() if fitted.trace is not None else {}
+    curves, beam = _model_curves(fitted, uniform, lobe, wave)
+    rep["model_curves"] = curves
+    rep["beam"] = beam
+    ap = aperture_arrays(fitted, budget)
+    rep["aperture"] = ap
     figs = {}
     if lobe is not None:
         ref = float(np.max(lobe.level_db))
-        curves = {"measured": (lobe.level_db - ref, "o"), "fitted model": fitted.model_curves["lobe_db"] - ref}
+        lc = {"measured": (lobe.level_db - ref, "o"), "fitted model": fitted.model_curves["lobe_db"] - ref}
         if uniform is not None:
-            curves["uniform model"] = (uniform.model_curves["lobe_db"] - ref, "--")
-        figs["lobe"] = plots.save(plots.lobe_plots(lobe.angle_deg, curves, title=f"lobe at {lobe.range_m:g} m"), out / "lobe.png")
+            lc["uniform model"] = (uniform.model_curves["lobe_db"] - ref, "--")
+        figs["lobe"] = plots.save(
+            plots.lobe_plots(lobe.angle_deg, lc, title=f"lobe at {lobe.range_m:g} m"), out / "lobe.png"
+        )
     if wave is not None:
         to_us = 1e6 / (2 * math.pi * wave.frequency_hz)
         centre = int(np.argmin(np.abs(wave.x_m)))
 
-        def arrival(phase):  # rig phase falls with delay: arrival = -unwrapped phase / omega
+        def arrival(phase):  # the models' phase falls with delay: arrival = -unwrapped phase / omega
             u = -np.unwrap(np.asarray(phase))
             return (u - u[centre]) * to_us
 
-        curves = {"measured": (arrival(wave.phase_rad), "o"), "fitted model": arrival(fitted.model_curves["wave_phase_rad"])}
+        wc = {
+            "measured": (arrival(wave.phase_rad), "o"),
+            "fitted model": arrival(fitted.model_curves["wave_phase_rad"]),
+        }
         if uniform is not None:
-            curves["uniform model"] = (arrival(uniform.model_curves["wave_phase_rad"]), "--")
+            wc["uniform model"] = (arrival(uniform.model_curves["wave_phase_rad"]), "--")
         figs["wavefront"] = plots.save(
-            plots.wavefront_plot(wave.x_m, curves, ylabel="arrival re centre (µs, from phase)",
-                                 title=f"near-field wavefront at z = {wave.z_m * 1e3:.1f} mm"), out / "wavefront.png")
-    ph = fitted.physical
-    y = fitted.spec.y_m
-    figs["aperture"] = plots.save(plots.aperture_plot(y, [ph["weights"]], [ph["lags_s"]], labels=["fitted"],
-                                                      title=f"fitted aperture: D = {float(ph['diameter_m']) * 1e3:.2f} mm"), out / "aperture.png")
-    figs["convergence"] = plots.save(_trace_plot(fitted.trace), out / "convergence.png")
+            plots.wavefront_plot(
+                wave.x_m,
+                wc,
+                ylabel="arrival re centre (µs, from phase)",
+                title=f"near-field wavefront at z = {wave.z_m * 1e3:.1f} mm",
+            ),
+            out / "wavefront.png",
+        )
+    d = budget.get("diameter_mm") if any(e.name == "diameter_mm" for e in budget.scalars) else None
+    dtxt = (
+        f"D = {d.text(4)} mm" if d is not None else f"D = {float(fitted.physical['diameter_m']) * 1e3:.2f} mm (fixed)"
+    )
+    figs["aperture"] = plots.save(
+        aperture_figure(ap, truth=truth, title=f"fitted aperture: {dtxt}"), out / "aperture.png"
+    )
+    if fitted.trace is not None:
+        figs["convergence"] = plots.save(trace_figure(fitted.trace), out / "convergence.png")
     if field_image:
         figs["field"] = _field_figure(fitted, transfer, out / "field.png")
     rep["figures"] = {k: str(v) for k, v in figs.items()}
     (out / "report.json").write_text(json.dumps(rep, indent=2, default=_default))
-    (out / "report.md").write_text(_markdown(rep, fitted, uniform))
+    (out / "report.md").write_text(_markdown(rep, fitted, uniform, budget))
     return rep
 
 
-def _trace_plot(trace):
-    """Cost against wall time and evaluation, per stage (1: diameter and offsets; 2: all, floored
-    sigmas; 3: all, measured sigmas; costs of different stages are on different scales)."""
-    import matplotlib.pyplot as plt
+def _model_curves(fitted: FitResult, uniform: FitResult | None, lobe, wave) -> tuple[dict, dict]:
+    curves: dict = {}
+    beam: dict = {}
+    if lobe is not None:
+        c = {
+            "angle_deg": lobe.angle_deg.tolist(),
+            "measured_db": lobe.level_db.tolist(),
+            "sigma_db": lobe.sigma_db.tolist(),
+            "model_db": np.asarray(fitted.model_curves["lobe_db"]).tolist(),
+            "range_m": lobe.range_m,
+        }
+        beam["measured"] = beam_metrics(lobe.angle_deg, lobe.level_db)
+        beam["fitted model"] = beam_metrics(lobe.angle_deg, fitted.model_curves["lobe_db"])
+        if uniform is not None:
+            c["uniform_model_db"] = np.asarray(uniform.model_curves["lobe_db"]).tolist()
+            beam["uniform model"] = beam_metrics(lobe.angle_deg, uniform.model_curves["lobe_db"])
+        curves["lobe"] = c
+    if wave is not None:
+        c = {
+            "x_m": wave.x_m.tolist(),
+            "z_m": wave.z_m,
+            "measured_phase_deg": np.degrees(wave.phase_rad).tolist(),
+            "sigma_deg": np.degrees(wave.sigma_rad).tolist(),
+            "model_phase_deg": np.degrees(fitted.model_curves["wave_phase_rad"]).tolist(),
+            "convention": "phase = -arg p with exp(-i omega t) (the models'); the rig's lag is -phase mod 360 deg",
+        }
+        if uniform is not None:
+            c["uniform_model_phase_deg"] = np.degrees(uniform.model_curves["wave_phase_rad"]).tolist()
+        curves["wavefront"] = c
+    return curves, beam
 
-    fig, (a1, a2) = plt.subplots(1, 2, figsize=(10, 3.5))
-    if trace:
-        t, c, st = (np.array(v) for v in zip(*trace))
-        k = np.arange(1, len(c) + 1)
-        for s in np.unique(st):
-            m = st == s
-            best = np.minimum.accumulate(c[m])
-            a1.semilogy(t[m], best, "-o", ms=3, label=f"stage {s}")
-            a2.semilogy(k[m], c[m], ".", ms=3)
-            a2.semilogy(k[m], best, "-", label=f"stage {s} best so far")
-        a1.legend()
-        a2.legend(fontsize=7)
-    a1.set_xlabel("wall time (s)")
+
+def trace_figure(trace):
+    """Cost against solver iteration, one colour per stage, stage boundaries marked and named;
+    and cost against solve time with compilation excluded (it is stated in the title). The
+    stages' costs are on different scales (stages 1-2 floor the sigmas), so each is drawn on its
+    own and the boundaries are where the cost jumps."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(11, 4.2))
+    a1, a2 = fig.subplots(1, 2)
+    it = trace.iteration
+    for s in trace.stages:
+        m = trace.stage == s["stage"]
+        if not m.any():
+            continue
+        best = np.minimum.accumulate(trace.cost[m])
+        (line,) = a1.semilogy(it[m], best, "-", label=f"stage {s['stage']}: {s['name']}")
+        rej = m & ~trace.accepted
+        a1.semilogy(it[rej], trace.cost[rej], "x", ms=3, color=line.get_color(), alpha=0.5)
+        a1.axvline(s["first_iteration"] - 0.5, color="0.6", lw=0.8, ls=":")
+        a1.text(s["first_iteration"], best[0], f" {s['stage']}", fontsize=8, va="bottom", color=line.get_color())
+        a2.semilogy(trace.solve_s[m], best, "-", color=line.get_color())
+    a1.set_xlabel("solver iteration (x: trial step rejected; dotted: stage boundaries)")
     a1.set_ylabel("cost (half sum of squared residuals)")
-    a2.set_xlabel("residual evaluation")
-    fig.suptitle("convergence")
+    a1.legend(fontsize=7, loc="lower left")
+    a1.grid(True, alpha=0.3, which="both")
+    a2.set_xlabel("solve time (s), compilation excluded")
+    a2.set_ylabel("cost")
+    a2.grid(True, alpha=0.3, which="both")
+    n_conv = [s for s in trace.stages if s["stage"] == max(t["stage"] for t in trace.stages)]
+    verdict = n_conv[0]["result_code"] if n_conv else ""
+    fig.suptitle(
+        f"convergence: {len(it)} iterations, final stage {verdict}; compilation {trace.compile_s:.1f} s (not shown)",
+        fontsize=10,
+    )
     fig.tight_layout()
     return fig
 
@@ -133,63 +363,137 @@ def _field_figure(fitted: FitResult, transfer: Transfer, path: Path):
 
     from .. import plots
     from ..lattice.grid import make_grid
-    from ..lattice.coefficients import Edges
     from ..lattice.medium import Medium
-    from ..solver.sensors import Sensors
     from ..solver.loop import simulate
+    from ..solver.sensors import Sensors
     from ..solver.sources import ToneBurst, line_transducer
 
     g0 = transfer.grid
     n = fitted.spec.n_cells
     nx, ny = int(5.5 * n), int(3.5 * n)
-    grid = make_grid(frequency_hz=g0.frequency_hz, cells_per_wavelength=g0.cells_per_wavelength,
-                     c_max_m_s=g0.c_max_m_s, shape=(nx, ny), dtype="float32")
+    grid = make_grid(
+        frequency_hz=g0.frequency_hz,
+        cells_per_wavelength=g0.cells_per_wavelength,
+        c_max_m_s=g0.c_max_m_s,
+        shape=(nx, ny),
+        dtype="float32",
+    )
     ph = fitted.physical
-    src = line_transducer(grid, (30 * grid.dx_m, ny / 2 * grid.dx_m), n_cells=n, signal=ToneBurst(g0.frequency_hz, 8),
-                          weights=jnp.asarray(ph["weights"], jnp.float32), lags_s=jnp.asarray(ph["lags_s"], jnp.float32))
+    src = line_transducer(
+        grid,
+        (30 * grid.dx_m, ny / 2 * grid.dx_m),
+        n_cells=n,
+        signal=ToneBurst(g0.frequency_hz, 8),
+        weights=jnp.asarray(ph["weights"], jnp.float32),
+        lags_s=jnp.asarray(ph["lags_s"], jnp.float32),
+    )
     steps = int((nx - 60) / grid.courant)
     res = simulate(grid, Medium(g0.c_max_m_s, 1.2), src, Sensors(), n_steps=steps)
-    fig = plots.field_image(res.final.pressure, grid.dx_m, step=steps, dt_s=grid.dt_s, sources=[src.cells_array],
-                            title="fitted transducer (8-cycle burst)")
+    fig = plots.field_image(
+        res.final.pressure,
+        grid.dx_m,
+        step=steps,
+        dt_s=grid.dt_s,
+        sources=[src.cells_array],
+        title="fitted transducer (8-cycle burst)",
+    )
     return plots.save(fig, path)
 
 
-def _markdown(rep: dict, fitted: FitResult, uniform: FitResult | None) -> str:
+def _fmt(x, f=".3g") -> str:
+    return "—" if x is None or (isinstance(x, float) and not math.isfinite(x)) else format(x, f)
+
+
+def _markdown(rep: dict, fitted: FitResult, uniform: FitResult | None, budget) -> str:
     f = rep["fit"]
-    p = f["parameters"]
+    m = f["model"]
     lines = ["# Fit report", ""]
     if not f["converged"]:
-        lines += ["> **WARNING: THE FIT DID NOT CONVERGE** (`" + f["result_code"] + "`). The numbers below are the last iterate.", ""]
+        lines += [
+            "> **WARNING: THE FIT DID NOT CONVERGE** (`"
+            + f["result_code"]
+            + "`): "
+            + f["convergence"]["reason"]
+            + ". The numbers below are the last iterate, not an optimum.",
+            "",
+        ]
     for w in f["warnings"]:
         lines += [f"> {w}", ""]
+    prof = lambda p: (
+        f"{p} (n_basis {m['n_basis']}, {'even' if m['symmetric'] else 'all'} degrees)" if p == "smooth" else p
+    )  # noqa: E731
+    c = f["convergence"]
+    stages = ", ".join(f"stage {s['stage']} {s['result_code']} in {s['n_steps']}" for s in c["stages"])
     lines += [
-        f"- solver result: `{f['result_code']}` after {f['n_steps']} steps, {f['wall_time_s']:.2f} s",
-        f"- reduced chi-square: {f['chi2_reduced']:.3g} (1 = residuals at the noise level)",
-        f"- active diameter: {p['diameter_m'] * 1e3:.3f} ± {p['diameter_stderr_m'] * 1e3:.3f} mm",
+        f"- model: {m['n_cells']} cells of {m['dx_m'] * 1e3:.3f} mm; weights {prof(m['weights'])}; lags {prof(m['lags'])}; "
+        f"diameter {'fitted' if m['fit_diameter'] else 'fixed'}; loss {f['loss']}",
+        f"- convergence: **{'converged' if f['converged'] else 'NOT CONVERGED'}** — {c['reason']} ({stages} steps; "
+        f"{f['wall_time_s']:.2f} s, of which compilation {_fmt(f['compile_s'], '.2f')} s)",
+        f"- reduced chi-square (all data points): {f['chi2_reduced']:.3g}; variance factor of the errors: "
+        f"{f['variance_factor']:.3g} (1 = residuals at the stated noise); effective parameters {f['effective_params']:.1f}",
         f"- Jacobian condition number: {f['condition_number']:.3g}",
-        f"- strongest correlations: {_top_correlations(fitted)}",
-        "",
-        "| observable | fitted model RMS | untuned uniform model RMS |",
-        "|---|---|---|",
+        "- strongest correlations of the fitted parameters: "
+        + (", ".join(f"{a}/{b} {v:+.2f}" for a, b, v in f["correlation"]["strongest"]) or "n/a"),
     ]
+    for name, o in f["outliers"].items():
+        lines.append(
+            f"- {name} residuals: RMS {o['rms']:.3g} sigma, robust sigma (MAD) {o['robust_sigma']:.3g}; "
+            f"{o['n_outliers']} of {o['n']} points beyond 4 robust sigmas" + (" — **outliers**" if o["suspect"] else "")
+        )
+    lines += ["", "| observable | fitted model RMS | untuned uniform model RMS |", "|---|---|---|"]
     for k, v in f["rms"].items():
         u = uniform.rms.get(k) if uniform is not None else None
         lines.append(f"| {k} | {v:.4g} | {'' if u is None else f'{u:.4g}'} |")
+    lines += [""] + budget.markdown()
+    if rep.get("beam"):
+        lines += ["", "## Beam", "", "| metric | measured | fitted model | uniform model |", "|---|---|---|---|"]
+        b = rep["beam"]
+
+        def cell(src, key):
+            v = b.get(src, {}).get(key)
+            if isinstance(v, list):
+                return ", ".join(f"{x:+.1f}" for x in v) or "none"
+            return _fmt(v, ".4g")
+
+        for key, label in (
+            ("width_3db_deg", "-3 dB width (deg)"),
+            ("width_6db_deg", "-6 dB width (deg)"),
+            ("null_angles_deg", "null angles (deg)"),
+            ("highest_side_lobe_db", "highest side lobe (dB re peak)"),
+        ):
+            lines.append(
+                f"| {label} | {cell('measured', key)} | {cell('fitted model', key)} | {cell('uniform model', key)} |"
+            )
     lines += ["", "## Figures", ""]
+    captions = {
+        "convergence": "cost per solver iteration; stage 1 fits the diameter and offsets with uniform profiles, "
+        "stage 2 everything with the sigmas floored at 1 dB / 5 deg, stage 3 everything with the "
+        "measured sigmas (so the cost jumps at the boundaries); compilation time is excluded",
+        "aperture": "weights and lags relative to the centre cell; the band is ± the total uncertainty",
+        "lobe": "rings: level in dB re the measured peak",
+    }
     for k, v in rep["figures"].items():
         lines += [f"### {k}", f"![{k}]({Path(v).name})", ""]
+        if k in captions:
+            lines += [f"*{captions[k]}*", ""]
     prov = rep["provenance"]
     lines += ["## Provenance", "", "```json", json.dumps(prov, indent=2, default=_default), "```", ""]
     return "\n".join(lines)
 
 
-def _top_correlations(r: FitResult, k: int = 3) -> str:
-    c = np.nan_to_num(np.asarray(r.correlation))
+def _top_correlations(r: FitResult, k: int = 3) -> list:
+    """The k strongest correlations between the fitted (raw) parameters: distinct parameters
+    only (a symmetric profile's mirror cells are one raw parameter, so never listed as a pair)."""
+    c = np.asarray(r.correlation)
     labels = r.correlation_labels
-    pairs = [(abs(c[i, j]), labels[i], labels[j], c[i, j]) for i in range(len(labels)) for j in range(i + 1, len(labels))
-             if np.isfinite(c[i, j]) and r.stderr.get(labels[i], 0) > 0 and r.stderr.get(labels[j], 0) > 0]
-    pairs.sort(reverse=True)
-    return ", ".join(f"{a}/{b} {v:+.2f}" for _, a, b, v in pairs[:k]) or "n/a"
+    pairs = [
+        (abs(c[i, j]), labels[i], labels[j], float(c[i, j]))
+        for i in range(len(labels))
+        for j in range(i + 1, len(labels))
+        if np.isfinite(c[i, j])
+    ]
+    pairs.sort(key=lambda p: -p[0])
+    return [(a, b, v) for _, a, b, v in pairs[:k]]
 
 
 def _default(o):
@@ -197,6 +501,8 @@ def _default(o):
         o = np.asarray(o)
     if isinstance(o, (np.floating, np.integer)):
         return o.item()
+    if isinstance(o, np.bool_):
+        return bool(o)
     if isinstance(o, np.ndarray):
         return o.item() if o.ndim == 0 else o.tolist()
     return str(o)

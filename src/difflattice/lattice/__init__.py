@@ -4,11 +4,11 @@ Nothing here knows about time loops, sources or sensors (`difflattice.solver` bu
 """
 
 from .coefficients import PML, AxisymMetric, Edges, Lattice, RadialPML, build_lattice
-from .grid import MAX_COURANT, PAPER_COURANT, Grid, check_courant, make_grid, stability_limit
+from .grid import MAX_COURANT, MAX_COURANT_3D, PAPER_COURANT, Grid, check_courant, make_grid, stability_limit
 from .medium import MATERIALS, Material, Medium, air, homogeneous, material
 
 __all__ = [
-    "MATERIALS", "MAX_COURANT", "PAPER_COURANT", "PML", "AxisymMetric", "Edges", "Grid", "Lattice",
+    "MATERIALS", "MAX_COURANT", "MAX_COURANT_3D", "PAPER_COURANT", "PML", "AxisymMetric", "Edges", "Grid", "Lattice",
     "Material", "Medium", "RadialPML", "air", "build_lattice", "check_courant", "homogeneous", "make_grid",
     "material", "stability_limit",
 ]

@@ -24,6 +24,7 @@ sum V (dP/dt)^2 / K + ... is conserved (tests/core/test_axisym_stability.py).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Literal
 
@@ -45,6 +46,9 @@ class Edges(eqx.Module):
     "sponge" (graded damping), "rigid" (reflecting, R = +1) or "soft" (reflecting, R = -1); on an
     axisymmetric ("rz") grid the y_lo side is "axis" (r = 0; see `Edges.axisymmetric`).
 
+    `z_lo`, `z_hi` are the sides of a 3-D grid (None: "pml", the default of every side; a 2-D or
+    rz grid ignores them). Mur edges and the axis are not available on a 3-D grid.
+
     PML and sponge layers lie inside the grid, `thickness_cells` deep. PML cannot be mixed with
     Mur or sponge on other sides. `pml_order` and `pml_r0` shape the PML damping profile
     sigma(d) = sigma_max (d/L)^order with sigma_max = (order + 1) c ln(1/r0) / (2 L).
@@ -58,10 +62,14 @@ class Edges(eqx.Module):
     pml_order: float = eqx.field(static=True, default=4.0)
     pml_r0: float = eqx.field(static=True, default=1e-8)
     sponge_strength: float = eqx.field(static=True, default=0.2)
+    z_lo: EdgeKind | None = eqx.field(static=True, default=None)
+    z_hi: EdgeKind | None = eqx.field(static=True, default=None)
 
     def __check_init__(self):
-        for side in self.sides:
+        for side in self.sides + self.sides_z:
             kind = getattr(self, side)
+            if kind is None and side in self.sides_z:
+                continue
             if kind not in EDGE_KINDS:
                 raise ValueError(f"edge {side} = {kind!r}; allowed: {', '.join(EDGE_KINDS)}")
             if kind == "axis" and side != "y_lo":
@@ -69,7 +77,7 @@ class Edges(eqx.Module):
                     f"edge {side} = 'axis': the axis r = 0 of an rz grid is its y_lo side (axis 1 is r); "
                     "use Edges.axisymmetric(z_lo=..., z_hi=..., r_hi=...)"
                 )
-        absorbing = {getattr(self, s) for s in self.sides} & set(ABSORBING)
+        absorbing = self.kinds() & set(ABSORBING)
         if len(absorbing) > 1:
             raise ValueError(
                 f"edges mix absorbing kinds {sorted(absorbing)}: use one of pml, mur, sponge "
@@ -79,10 +87,30 @@ class Edges(eqx.Module):
             raise ValueError(f"thickness_cells = {self.thickness_cells} must be >= 1")
 
     sides = ("x_lo", "x_hi", "y_lo", "y_hi")
+    sides_z = ("z_lo", "z_hi")
 
     @classmethod
     def all(cls, kind: EdgeKind, **kwargs) -> "Edges":
-        return cls(x_lo=kind, x_hi=kind, y_lo=kind, y_hi=kind, **kwargs)
+        """The same `kind` on every side (the z sides too, used by a 3-D grid only)."""
+        return cls(x_lo=kind, x_hi=kind, y_lo=kind, y_hi=kind, z_lo=kind, z_hi=kind, **kwargs)
+
+    def sides_for(self, ndim: int) -> tuple[str, ...]:
+        """The sides of a grid of rank `ndim` (x_lo, x_hi, y_lo, y_hi[, z_lo, z_hi])."""
+        return self.sides if ndim == 2 else self.sides + self.sides_z
+
+    def for_rank(self, ndim: int) -> Edges:
+        """These edges for a grid of rank `ndim`: a plane or rz grid drops the z sides, a 3-D grid
+        fills unset ones with "pml" (and refuses Mur edges, which exist in 2-D only)."""
+        if ndim == 2:
+            if self.z_lo is None and self.z_hi is None:
+                return self
+            return dataclasses.replace(self, z_lo=None, z_hi=None)
+        out = self
+        if self.z_lo is None or self.z_hi is None:
+            out = dataclasses.replace(self, z_lo=self.z_lo or "pml", z_hi=self.z_hi or "pml")
+        if "mur" in out.kinds():
+            raise ValueError("Mur edges are implemented for 2-D grids only: use 'pml' (or 'sponge') on a 3-D grid")
+        return out
 
     @classmethod
     def axisymmetric(
@@ -93,7 +121,7 @@ class Edges(eqx.Module):
         return cls(x_lo=z_lo, x_hi=z_hi, y_lo="axis", y_hi=r_hi, **kwargs)
 
     def check_kind(self, kind: str) -> None:
-        """Refuse edges that do not fit a grid of `kind` ("2d" or "rz")."""
+        """Refuse edges that do not fit a grid of `kind` ("2d", "rz" or "3d")."""
         if kind == "rz" and self.y_lo != "axis":
             raise ValueError(
                 f"on an rz grid the y_lo side is the axis r = 0, got y_lo = {self.y_lo!r} (an absorbing "
@@ -101,10 +129,10 @@ class Edges(eqx.Module):
                 "r_hi=...) or Edges(..., y_lo='axis')"
             )
         if kind != "rz" and "axis" in self.kinds():
-            raise ValueError("edge 'axis' is only for rz grids (Grid.kind = 'rz'); a 2-D grid has none")
+            raise ValueError(f"edge 'axis' is only for rz grids (Grid.kind = 'rz'); a {kind} grid has none")
 
     def kinds(self) -> set[str]:
-        return {getattr(self, s) for s in self.sides}
+        return {getattr(self, s) for s in self.sides + self.sides_z if getattr(self, s) is not None}
 
     @property
     def uses_pml(self) -> bool:
@@ -151,7 +179,8 @@ class RadialPML(eqx.Module):
 
 class PML(eqx.Module):
     """Split-field PML update factors (decay a, gain b) per axis, for cells and faces; `radial`:
-    the cylindrical correction of an rz grid's r_hi layer (None otherwise)."""
+    the cylindrical correction of an rz grid's r_hi layer (None otherwise). On a 3-D grid the z
+    factors exist too and every array has rank 3 (broadcast along the other axes)."""
 
     ax_cell: Float[Array, "nx 1"]
     bx_cell: Float[Array, "nx 1"]
@@ -162,6 +191,15 @@ class PML(eqx.Module):
     ay_face: Float[Array, "1 ny1"]
     by_face: Float[Array, "1 ny1"]
     radial: RadialPML | None = None
+    az_cell: Float[Array, "1 1 nz"] | None = None
+    bz_cell: Float[Array, "1 1 nz"] | None = None
+    az_face: Float[Array, "1 1 nz1"] | None = None
+    bz_face: Float[Array, "1 1 nz1"] | None = None
+
+    def factors(self, axis: int, where: str):
+        """(a, b) of `axis` (0, 1, 2) at "cell" or "face"."""
+        key = "xyz"[axis]
+        return getattr(self, f"a{key}_{where}"), getattr(self, f"b{key}_{where}")
 
 
 class AxisymMetric(eqx.Module):
@@ -205,15 +243,23 @@ class Lattice(eqx.Module):
     pml: PML | None
     metric: AxisymMetric | None
     eta: float = eqx.field(static=True)
-    ghosts: tuple[str, str, str, str] = eqx.field(static=True)
-    mur: tuple[bool, bool, bool, bool] = eqx.field(static=True)
+    ghosts: tuple[str, ...] = eqx.field(static=True)
+    mur: tuple[bool, ...] = eqx.field(static=True)
+    bz: Float[Array, "nx ny nz1"] | None = None  # 3-D grids only
+
+    def conductance(self, axis: int):
+        """The face conductances along `axis` (None: unit conductance)."""
+        return (self.bx, self.by, self.bz)[axis]
+
+
+def _along(v, axis: int, sl: slice):
+    """v sliced by `sl` along `axis` (all of every other axis)."""
+    return v[(slice(None),) * axis + (sl,)]
 
 
 def _faces(v, axis: int, fn):
     """Interior face values fn(v_lo, v_hi) along `axis`, shape n-1 along that axis."""
-    lo = v[:-1] if axis == 0 else v[:, :-1]
-    hi = v[1:] if axis == 0 else v[:, 1:]
-    return fn(lo, hi)
+    return fn(_along(v, axis, slice(None, -1)), _along(v, axis, slice(1, None)))
 
 
 def _with_outer(interior, edge_lo, edge_hi, axis: int):
@@ -221,9 +267,7 @@ def _with_outer(interior, edge_lo, edge_hi, axis: int):
 
 
 def _edge(v, axis: int, hi: bool):
-    if axis == 0:
-        return v[-1:] if hi else v[:1]
-    return v[:, -1:] if hi else v[:, :1]
+    return _along(v, axis, slice(-1, None) if hi else slice(None, 1))
 
 
 def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
@@ -231,17 +275,22 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
 
     On an rz grid the material coefficients are those of the 2-D conservative model in the
     meridian plane and `metric` adds the ring volumes and radial face areas; obstacles are bodies
-    of revolution (their occupancy is the ring's volume fraction)."""
+    of revolution (their occupancy is the ring's volume fraction).
+
+    On a 3-D grid the conservative form is built in all three axes (a z face conductance `bz`),
+    with PML, sponge, rigid and soft edges; the paper's eq. 10 models are 2-D only."""
+    edges = edges.for_rank(grid.ndim)
     edges.check_kind(grid.kind)
-    if grid.kind == "rz" and medium.boundary_model != "conservative":
+    if grid.kind in ("rz", "3d") and medium.boundary_model != "conservative":
         raise ValueError(
-            f"boundary_model = {medium.boundary_model!r} is not available on an rz grid: only the "
-            "'conservative' (finite-volume) model has a ring-volume form; use "
-            "Medium(..., boundary_model='conservative')"
+            f"boundary_model = {medium.boundary_model!r} is not available on an {grid.kind} grid: only the "
+            "'conservative' (finite-volume) model has a ring-volume and a 3-D form; use "
+            "Medium(..., boundary_model='conservative') (rigid and soft obstacles as cut cells)"
         )
     dtype = grid.jnp_dtype
-    nx, ny = grid.shape
-    shape = (nx, ny)
+    shape = tuple(grid.shape)
+    ndim = len(shape)
+    ny = shape[1]
     c = jnp.asarray(grid.speed_to_lattice(medium.sound_speed_m_s), dtype)
     rho = jnp.asarray(medium.density_kg_m3, dtype)
     for name, arr in (("sound_speed_m_s", c), ("density_kg_m3", rho), ("rigid", medium.rigid), ("soft", medium.soft)):
@@ -261,7 +310,7 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
     homogeneous = jnp.ndim(c) == 0 and jnp.ndim(rho) == 0 and rigid is None and soft is None
 
     K = c**2
-    q_scale = bx = by = None
+    q_scale = bx = by = bz = None
     a = {"ax_lo": None, "ax_hi": None, "ay_lo": None, "ay_hi": None}
     keep = None
 
@@ -272,7 +321,7 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
         rf = jnp.broadcast_to(rho, shape)
         K = rf * cf**2
         faces = []
-        for axis in (0, 1):
+        for axis in range(ndim):
             b = _faces(rf, axis, lambda l, h: 2.0 / (l + h))
             b = _with_outer(b, 1.0 / _edge(rf, axis, False), 1.0 / _edge(rf, axis, True), axis)
             if rigid is not None:
@@ -286,7 +335,8 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
                 dbl = _faces(soft, axis, lambda l, h: 1 + (l >= 1).astype(l.dtype) + (h >= 1).astype(h.dtype))
                 b = b * _with_outer(dbl, jnp.ones_like(_edge(soft, axis, False)), jnp.ones_like(_edge(soft, axis, True)), axis)
             faces.append(b)
-        bx, by = faces
+        bx, by = faces[:2]
+        bz = faces[2] if ndim == 3 else None
         if rigid is not None:
             # Cut cells: a partly rigid cell (smooth rasterisation) holds the fluid fraction
             # phi = 1 - rigid, so its pressure responds to the net flux as K / phi; a face is open
@@ -333,35 +383,38 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
                 f"(viscous coefficient {eta:.3g} > 0.05 per step): refine the grid"
             )
 
-    ghosts = tuple(edges.ghost(s) for s in Edges.sides)
+    sides = edges.sides_for(ndim)
+    ghosts = tuple(edges.ghost(s) for s in sides)
     # A rigid (Neumann) window side is a closed outer face: fold it into the face conductances
     # (or the paper model's per-cell factors) so the step pads with zeros only (one fused loop).
     closed = tuple(g == "neumann" for g in ghosts)
     if bx is not None:
-        bx, by = _close_faces(bx, by, closed)
+        closed_faces = _close_faces((bx, by, bz)[:ndim], closed)
+        bx, by = closed_faces[:2]
+        bz = closed_faces[2] if ndim == 3 else None
     elif a["ax_lo"] is not None:
         a = _close_cells(a, closed)
-    mur = tuple(getattr(edges, s) == "mur" for s in Edges.sides)
+    mur = tuple(getattr(edges, s) == "mur" for s in sides)
     sponge = _sponge(grid, edges, dtype) if "sponge" in edges.kinds() else None
     pml = _pml(grid, edges, dtype) if edges.uses_pml else None
     metric = AxisymMetric.build(ny, dtype) if grid.kind == "rz" else None
     return Lattice(
         K=K, q_scale=q_scale, bx=bx, by=by, keep=keep, c=c, sponge=sponge, pml=pml, metric=metric,
-        eta=eta, ghosts=ghosts, mur=mur, **a,
+        eta=eta, ghosts=ghosts, mur=mur, bz=bz, **a,
     )
 
 
-def _close_faces(bx, by, closed):
-    x_lo, x_hi, y_lo, y_hi = closed
-    if x_lo:
-        bx = bx.at[0].set(0.0)
-    if x_hi:
-        bx = bx.at[-1].set(0.0)
-    if y_lo:
-        by = by.at[:, 0].set(0.0)
-    if y_hi:
-        by = by.at[:, -1].set(0.0)
-    return bx, by
+def _close_faces(faces, closed):
+    """Zero the outermost faces of the closed window sides (`faces`: one array per axis)."""
+    out = []
+    for axis, b in enumerate(faces):
+        idx = (slice(None),) * axis
+        if closed[2 * axis]:
+            b = b.at[idx + (0,)].set(0.0)
+        if closed[2 * axis + 1]:
+            b = b.at[idx + (-1,)].set(0.0)
+        out.append(b)
+    return tuple(out)
 
 
 def _close_cells(a, closed):
@@ -407,15 +460,16 @@ def _pml(grid: Grid, edges: Edges, dtype) -> PML:
     m = edges.pml_order
     smax = (m + 1) * grid.courant * math.log(1 / edges.pml_r0) / (2 * L)
     out = {}
-    nx, ny = grid.shape
-    for axis, n, lo, hi in ((0, nx, "x_lo", "x_hi"), (1, ny, "y_lo", "y_hi")):
+    ndim = len(grid.shape)
+    ny = grid.shape[1]
+    for axis, n in enumerate(grid.shape):
+        key = "xyz"[axis]
         for where, faces in (("cell", False), ("face", True)):
-            d = edges.layer_depth(n, lo, hi, faces=faces)
+            d = edges.layer_depth(n, f"{key}_lo", f"{key}_hi", faces=faces)
             sigma = smax * (d / L) ** m
             av = (1 - sigma / 2) / (1 + sigma / 2)
             bv = 1 / (1 + sigma / 2)
-            shape = (-1, 1) if axis == 0 else (1, -1)
-            key = "x" if axis == 0 else "y"
+            shape = _axis_shape(axis, ndim)
             out[f"a{key}_{where}"] = jnp.asarray(av.reshape(shape), dtype)
             out[f"b{key}_{where}"] = jnp.asarray(bv.reshape(shape), dtype)
     if grid.kind == "rz" and edges.y_hi == "pml":
@@ -436,10 +490,17 @@ def _radial_pml(ny: int, L: int, m: float, smax: float, dtype) -> dict:
                                 drive=row((sig - sbar) / (4 * rc * (1 + sbar / 2))), width=L)}
 
 
+def _axis_shape(axis: int, ndim: int) -> tuple[int, ...]:
+    """Broadcast shape of a 1-D profile along `axis` of a rank-`ndim` field."""
+    return tuple(-1 if a == axis else 1 for a in range(ndim))
+
+
 def _sponge(grid: Grid, edges: Edges, dtype):
-    nx, ny = grid.shape
     L = edges.thickness_cells
-    dx = edges.layer_depth(nx, "x_lo", "x_hi", faces=False)
-    dy = edges.layer_depth(ny, "y_lo", "y_hi", faces=False)
-    sigma = edges.sponge_strength * ((dx[:, None] / L) ** 2 + (dy[None, :] / L) ** 2)
-    return jnp.asarray(sigma, dtype)
+    ndim = len(grid.shape)
+    sigma = 0.0
+    for axis, n in enumerate(grid.shape):
+        key = "xyz"[axis]
+        d = edges.layer_depth(n, f"{key}_lo", f"{key}_hi", faces=False)
+        sigma = sigma + (d.reshape(_axis_shape(axis, ndim)) / L) ** 2
+    return jnp.asarray(edges.sponge_strength * sigma, dtype)

@@ -66,7 +66,7 @@ def _safe_norm(*parts):
 class Sphere(Shape3D):
     """A ball of `radius_m` around `centre_m` (x, y, z), metres."""
 
-    centre_m: Float[Array, "3"]
+    centre_m: Float[Array, 3]
     radius_m: Float[Array, ""]
 
     def sdf(self, x, y, z):
@@ -78,8 +78,8 @@ class Cylinder(Shape3D):
     """A finite (capped) circular cylinder: axis through `centre_m` along `axis` (any length),
     `radius_m`, total `length_m` (metres). A post is a long vertical cylinder."""
 
-    centre_m: Float[Array, "3"]
-    axis: Float[Array, "3"]
+    centre_m: Float[Array, 3]
+    axis: Float[Array, 3]
     radius_m: Float[Array, ""]
     length_m: Float[Array, ""]
 
@@ -98,9 +98,9 @@ class OrientedBox(Shape3D):
     """A rectangular box of edge lengths `size_m` (along its own x, y, z) centred at `centre_m`,
     rotated by `angles_deg` = (yaw, pitch, roll) in degrees (see `rotation_matrix`)."""
 
-    centre_m: Float[Array, "3"]
-    size_m: Float[Array, "3"]
-    angles_deg: Float[Array, "3"] = eqx.field(default_factory=lambda: jnp.zeros(3))
+    centre_m: Float[Array, 3]
+    size_m: Float[Array, 3]
+    angles_deg: Float[Array, 3] = eqx.field(default_factory=lambda: jnp.zeros(3))
 
     def sdf(self, x, y, z):
         c = jnp.asarray(self.centre_m)
@@ -117,8 +117,8 @@ class HalfSpace(Shape3D):
     """Everything behind the plane through `point_m` whose outward normal is `normal` (the solid
     side is opposite to the normal): ``sdf = (x - point) . n``."""
 
-    point_m: Float[Array, "3"]
-    normal: Float[Array, "3"]
+    point_m: Float[Array, 3]
+    normal: Float[Array, 3]
 
     def sdf(self, x, y, z):
         p = jnp.asarray(self.point_m)
@@ -130,8 +130,8 @@ class Slab(Shape3D):
     """A plate of `thickness_m` centred on the plane through `point_m` with normal `normal`
     (unbounded in-plane: cut it with `Intersection3D` for a finite panel)."""
 
-    point_m: Float[Array, "3"]
-    normal: Float[Array, "3"]
+    point_m: Float[Array, 3]
+    normal: Float[Array, 3]
     thickness_m: Float[Array, ""]
 
     def sdf(self, x, y, z):

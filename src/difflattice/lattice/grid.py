@@ -18,9 +18,12 @@ Two kinds of lattice (`Grid.kind`, static):
   axis 1 is r. The axis r = 0 is the low face of ring 0 (cell centres at r = (j + 1/2) dx), and
   the origin (z = 0, r = 0) is the low corner of cell (0, 0), so the z_lo window face is z = 0
   (where a rigid baffle lies). The y_lo window side is the axis (`Edges(y_lo="axis")`).
+- ``"3d"``: a volume of cubic cells, shape (nx, ny, nz); axes 0, 1, 2 are x, y, z; the origin is
+  the centre of cell (0, 0, 0).
 
-Both leapfrogs are stable for speeds up to `stability_limit(kind)` = 1/sqrt(2) cells/step; a faster
-one is refused (see `stability_limit` for the derivation of the r-z bound).
+The plane and r-z leapfrogs are stable for speeds up to `stability_limit(kind)` = 1/sqrt(2)
+cells/step, the 3-D seven-point leapfrog up to 1/sqrt(3); a faster one is refused (see
+`stability_limit` for the derivations).
 """
 
 from __future__ import annotations
@@ -35,8 +38,14 @@ import numpy as np
 MAX_COURANT = 1.0 / math.sqrt(2.0)
 """Stability limit of the 2-D five-point leapfrog in cells/step (also the r-z lattice's)."""
 
-GridKind = Literal["2d", "rz"]
-GRID_KINDS = ("2d", "rz")
+MAX_COURANT_3D = 1.0 / math.sqrt(3.0)
+"""Stability limit of the 3-D seven-point leapfrog in cells/step."""
+
+DEFAULT_COURANT_3D = 0.577
+"""The 3-D default courant: 0.06 % under 1/sqrt(3), as the paper's 0.707 is under 1/sqrt(2)."""
+
+GridKind = Literal["2d", "rz", "3d"]
+GRID_KINDS = ("2d", "rz", "3d")
 
 
 def stability_limit(kind: GridKind = "2d") -> float:
@@ -57,10 +66,12 @@ def stability_limit(kind: GridKind = "2d") -> float:
       n = 8, 32, 128, 512, tending to 8 (the checkerboard far from the axis): the limit 1/sqrt(2) is
       sharp. (With a node on the axis instead, a disc cell of radius 1/2, rho tends to 8.8418 and
       the limit drops to 0.6726: that is why the axis lies on a face here.)
+    - "3d": -L is the seven-point Laplacian, rho < 12 (the checkerboard (pi, pi, pi) tends to 12),
+      so c <= 1/sqrt(3).
     """
     if kind not in GRID_KINDS:
         raise ValueError(f"grid kind = {kind!r}; allowed: {', '.join(map(repr, GRID_KINDS))}")
-    return MAX_COURANT
+    return MAX_COURANT_3D if kind == "3d" else MAX_COURANT
 
 PAPER_COURANT = 0.707
 """The paper's choice: just below the limit."""
@@ -68,21 +79,22 @@ PAPER_COURANT = 0.707
 
 class Grid(eqx.Module):
     """A square-cell lattice of `shape` = (nx, ny) cells, axis 0 is x and axis 1 is y (for
-    `kind` = "rz": axis 0 is z and axis 1 is r, see the module docstring).
+    `kind` = "rz": axis 0 is z and axis 1 is r; for `kind` = "3d": (nx, ny, nz) cubic cells; see
+    the module docstring).
 
     All fields are static (they decide array shapes and compiled structure).
 
     **Arguments:**
-    - `shape`: number of cells along x and y.
+    - `shape`: number of cells along x and y (and z for "3d").
     - `frequency_hz`: drive frequency the scales are built for.
     - `cells_per_wavelength`: cells per wavelength in the fastest medium at `frequency_hz`.
     - `c_max_m_s`: speed of sound of the fastest medium in the scene, m/s.
-    - `courant`: that medium's speed in cells/step (<= 1/sqrt(2)).
+    - `courant`: that medium's speed in cells/step (<= 1/sqrt(2); <= 1/sqrt(3) for "3d").
     - `dtype`: "float32" or "float64".
-    - `kind`: "2d" (plane) or "rz" (axisymmetric ring cells; the y_lo side is the axis).
+    - `kind`: "2d" (plane), "rz" (axisymmetric ring cells; the y_lo side is the axis) or "3d".
     """
 
-    shape: tuple[int, int] = eqx.field(static=True)
+    shape: tuple[int, ...] = eqx.field(static=True)
     frequency_hz: float = eqx.field(static=True)
     cells_per_wavelength: float = eqx.field(static=True)
     c_max_m_s: float = eqx.field(static=True)
@@ -93,9 +105,15 @@ class Grid(eqx.Module):
     def __check_init__(self):
         if self.kind not in GRID_KINDS:
             raise ValueError(f"grid kind = {self.kind!r}; allowed: {', '.join(map(repr, GRID_KINDS))}")
-        nx, ny = self.shape
-        if nx < 3 or ny < 1:
-            raise ValueError(f"grid shape {self.shape} is too small: need at least 3 x 1 cells")
+        if self.kind == "3d":
+            if len(self.shape) != 3 or min(self.shape) < 3:
+                raise ValueError(f"a 3-D grid needs shape (nx, ny, nz) with at least 3 cells each, got {self.shape}")
+        else:
+            if len(self.shape) != 2:
+                raise ValueError(f"a {self.kind} grid needs shape (nx, ny), got {self.shape} (for a 3-D grid set kind='3d')")
+            nx, ny = self.shape
+            if nx < 3 or ny < 1:
+                raise ValueError(f"grid shape {self.shape} is too small: need at least 3 x 1 cells")
         if not (self.frequency_hz > 0 and self.cells_per_wavelength > 0 and self.c_max_m_s > 0):
             raise ValueError(
                 "frequency_hz, cells_per_wavelength and c_max_m_s must be positive, got "
@@ -104,6 +122,16 @@ class Grid(eqx.Module):
         check_courant(self.courant, what="grid courant (the fastest medium's speed)", kind=self.kind)
         if self.dtype not in ("float32", "float64"):
             raise ValueError(f"dtype must be 'float32' or 'float64', got {self.dtype!r}")
+
+    @property
+    def ndim(self) -> int:
+        """Number of grid axes (2 for "2d" and "rz", 3 for "3d")."""
+        return len(self.shape)
+
+    @property
+    def max_courant(self) -> float:
+        """The stability limit of this kind of lattice, cells/step (`stability_limit`)."""
+        return stability_limit(self.kind)
 
     # --- scales -------------------------------------------------------------------------
     @property
@@ -131,8 +159,8 @@ class Grid(eqx.Module):
         return 2.0 * math.pi * self.frequency_hz * self.dt_s
 
     @property
-    def size_m(self) -> tuple[float, float]:
-        return (self.shape[0] * self.dx_m, self.shape[1] * self.dx_m)
+    def size_m(self) -> tuple[float, ...]:
+        return tuple(n * self.dx_m for n in self.shape)
 
     @property
     def jnp_dtype(self):
@@ -165,19 +193,20 @@ class Grid(eqx.Module):
         of cell (0, 0)), 1/2 for "rz" (the origin is its low corner: the axis and z = 0)."""
         return 0.5 if self.kind == "rz" else 0.0
 
-    def cell_of(self, position_m) -> tuple[int, int]:
-        """Index of the cell containing a point (x_m, y_m), or (z_m, r_m) for "rz"."""
+    def cell_of(self, position_m) -> tuple[int, ...]:
+        """Index of the cell containing a point (x_m, y_m[, z_m]), or (z_m, r_m) for "rz"."""
+        if len(position_m) != self.ndim:
+            raise ValueError(f"position {tuple(position_m)} has {len(position_m)} coordinates; this grid has {self.ndim}")
         if self.kind == "rz":
             iz, ir = (int(math.floor(p / self.dx_m)) for p in position_m)
             return iz, ir
-        ix, iy = (int(round(p / self.dx_m)) for p in position_m)  # nearest cell centre
-        return ix, iy
+        return tuple(int(round(p / self.dx_m)) for p in position_m)  # nearest cell centre
 
-    def coordinates_m(self) -> tuple[np.ndarray, np.ndarray]:
-        """Cell-centre coordinates (x_m of shape (nx,), y_m of shape (ny,)); for "rz" (z_m, r_m)
-        with r_m = (j + 1/2) dx."""
+    def coordinates_m(self) -> tuple[np.ndarray, ...]:
+        """Cell-centre coordinates per axis (x_m of shape (nx,), y_m of shape (ny,)[, z_m]); for
+        "rz" (z_m, r_m) with r_m = (j + 1/2) dx."""
         o = self.origin_cells
-        return (np.arange(self.shape[0]) + o) * self.dx_m, (np.arange(self.shape[1]) + o) * self.dx_m
+        return tuple((np.arange(n) + o) * self.dx_m for n in self.shape)
 
 
 def check_courant(c_lattice: float, what: str = "speed", kind: GridKind = "2d") -> None:
@@ -187,10 +216,13 @@ def check_courant(c_lattice: float, what: str = "speed", kind: GridKind = "2d") 
         raise ValueError(f"{what} = {c_lattice} cells/step: must be >= 0")
     limit = stability_limit(kind)
     if c_lattice > limit * (1 + 1e-12):
+        name = {"2d": "2-D", "rz": "rz", "3d": "3-D"}[kind]
+        formula = "1/sqrt(3)" if kind == "3d" else "1/sqrt(2)"
+        usual = f"e.g. {DEFAULT_COURANT_3D}" if kind == "3d" else f"the paper uses {PAPER_COURANT}"
         raise ValueError(
-            f"{what} = {c_lattice:.6f} cells/step exceeds the {'2-D' if kind == '2d' else 'rz'} stability limit "
-            f"1/sqrt(2) = {limit:.6f}: the leapfrog would grow without bound. Lower `courant` "
-            f"(the paper uses {PAPER_COURANT}) or set c_max_m_s to the fastest medium's speed."
+            f"{what} = {c_lattice:.6f} cells/step exceeds the {name} stability limit "
+            f"{formula} = {limit:.6f}: the leapfrog would grow without bound. Lower `courant` "
+            f"({usual}) or set c_max_m_s to the fastest medium's speed."
         )
 
 
@@ -199,21 +231,27 @@ def make_grid(
     frequency_hz: float,
     cells_per_wavelength: float,
     c_max_m_s: float,
-    shape: tuple[int, int] | None = None,
-    size_m: tuple[float, float] | None = None,
-    courant: float = PAPER_COURANT,
+    shape: tuple[int, ...] | None = None,
+    size_m: tuple[float, ...] | None = None,
+    courant: float | None = None,
     dtype: Literal["float32", "float64"] = "float32",
     kind: GridKind = "2d",
 ) -> Grid:
     """Build a `Grid` from the paper's scale parameters and either `shape` (cells) or `size_m`
-    (for `kind` = "rz": (length along z, radius) in metres)."""
+    (for `kind` = "rz": (length along z, radius) in metres; for "3d": three sizes). `courant`
+    defaults to the paper's 0.707, and to 0.577 for "3d"."""
+    if kind not in GRID_KINDS:
+        raise ValueError(f"grid kind = {kind!r}; allowed: {', '.join(map(repr, GRID_KINDS))}")
     if (shape is None) == (size_m is None):
-        raise ValueError("give exactly one of shape=(nx, ny) cells or size_m=(width_m, height_m)")
+        raise ValueError("give exactly one of shape=(nx, ny[, nz]) cells or size_m=(width_m, height_m[, depth_m])")
+    if courant is None:
+        courant = DEFAULT_COURANT_3D if kind == "3d" else PAPER_COURANT
     if shape is None:
+        assert size_m is not None
         dx = c_max_m_s / (frequency_hz * cells_per_wavelength)
-        shape = (max(3, int(round(size_m[0] / dx))), max(1, int(round(size_m[1] / dx))))
+        shape = tuple(max(3 if (i == 0 or kind == "3d") else 1, int(round(s / dx))) for i, s in enumerate(size_m))
     return Grid(
-        shape=(int(shape[0]), int(shape[1])),
+        shape=tuple(int(n) for n in shape),
         frequency_hz=float(frequency_hz),
         cells_per_wavelength=float(cells_per_wavelength),
         c_max_m_s=float(c_max_m_s),

@@ -21,7 +21,7 @@ Time convention exp(-i omega t): a field ``p(t) = Re(P exp(-i omega t))`` has ph
 from __future__ import annotations
 
 import math
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -129,7 +129,7 @@ def point_source_phasor(r_vec, omega: float, c: float, v_hat: complex = 1.0, *, 
         k = lattice_green_phase_wavenumber(omega, c, r_vec)
         A = lattice_green_amplitude(omega, c, r_vec)
     else:
-        k, A = omega / c, 1.0
+        k, A = np.full_like(r, omega / c), np.ones_like(r)
     return np.exp(-1j * omega) * v_hat * A * np.exp(1j * k * r) / (4 * math.pi * c**2 * r)
 
 
@@ -210,7 +210,7 @@ def image_source_echo_phasor(
         k = lattice_green_phase_wavenumber(omega, c, d)
         A = lattice_green_amplitude(omega, c, d)
     else:
-        k, A = omega / c, 1.0
+        k, A = np.full_like(R, omega / c), np.ones_like(R)
     g = A * np.exp(1j * k * R) / (4 * math.pi * c**2 * R)
     ph = np.exp(1j * omega * (lag[:, None] + lag[None, :]))
     return complex(reflection * np.exp(-1j * omega) * np.sum(w[:, None] * w[None, :] * ph * g))

@@ -54,7 +54,7 @@ class BoxSurface(eqx.Module):
     baffle: str | None = eqx.field(static=True, default=None)
 
     def __check_init__(self):
-        if len(self.lo) != 3 or len(self.hi) != 3 or any(h <= l for l, h in zip(self.lo, self.hi)):
+        if len(self.lo) != 3 or len(self.hi) != 3 or any(b <= a for a, b in zip(self.lo, self.hi)):
             raise ValueError(f"empty far-field box lo = {self.lo}, hi = {self.hi}: need hi > lo on every axis")
         if self.baffle is not None:
             if self.baffle not in BAFFLE_SIDES:
@@ -66,6 +66,8 @@ class BoxSurface(eqx.Module):
     @property
     def baffle_axis_side(self) -> tuple[int, int]:
         """(axis, -1 or +1) of the baffle's window side."""
+        if self.baffle is None:
+            raise ValueError("this far-field box has no baffle")
         return "xyz".index(self.baffle[0]), (-1 if self.baffle.endswith("lo") else 1)
 
     def mirror(self, points, normals):
@@ -105,7 +107,7 @@ class BoxSurface(eqx.Module):
 
     @property
     def n_samples(self) -> int:
-        d = [h - l + 1 for l, h in zip(self.lo, self.hi)]
+        d = [b - a + 1 for a, b in zip(self.lo, self.hi)]
         full = 2 * (d[0] * d[1] + d[1] * d[2] + d[0] * d[2])
         if self.baffle is None:
             return full
@@ -155,7 +157,7 @@ def box_around_3d(cells, gap: int, baffle: str | None = None) -> BoxSurface:
         else:
             raise ValueError("baffle on a high window side: give the box explicitly, BoxSurface(lo, hi, baffle=...) "
                              "with hi at the last cell")
-    return BoxSurface(tuple(lo), tuple(hi), baffle)
+    return BoxSurface((lo[0], lo[1], lo[2]), (hi[0], hi[1], hi[2]), baffle)
 
 
 def _with_images(surface: BoxSurface, p, dpdn, pts, normals):

@@ -2,9 +2,10 @@
 
 `load_scene(path)` reads and validates a file into a `Scene` (plain data, SI units);
 `Scene.build()` turns it into the simulator's objects (grid, medium, sources, sensors, edges).
-Every key, its unit and its default are listed in `SCHEMA` (and in docs/scene-files.md); an
-unknown key, a wrong type or a value out of range raises `SceneError` naming the file, the key and
-what is allowed.
+Every key, its unit, default and allowed values are declared once in `scene/schema.py` (typed
+sections of `difflattice.config`; docs/scene-files.md is generated from them); an unknown key, a
+wrong type or a value out of range raises `SceneError` naming the file, the key and what is
+allowed.
 """
 
 from __future__ import annotations
@@ -23,97 +24,20 @@ if TYPE_CHECKING:
     from ..lattice.grid import Grid
     from ..lattice.medium import Medium
     from ..observe.farfield import BoxContour
+    from ..observe.farfield_rz import CylinderSurface
     from ..solver.sensors import Sensors
     from ..solver.sources import PointSources
 
-from .schema import NUM, REQUIRED, ConfigError, fail, schema_markdown as _schema_markdown, validate_table
+from .schema import ARRAY_SECTIONS, SCHEMA, ConfigError, fail, validate_section
+from .schema import schema_markdown as _schema_markdown
 
 
 class SceneError(ConfigError):
     """A scene file that cannot be used: the message names the file, the key and the fix."""
 
 
-# section -> key -> (type(s), default, description with unit). default REQUIRED = must be given.
-SCHEMA: dict[str, dict[str, tuple]] = {
-    "grid": {
-        "frequency_hz": (NUM, REQUIRED, "drive frequency the scales are built for, Hz"),
-        "cells_per_wavelength": (NUM, 20.0, "cells per wavelength in the fastest medium"),
-        "size_m": (list, None, "[width, height] of the window, m (or give shape)"),
-        "shape": (list, None, "[nx, ny] cells (or give size_m)"),
-        "courant": (NUM, 0.707, "fastest medium's speed in cells/step, <= 0.7071"),
-        "dtype": (str, "float32", "float32 or float64"),
-    },
-    "medium": {
-        "background": (str, "air", "material filling the window (see MATERIALS)"),
-        "temperature_c": (NUM, 20.0, "air temperature, deg C (speed of sound of air)"),
-        "boundary_model": (str, "conservative", "conservative, paper or speed_zero"),
-        "absorption_db_per_m": (NUM, 0.0, "air absorption at the drive frequency, dB/m (f^2 law)"),
-        "rasterise": (str, "hard", "hard or smooth object edges"),
-    },
-    "edges": {
-        "kind": (str, "pml", "pml, mur, sponge, rigid or soft on every side"),
-        "x_lo": (str, None, "override for the left side"),
-        "x_hi": (str, None, "override for the right side"),
-        "y_lo": (str, None, "override for the bottom side"),
-        "y_hi": (str, None, "override for the top side"),
-        "thickness_cells": (int, 20, "PML or sponge thickness, cells"),
-    },
-    "transducers": {
-        "name": (str, "transducer", "label"),
-        "centre_m": (list, REQUIRED, "[x, y] of the face centre, m"),
-        "n_cells": (int, None, "number of source cells (or give diameter_m)"),
-        "diameter_m": (NUM, None, "active diameter, m (n_cells = diameter / cell size)"),
-        "direction_deg": (NUM, 0.0, "facing direction, deg (0 = +x, 90 = +y)"),
-        "signal": (str, "burst", "burst or cw"),
-        "frequency_hz": (NUM, None, "drive frequency, Hz (default: the grid's)"),
-        "cycles": (NUM, 5.0, "burst length in cycles"),
-        "window": (str, "hann", "burst window: hann or rect"),
-        "ramp_cycles": (NUM, 3.0, "cw switch-on ramp, cycles"),
-        "amplitude_pa": (NUM, 1.0, "source amplitude, Pa"),
-        "injection": (str, "soft", "soft (add to P) or hard (set P)"),
-        "weights": (list, None, "per-cell amplitude weights (n_cells values)"),
-        "lags_s": (list, None, "per-cell delays, s (n_cells values)"),
-    },
-    "objects": {
-        "shape": (str, REQUIRED, "segment, box, circle, polygon or polyline"),
-        "material": (str, "rigid", "material name (rigid, soft, pine, ...)"),
-        "a_m": (list, None, "segment start [x, y], m"),
-        "b_m": (list, None, "segment end [x, y], m"),
-        "thickness_m": (NUM, None, "wall thickness of segment/polyline, m"),
-        "lo_m": (list, None, "box lower-left corner [x, y], m"),
-        "hi_m": (list, None, "box upper-right corner [x, y], m"),
-        "centre_m": (list, None, "circle centre [x, y], m"),
-        "radius_m": (NUM, None, "circle radius, m"),
-        "vertices_m": (list, None, "polygon vertices [[x, y], ...], m"),
-        "points_m": (list, None, "polyline points [[x, y], ...], m"),
-        "cut": (dict, None, "a shape (same keys) removed from this one, e.g. a gap"),
-    },
-    "sensors": {
-        "probes_m": (list, [], "points [[x, y], ...] recorded every step, m"),
-        "p_max": (bool, True, "record the peak |p| map"),
-        "p_rms": (bool, False, "record the RMS map"),
-        "arrival_threshold_pa": (NUM, None, "record first-arrival step where |p| exceeds this, Pa"),
-        "snapshot_every_steps": (int, None, "keep the field every that many steps"),
-    },
-    "farfield": {
-        "range_m": (NUM, 1.0, "range of the lobe pattern, m"),
-        "angles_deg": (list, [-90.0, 90.0, 0.5], "[start, stop, step] of the lobe angles, deg"),
-        "gap_cells": (int, 4, "contour distance from the transducer cells, cells"),
-        "transducer": (str, None, "name of the transducer whose lobe is computed (default: first)"),
-    },
-    "run": {
-        "n_steps": (int, None, "number of time steps (or give duration_s)"),
-        "duration_s": (NUM, None, "simulated time, s"),
-        "checkpoint": (str, "none", "none or sqrt (memory-bounded gradients)"),
-    },
-    "output": {
-        "show_steps": (list, [], "steps at which to save a field image (moment_NNNNNN.png), e.g. [1030, 1300]"),
-        "show_times_s": (list, [], "times at which to save a field image, s (rounded to the nearest step)"),
-        "render_every_cells": (int, None, "render every n-th cell in field images (default: 3 at 20 cells/wavelength, >= 6.7 pixels per wavelength)"),
-        "frames": (bool, True, "write a PNG per snapshot (frames/frame_NNNN.png)"),
-        "animation": (str, "gif", "animation of the snapshots: gif, mp4 (needs ffmpeg, else gif) or none"),
-    },
-}
+# Every key, its type, default, unit and allowed values: declared once in scene/schema.py
+# (SECTIONS); SCHEMA is a plain view of those declarations.
 ANIMATION_KINDS = ("gif", "mp4", "none")
 
 PAPER_RENDER_EVERY = 3
@@ -135,7 +59,6 @@ def render_stride(cells_per_wavelength: float, override: int | None = None) -> i
         raise ValueError(f"cells_per_wavelength = {cells_per_wavelength} must be > 0")
     return max(1, int(cells_per_wavelength / MIN_PIXELS_PER_WAVELENGTH + 1e-9))
 
-ARRAY_SECTIONS = ("transducers", "objects")
 
 
 def _fail(path, key, msg):
@@ -143,7 +66,7 @@ def _fail(path, key, msg):
 
 
 def _validate_table(path, section: str, table: dict, where: str) -> dict:
-    return validate_table(path, SCHEMA[section], table, where, SceneError)
+    return validate_section(path, section, table, where, SceneError)
 
 
 class BuiltScene(NamedTuple):
@@ -161,7 +84,7 @@ class BuiltScene(NamedTuple):
     sensors: "Sensors"
     edges: "Edges"
     n_steps: int
-    contour: "BoxContour | None"
+    contour: "BoxContour | CylinderSurface | None"
     farfield_source: int
     show_steps: list[int]
     render_every: int
@@ -192,7 +115,8 @@ class Scene:
         from ..lattice.coefficients import Edges
         from ..lattice.medium import Medium, air, material, warn_if_under_resolved
         from ..solver.sensors import Sensors, probe_cells
-        from ..solver.sources import ContinuousWave, ToneBurst, line_transducer
+        from ..observe.farfield_rz import cylinder_around
+        from ..solver.sources import ContinuousWave, ToneBurst, disc_housing, disc_transducer, line_transducer
 
         p = self.path
         med = self.medium
@@ -228,9 +152,11 @@ class Scene:
                 size_m=tuple(g["size_m"]) if g["size_m"] else None,
                 courant=g["courant"],
                 dtype=g["dtype"],
+                kind=g["kind"],
             )
         except ValueError as e:
             _fail(p, "grid", str(e))
+        rz = grid.kind == "rz"
 
         # every simulated fluid must be resolved: the cell is sized for the fastest one
         fastest = max((m for m in mats if m.kind == "fluid"), key=lambda m: m.speed_m_s).name
@@ -262,6 +188,15 @@ class Scene:
         dt = grid.jnp_dtype
         import jax.numpy as jnp
 
+        for i, t in enumerate(self.transducers):
+            if t["type"] == "disc" and rz and t["baffle"] != "rigid" and t["diameter_m"] is not None:
+                try:
+                    rigid.append(np.asarray(disc_housing(
+                        grid, radius_m=t["diameter_m"] / 2, z_m=t["centre_m"][0], baffle=t["baffle"],
+                        depth_m=t["can_depth_m"], wall_m=t["can_wall_m"])))
+                except ValueError as err:
+                    _fail(p, f"transducers[{i}]", str(err))
+
         def union(occs):
             return None if not occs else jnp.asarray(np.asarray(geo.union_occupancy(occs)), dt)
 
@@ -279,10 +214,22 @@ class Scene:
 
         e = self.edges
         try:
-            edges = Edges(
-                **{s: (e[s] or e["kind"]) for s in ("x_lo", "x_hi", "y_lo", "y_hi")},
-                thickness_cells=e["thickness_cells"],
-            )
+            if rz:
+                for side in ("x_lo", "x_hi", "y_lo", "y_hi"):
+                    if e[side] is not None:
+                        _fail(p, f"edges.{side}", "on an rz grid name the sides z_lo, z_hi and r_hi (the axis needs no edge)")
+                edges = Edges.axisymmetric(
+                    **{s: (e[s] or e["kind"]) for s in ("z_lo", "z_hi", "r_hi")}, thickness_cells=e["thickness_cells"]
+                )
+            else:
+                for side in ("z_lo", "z_hi", "r_hi"):
+                    if e[side] is not None:
+                        _fail(p, f"edges.{side}", "is for rz grids ([grid] kind = \"rz\"); a 2d grid has x_lo, x_hi, y_lo, y_hi")
+                edges = Edges(
+                    **{s: (e[s] or e["kind"]) for s in ("x_lo", "x_hi", "y_lo", "y_hi")},
+                    thickness_cells=e["thickness_cells"],
+                )
+            edges.check_kind(grid.kind)
         except ValueError as err:
             _fail(p, "edges", str(err))
 
@@ -299,13 +246,31 @@ class Scene:
                     sig = ContinuousWave(f, t["ramp_cycles"], t["amplitude_pa"])
                 else:
                     _fail(p, f"{where}.signal", f"= {t['signal']!r}; allowed: burst, cw")
-                sources.append(
-                    line_transducer(
-                        grid, tuple(t["centre_m"]), n_cells=t["n_cells"], diameter_m=t["diameter_m"],
-                        direction_deg=t["direction_deg"], signal=sig, weights=t["weights"],
-                        lags_s=t["lags_s"], injection=t["injection"],
+                if (t["type"] == "disc") != rz:
+                    _fail(p, f"{where}.type", f"= {t['type']!r} does not fit a {grid.kind} grid: use type = "
+                          f"{'disc' if rz else 'line'} (or [grid] kind = {'2d' if rz else 'rz'})")
+                if rz:
+                    if t["baffle"] == "rigid" and edges.x_lo != "rigid":
+                        _fail(p, f"{where}.baffle", f"= 'rigid' needs the rigid baffle plane: set [edges] z_lo = "
+                              f"\"rigid\" (now {edges.x_lo!r}), or baffle = \"none\" / \"can\" for an unbaffled disc")
+                    if t["diameter_m"] is None:
+                        _fail(p, f"{where}.diameter_m", "is required for a disc (its diameter, m)")
+                    if len(t["centre_m"]) != 2 or t["centre_m"][1] != 0:
+                        _fail(p, f"{where}.centre_m", f"= {list(t['centre_m'])}: a disc sits on the axis, give [z_m, 0]")
+                    sources.append(
+                        disc_transducer(
+                            grid, radius_m=t["diameter_m"] / 2, z_m=t["centre_m"][0], signal=sig,
+                            weights=t["weights"], lags_s=t["lags_s"], baffle=t["baffle"],
+                        )
                     )
-                )
+                else:
+                    sources.append(
+                        line_transducer(
+                            grid, tuple(t["centre_m"]), n_cells=t["n_cells"], diameter_m=t["diameter_m"],
+                            direction_deg=t["direction_deg"], signal=sig, weights=t["weights"],
+                            lags_s=t["lags_s"], injection=t["injection"],
+                        )
+                    )
             except (ValueError, TypeError) as err:
                 _fail(p, where, str(err))
 
@@ -321,7 +286,11 @@ class Scene:
                 if ff["transducer"] not in names:
                     _fail(p, "farfield.transducer", f"= {ff['transducer']!r}; known: {', '.join(names)}")
                 ff_index = names.index(ff["transducer"])
-            contour = box_around(sources[ff_index].cells_array, ff["gap_cells"])
+            if rz:
+                baffled = self.transducers[ff_index]["baffle"] == "rigid"
+                contour = cylinder_around(sources[ff_index].cells_array, ff["gap_cells"], baffled=baffled)
+            else:
+                contour = box_around(sources[ff_index].cells_array, ff["gap_cells"])
             L = edges.thickness_cells if edges.kinds() & {"pml", "sponge"} else 0
             try:
                 contour.check_inside(grid, margin=L)
@@ -454,4 +423,4 @@ def load_scene(path: str | Path) -> Scene:
 
 def schema_markdown() -> str:
     """The scene-file reference as Markdown tables (used to write docs/scene-files.md)."""
-    return _schema_markdown(SCHEMA, ARRAY_SECTIONS)
+    return _schema_markdown()

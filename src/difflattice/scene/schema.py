@@ -1,53 +1,269 @@
-"""Validation of TOML tables against a schema: key -> (type(s), default, description with unit).
+"""The scene file format's keys, declared once in the typed configuration layer
+(`difflattice.config`): one frozen dataclass per section. Validation (`validate_section`), the
+docs tables (`schema_markdown`, docs/scene-files.md) and `SCHEMA` (a plain view for older code)
+are all generated from these declarations.
 
-Shared by scene files and fit configs, so both give the same errors: the file, the key, and what
-is allowed.
+Checks that need the simulator's objects (materials, stability limit, edge and boundary kinds,
+shapes) stay where those objects are built (`scene.model.Scene.build`), so their messages come
+from the one place that knows the rule.
 """
 
 from __future__ import annotations
 
-NUM = (int, float)
-REQUIRED = object()
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+from ..config import REQUIRED, ConfigError, Section, markdown_table, parse_section, setting, specs
+
+__all__ = ["ConfigError", "SECTIONS", "SCHEMA", "ARRAY_SECTIONS", "validate_section", "schema_markdown", "fail"]
 
 
-class ConfigError(ValueError):
-    """A file that cannot be used: the message names the file, the key and the fix."""
+@dataclass(frozen=True)
+class GridSection(Section):
+    """The lattice: frequency and resolution set the cell size; give the window as `size_m` or `shape`."""
+
+    SECTION: ClassVar[str] = "grid"
+    kind: str = setting(
+        "2d",
+        kind="str",
+        choices=("2d", "rz"),
+        doc="lattice kind: 2d (a plane, the paper's model) or rz (axisymmetric: axis 0 = z along the axis, "
+        "axis 1 = r; objects are bodies of revolution, transducers are discs)",
+    )
+    frequency_hz: float = setting(kind="number", gt=0, unit="Hz", doc="drive frequency the scales are built for")
+    cells_per_wavelength: float = setting(
+        20.0, kind="number", gt=0, unit="cells/λ", doc="cells per wavelength in the fastest medium"
+    )
+    size_m: tuple | None = setting(
+        None, kind="list", items="number", unit="m", doc="[width, height] of the window (rz: [z length, radius]; or give shape)"
+    )
+    shape: tuple | None = setting(None, kind="list", items="int", unit="cells", doc="[nx, ny] cells (rz: [nz, nr]; or give size_m)")
+    courant: float = setting(0.707, kind="number", gt=0, doc="fastest medium's speed in cells/step, <= 0.7071")
+    dtype: str = setting("float32", kind="str", doc="float32 or float64")
+
+
+@dataclass(frozen=True)
+class MediumSection(Section):
+    """What fills the window and how object boundaries are modelled."""
+
+    SECTION: ClassVar[str] = "medium"
+    background: str = setting("air", kind="str", doc="material filling the window (see Materials)")
+    temperature_c: float = setting(
+        20.0, kind="number", gt=-273.15, unit="degC", doc="air temperature (speed of sound of air)"
+    )
+    boundary_model: str = setting("conservative", kind="str", doc="conservative, paper or speed_zero")
+    absorption_db_per_m: float = setting(
+        0.0, kind="number", ge=0, unit="dB/m", doc="air absorption at the drive frequency (f^2 law)"
+    )
+    rasterise: str = setting("hard", kind="str", doc="hard or smooth object edges")
+
+
+@dataclass(frozen=True)
+class EdgesSection(Section):
+    """The window's edges: one kind on every side, or per side."""
+
+    SECTION: ClassVar[str] = "edges"
+    kind: str = setting("pml", kind="str", doc="pml, mur, sponge, rigid or soft on every side")
+    x_lo: str | None = setting(None, kind="str", doc="override for the left side")
+    x_hi: str | None = setting(None, kind="str", doc="override for the right side")
+    y_lo: str | None = setting(None, kind="str", doc="override for the bottom side")
+    y_hi: str | None = setting(None, kind="str", doc="override for the top side")
+    z_lo: str | None = setting(None, kind="str", doc="rz: override for the z = 0 side (rigid: a baffle)")
+    z_hi: str | None = setting(None, kind="str", doc="rz: override for the far z side")
+    r_hi: str | None = setting(None, kind="str", doc="rz: override for the outer radius (the axis needs no edge)")
+    thickness_cells: int = setting(20, kind="int", ge=1, unit="cells", doc="PML or sponge thickness")
+
+
+@dataclass(frozen=True)
+class TransducerSection(Section):
+    """One line transducer (`[[transducers]]`, one table each)."""
+
+    SECTION: ClassVar[str] = "transducers"
+    name: str = setting("transducer", kind="str", doc="label")
+    type: str = setting(
+        "line", kind="str", choices=("line", "disc"), doc="line (2d: a line of cells) or disc (rz: rings of cells)"
+    )
+    centre_m: tuple = setting(kind="list", items="number", unit="m", doc="[x, y] of the face centre (rz: [z, 0])")
+    baffle: str = setting(
+        "rigid",
+        kind="str",
+        choices=("rigid", "none", "can"),
+        doc="disc: rigid (infinite baffle: the face on the rigid z_lo side, z = 0), none (a bare disc) or can "
+        "(a rigid can of depth can_depth_m behind the face)",
+    )
+    can_depth_m: float | None = setting(None, kind="number", gt=0, unit="m", doc="disc with baffle = can: its depth")
+    can_wall_m: float = setting(0.0, kind="number", ge=0, unit="m", doc="disc with baffle = can: wall thickness")
+    n_cells: int | None = setting(None, kind="int", ge=1, doc="number of source cells (or give diameter_m)")
+    diameter_m: float | None = setting(
+        None, kind="number", gt=0, unit="m", doc="active diameter (n_cells = diameter / cell size)"
+    )
+    direction_deg: float = setting(0.0, kind="number", unit="deg", doc="facing direction (0 = +x, 90 = +y)")
+    signal: str = setting("burst", kind="str", choices=("burst", "cw"), doc="burst or cw")
+    frequency_hz: float | None = setting(
+        None, kind="number", gt=0, unit="Hz", doc="drive frequency (default: the grid's)"
+    )
+    cycles: float = setting(5.0, kind="number", gt=0, unit="cycles", doc="burst length")
+    window: str = setting("hann", kind="str", doc="burst window: hann or rect")
+    ramp_cycles: float = setting(3.0, kind="number", ge=0, unit="cycles", doc="cw switch-on ramp")
+    amplitude_pa: float = setting(1.0, kind="number", unit="Pa", doc="source amplitude")
+    injection: str = setting("soft", kind="str", doc="soft (add to P) or hard (set P)")
+    weights: tuple | None = setting(
+        None, kind="list", items="number", doc="per-cell amplitude weights (n_cells values)"
+    )
+    lags_s: tuple | None = setting(None, kind="list", items="number", unit="s", doc="per-cell delays (n_cells values)")
+
+
+@dataclass(frozen=True)
+class ObjectSection(Section):
+    """One object (`[[objects]]`, one table each): a shape and its material."""
+
+    SECTION: ClassVar[str] = "objects"
+    shape: str = setting(kind="str", doc="segment, box, circle, polygon or polyline")
+    material: str = setting("rigid", kind="str", doc="material name (rigid, soft, pine, ...)")
+    a_m: tuple | None = setting(None, kind="list", items="number", unit="m", doc="segment start [x, y]")
+    b_m: tuple | None = setting(None, kind="list", items="number", unit="m", doc="segment end [x, y]")
+    thickness_m: float | None = setting(None, kind="number", gt=0, unit="m", doc="wall thickness of segment/polyline")
+    lo_m: tuple | None = setting(None, kind="list", items="number", unit="m", doc="box lower-left corner [x, y]")
+    hi_m: tuple | None = setting(None, kind="list", items="number", unit="m", doc="box upper-right corner [x, y]")
+    centre_m: tuple | None = setting(None, kind="list", items="number", unit="m", doc="circle centre [x, y]")
+    radius_m: float | None = setting(None, kind="number", gt=0, unit="m", doc="circle radius")
+    vertices_m: tuple | None = setting(None, kind="list", items="any", unit="m", doc="polygon vertices [[x, y], ...]")
+    points_m: tuple | None = setting(None, kind="list", items="any", unit="m", doc="polyline points [[x, y], ...]")
+    cut: dict | None = setting(None, kind="table", doc="a shape (same keys) removed from this one, e.g. a gap")
+
+
+@dataclass(frozen=True)
+class SensorsSection(Section):
+    """What is recorded during the run."""
+
+    SECTION: ClassVar[str] = "sensors"
+    probes_m: tuple = setting([], kind="list", items="any", unit="m", doc="points [[x, y], ...] recorded every step")
+    p_max: bool = setting(True, kind="bool", doc="record the peak |p| map")
+    p_rms: bool = setting(False, kind="bool", doc="record the RMS map")
+    arrival_threshold_pa: float | None = setting(
+        None, kind="number", gt=0, unit="Pa", doc="record first-arrival step where |p| exceeds this"
+    )
+    snapshot_every_steps: int | None = setting(
+        None, kind="int", ge=1, unit="steps", doc="keep the field every that many steps"
+    )
+
+
+@dataclass(frozen=True)
+class FarfieldSection(Section):
+    """The lobe pattern (optional section): Kirchhoff-Helmholtz transform of a contour round a transducer."""
+
+    SECTION: ClassVar[str] = "farfield"
+    range_m: float = setting(1.0, kind="number", gt=0, unit="m", doc="range of the lobe pattern")
+    angles_deg: tuple = setting(
+        [-90.0, 90.0, 0.5], kind="list", items="number", unit="deg", doc="[start, stop, step] of the lobe angles"
+    )
+    gap_cells: int = setting(4, kind="int", ge=1, unit="cells", doc="contour distance from the transducer cells")
+    transducer: str | None = setting(
+        None, kind="str", doc="name of the transducer whose lobe is computed (default: first)"
+    )
+
+
+@dataclass(frozen=True)
+class RunSection(Section):
+    """How long to run: `n_steps` or `duration_s`."""
+
+    SECTION: ClassVar[str] = "run"
+    n_steps: int | None = setting(None, kind="int", doc="number of time steps (or give duration_s)")
+    duration_s: float | None = setting(None, kind="number", gt=0, unit="s", doc="simulated time")
+    checkpoint: str = setting(
+        "none", kind="str", choices=("none", "sqrt"), doc="none or sqrt (memory-bounded gradients)"
+    )
+
+
+@dataclass(frozen=True)
+class OutputSection(Section):
+    """Images written by `difflattice simulate`."""
+
+    SECTION: ClassVar[str] = "output"
+    show_steps: tuple = setting(
+        [],
+        kind="list",
+        items="any",
+        unit="steps",
+        doc="steps at which to save a field image (moment_NNNNNN.png), e.g. [1030, 1300]",
+    )
+    show_times_s: tuple = setting(
+        [], kind="list", items="any", unit="s", doc="times at which to save a field image (rounded to the nearest step)"
+    )
+    render_every_cells: int | None = setting(
+        None,
+        kind="int",
+        unit="cells",
+        doc="render every n-th cell in field images (default: 3 at 20 cells/wavelength, >= 6.7 pixels per wavelength)",
+    )
+    frames: bool = setting(True, kind="bool", doc="write a PNG per snapshot (frames/frame_NNNN.png)")
+    animation: str = setting(
+        "gif",
+        kind="str",
+        choices=("gif", "mp4", "none"),
+        doc="animation of the snapshots: gif, mp4 (needs ffmpeg, else gif) or none",
+    )
+
+
+SECTIONS: dict[str, type] = {
+    c.SECTION: c
+    for c in (
+        GridSection,
+        MediumSection,
+        EdgesSection,
+        TransducerSection,
+        ObjectSection,
+        SensorsSection,
+        FarfieldSection,
+        RunSection,
+        OutputSection,
+    )
+}
+"""Scene file sections in file order: name -> declared section class."""
+ARRAY_SECTIONS = ("transducers", "objects")
+"""Sections written as arrays of tables (`[[transducers]]`)."""
+
+_TYPES = {"number": (int, float), "int": int, "bool": bool, "str": str, "list": list, "table": dict}
+SCHEMA: dict[str, dict[str, tuple]] = {
+    name: {
+        s.name: (
+            _TYPES[s.kind],
+            s.default if s.default is REQUIRED or not isinstance(s.default, tuple) else list(s.default),
+            s.doc + (f", {s.unit}" if s.unit else ""),
+        )
+        for s in specs(cls)
+    }
+    for name, cls in SECTIONS.items()
+}
+"""A plain view of the declarations: section -> key -> (type(s), default, description with unit)."""
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, tuple):
+        return [_plain(v) for v in value]
+    return value
+
+
+def validate_section(path, section: str, table: Any, where: str, error: type[ConfigError] = ConfigError) -> dict:
+    """Check one table of a scene file against its declaration; returns the values with defaults
+    filled (lists as lists). Raises `error` (one line: file, key, value, allowed, fix)."""
+    cls = SECTIONS[section]
+    try:
+        obj = parse_section(cls, table, file=path, where=where)
+    except ConfigError as e:
+        raise error(str(e)) from None
+    return {s.name: _plain(getattr(obj, s.name)) for s in specs(cls)}
 
 
 def fail(path, key, msg, error=ConfigError):
+    """Raise `error` for `[key]` of the file at `path`."""
     raise error(f"{path}: [{key}] {msg}")
 
 
-def validate_table(path, schema: dict, table, where: str, error=ConfigError) -> dict:
-    """Check keys and types, fill defaults; raise `error` naming the file and the key."""
-    if not isinstance(table, dict):
-        fail(path, where, f"must be a table, got {type(table).__name__}", error)
-    out = {}
-    for key, value in table.items():
-        if key not in schema:
-            fail(path, f"{where}.{key}", f"unknown key; allowed: {', '.join(schema)}", error)
-        types = schema[key][0]
-        if (types is NUM and isinstance(value, bool)) or not isinstance(value, types):
-            tname = "number" if types is NUM else getattr(types, "__name__", str(types))
-            fail(path, f"{where}.{key}", f"must be a {tname}, got {value!r} ({schema[key][2]})", error)
-        out[key] = value
-    for key, (types, default, desc) in schema.items():
-        if key not in out:
-            if default is REQUIRED:
-                fail(path, f"{where}.{key}", f"is required ({desc})", error)
-            out[key] = default
-    return out
-
-
-def schema_markdown(schema: dict[str, dict], array_sections=()) -> str:
-    """Markdown tables documenting every key, its type, default and unit."""
-    lines = []
-    for section, keys in schema.items():
-        head = f"[[{section}]]" if section in array_sections else f"[{section}]"
-        lines += [f"### `{head}`", "", "| key | type | default | meaning (unit) |", "|---|---|---|---|"]
-        for k, (types, default, desc) in keys.items():
-            tname = "number" if types is NUM else types.__name__
-            d = "**required**" if default is REQUIRED else ("—" if default is None else f"`{default}`")
-            lines.append(f"| `{k}` | {tname} | {d} | {desc} |")
-        lines.append("")
-    return "\n".join(lines)
+def schema_markdown() -> str:
+    """The scene-file reference as Markdown tables (docs/scene-files.md), from the declarations."""
+    out = []
+    for name, cls in SECTIONS.items():
+        head = f"`[[{name}]]`" if name in ARRAY_SECTIONS else f"`[{name}]`"
+        out.append(markdown_table(cls, heading=head))
+    return "\n".join(out)

@@ -4,19 +4,21 @@ scanned loop with `simulate` as its one entry point, and the adjoint-wave-equati
 from .loop import (
     INSTABILITY_MESSAGE,
     SPEED_MESSAGE,
+    SPEED_MESSAGE_3D,
     Result,
     check_result,
     grid_sharding,
     run,
     simulate,
 )
-from .sensors import Sensors
+from .sensors import Sensors, received_signal
 from .sources import (
     ContinuousWave,
     PointSources,
     ToneBurst,
     disc_housing,
     disc_transducer,
+    disc_transducer_3d,
     line_transducer,
     ring_fractions,
     ring_radii_m,
@@ -24,7 +26,8 @@ from .sources import (
 from .stepper import State, Stepper
 
 __all__ = [
-    "INSTABILITY_MESSAGE", "SPEED_MESSAGE", "ContinuousWave", "PointSources", "Result", "Sensors",
-    "State", "Stepper", "ToneBurst", "check_result", "disc_housing", "disc_transducer", "grid_sharding",
-    "line_transducer", "ring_fractions", "ring_radii_m", "run", "simulate",
+    "INSTABILITY_MESSAGE", "SPEED_MESSAGE", "SPEED_MESSAGE_3D", "ContinuousWave", "PointSources", "Result",
+    "Sensors", "State", "Stepper", "ToneBurst", "check_result", "disc_housing", "disc_transducer",
+    "disc_transducer_3d", "grid_sharding", "line_transducer", "received_signal", "ring_fractions",
+    "ring_radii_m", "run", "simulate",
 ]

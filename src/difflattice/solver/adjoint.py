@@ -29,8 +29,8 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 
-from ..lattice.operators import operator, stencil
-from .stepper import source_injection
+from ..lattice.operators import _along, operator, stencil
+from .stepper import cell_index, source_injection
 
 
 def supports(stepper, state=None) -> str | None:
@@ -136,19 +136,18 @@ def _linear_run_bwd(starts, grads, perturbed, stepper, n_steps, chunk):
         field. Done at the end of each backward step, after the stencil (as the forward step
         adds its sources last), so XLA keeps the stencil's padded input fused."""
         if n_probes:
-            c = sens.probes
-            g = g.at[c[:, 0], c[:, 1]].add(probe_row)
+            g = g.at[cell_index(sens.probes)].add(probe_row)
         if use_phasors:
-            c = sens.phasor_cells
+            c = cell_index(sens.phasor_cells)
             ang = _angles(grid, sens, n)
             w = jnp.where(n > sens.phasor_from_step, 1.0, 0.0).astype(dtype)
-            g = g.at[c[:, 0], c[:, 1]].add(w * (g_re * jnp.cos(ang) + g_im * jnp.sin(ang)))
+            g = g.at[c].add(w * (g_re * jnp.cos(ang) + g_im * jnp.sin(ang)))
         return g
 
 
-    # lattice fields whose gradients are wanted (the step reads K, q_scale, bx, by, keep, sponge)
+    # lattice fields whose gradients are wanted (the step reads K, q_scale, bx, by[, bz], keep, sponge)
     fields_wanted = tuple(
-        f for f in ("K", "q_scale", "bx", "by", "keep", "sponge")
+        f for f in ("K", "q_scale", "bx", "by", "bz", "keep", "sponge")
         if getattr(lat, f) is not None and any(jax.tree_util.tree_leaves(getattr(perturbed.lattice, f)))
     ) if want_lat else ()
 
@@ -167,18 +166,27 @@ def _linear_run_bwd(starts, grads, perturbed, stepper, n_steps, chunk):
             out["K"] = jnp.sum(v) if jnp.ndim(lat.K) == 0 else v
         if "q_scale" in fields_wanted:
             out["q_scale"] = p_n * stencil(lat, ka)
-        for f, axis in (("bx", 0), ("by", 1)):
-            if f in fields_wanted:
-                qp = jnp.pad(q, 1)
-                if axis == 0:
-                    kp = jnp.pad(ka, 1)
-                    out[f] = -(qp[1:, 1:-1] - qp[:-1, 1:-1]) * (kp[1:, 1:-1] - kp[:-1, 1:-1])
-                elif lat.metric is None:
-                    kp = jnp.pad(ka, 1)
-                    out[f] = -(qp[1:-1, 1:] - qp[1:-1, :-1]) * (kp[1:-1, 1:] - kp[1:-1, :-1])
-                else:  # rz: a radial face of area A couples ka / V on either side
-                    kp = jnp.pad(ka / lat.metric.volume, 1)
-                    out[f] = -lat.metric.area * (qp[1:-1, 1:] - qp[1:-1, :-1]) * (kp[1:-1, 1:] - kp[1:-1, :-1])
+        if q.ndim == 3:  # 3-D: one face conductance per axis, no metric
+            qp, kp = jnp.pad(q, 1), jnp.pad(ka, 1)
+            inner = slice(1, -1)
+            for f, axis in (("bx", 0), ("by", 1), ("bz", 2)):
+                if f in fields_wanted:
+                    dq = _along(qp, axis, slice(1, None), inner) - _along(qp, axis, slice(None, -1), inner)
+                    dk = _along(kp, axis, slice(1, None), inner) - _along(kp, axis, slice(None, -1), inner)
+                    out[f] = -dq * dk
+        else:
+            for f, axis in (("bx", 0), ("by", 1)):
+                if f in fields_wanted:
+                    qp = jnp.pad(q, 1)
+                    if axis == 0:
+                        kp = jnp.pad(ka, 1)
+                        out[f] = -(qp[1:, 1:-1] - qp[:-1, 1:-1]) * (kp[1:, 1:-1] - kp[:-1, 1:-1])
+                    elif lat.metric is None:
+                        kp = jnp.pad(ka, 1)
+                        out[f] = -(qp[1:-1, 1:] - qp[1:-1, :-1]) * (kp[1:-1, 1:] - kp[1:-1, :-1])
+                    else:  # rz: a radial face of area A couples ka / V on either side
+                        kp = jnp.pad(ka / lat.metric.volume, 1)
+                        out[f] = -lat.metric.area * (qp[1:-1, 1:] - qp[1:-1, :-1]) * (kp[1:-1, 1:] - kp[1:-1, :-1])
         if "keep" in fields_wanted or "sponge" in fields_wanted:
             s_ = lat.sponge
             u = 2 * p_n - p_nm1 + lat.K * lq if s_ is None else (2 * p_n - (1 - s_) * p_nm1 + lat.K * lq) / (1 + s_)
@@ -194,10 +202,10 @@ def _linear_run_bwd(starts, grads, perturbed, stepper, n_steps, chunk):
         n_next, probe_row, fields = xs
         src_ct = []
         for src in reversed(stepper.sources):
-            c = src.cells
-            src_ct.append(g1[c[:, 0], c[:, 1]])
+            c = cell_index(src.cells)
+            src_ct.append(g1[c])
             if not src.adds:
-                g1 = g1.at[c[:, 0], c[:, 1]].set(0.0)
+                g1 = g1.at[c].set(0.0)
         src_ct = tuple(reversed(src_ct))
         a = g1 if lat.keep is None else lat.keep * g1
         if lat.sponge is not None:
@@ -231,9 +239,9 @@ def _linear_run_bwd(starts, grads, perturbed, stepper, n_steps, chunk):
                 new = _linear_step(lat, p, pp)
                 t = n_next.astype(dtype) * grid.dt_s
                 for src in stepper.sources:
-                    cc = src.cells
+                    cc = cell_index(src.cells)
                     v = source_injection(src, t, grid, lat).astype(dtype)
-                    new = new.at[cc[:, 0], cc[:, 1]].add(v) if src.adds else new.at[cc[:, 0], cc[:, 1]].set(v)
+                    new = new.at[cc].add(v) if src.adds else new.at[cc].set(v)
                 return (new, p), ((p, pp) if need_prev else p)
 
             _, fields = jax.lax.scan(fwd_one, (p_start, pp_start), ns, unroll=min(2, length))

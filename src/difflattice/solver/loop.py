@@ -32,7 +32,8 @@ class Result(eqx.Module):
     - `probes`: (n_steps, n_probes) pressure at the probe cells, steps 1..n_steps.
     - `phasors`: (m,) complex DFT sum_n p(n) exp(+i omega n) at the phasor cells.
     - `p_max`, `p_rms`: whole-field peak |p| and RMS; `arrival`: first step above threshold.
-    - `snapshots`: (k, nx, ny) fields at steps `snapshot_steps`.
+    - `snapshots`: (k, nx, ny) fields at steps `snapshot_steps`; on a 3-D grid a tuple with one
+      (k, n_i, n_j) array per plane of `sensors.snapshot_slices` (or (k, nx, ny, nz) volumes).
     - `peak_history`: (n_chunks,) max |p| at the end of each chunk (`chunk_steps`).
     """
 
@@ -42,7 +43,7 @@ class Result(eqx.Module):
     p_max: Float[Array, "nx ny"] | None
     p_rms: Float[Array, "nx ny"] | None
     arrival: Int[Array, "nx ny"] | None
-    snapshots: Float[Array, "k nx ny"] | None
+    snapshots: Float[Array, "k nx ny"] | tuple[Float[Array, "k ni nj"], ...] | None
     peak_history: Float[Array, " c"]
     n_steps: int = eqx.field(static=True)
     chunk_steps: tuple[int, ...] = eqx.field(static=True)
@@ -150,7 +151,7 @@ def run(
         st, ys = chunk_scan(st, chunk)
         p = st.pressure
         peak = jnp.max(jnp.abs(p))
-        snap = p if sens.snapshot_every is not None else None
+        snap = sens.snapshot_of(p) if sens.snapshot_every is not None else None
         return st, (ys, peak, snap)
 
     state, (ys, peaks, snaps) = jax.lax.scan(outer, state, None, length=n_chunks)
@@ -164,7 +165,8 @@ def run(
         if ys is not None:
             ys = jnp.concatenate([ys, ys_r.reshape(rem, -1)], axis=0)
         if snaps is not None and sens.snapshot_every is not None:
-            snaps = jnp.concatenate([snaps, state.pressure[None]], axis=0)
+            last = sens.snapshot_of(state.pressure)
+            snaps = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b[None]], axis=0), snaps, last)
 
     phasors = None
     if state.phasor_re is not None:
@@ -224,25 +226,32 @@ def _constrainer(shape, sharding):
     return f
 
 
-def grid_sharding(devices: Sequence | None = None, axis: int = 0) -> "jax.sharding.NamedSharding":
-    """A sharding that splits grid-shaped arrays along `axis` (0 = x) across `devices` (default:
-    all devices). On a CPU, `XLA_FLAGS=--xla_force_host_platform_device_count=N` (set before JAX
-    starts) gives N host devices, one per core."""
+def grid_sharding(devices: Sequence | None = None, axis: int = 0, ndim: int = 2) -> "jax.sharding.NamedSharding":
+    """A sharding that splits grid-shaped arrays of rank `ndim` (3 for a 3-D grid) along `axis`
+    (0 = x) across `devices` (default: all devices). On a CPU,
+    `XLA_FLAGS=--xla_force_host_platform_device_count=N` (set before JAX starts) gives N host
+    devices, one per core."""
     from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+    if ndim not in (2, 3) or not 0 <= axis < ndim:
+        raise ValueError(f"grid_sharding(axis={axis}, ndim={ndim}): ndim is 2 or 3 and 0 <= axis < ndim")
     devs = np.asarray(jax.devices() if devices is None else list(devices))
-    spec = PartitionSpec("grid", None) if axis == 0 else PartitionSpec(None, "grid")
+    spec = PartitionSpec(*("grid" if a == axis else None for a in range(ndim)))
     return NamedSharding(Mesh(devs, ("grid",)), spec)
 
 
 INSTABILITY_MESSAGE = (
     "difflattice: the simulation produced non-finite pressure (numerical instability or overflow). "
-    "Likely causes: a lattice speed above 1/sqrt(2) cells/step (lower the grid courant), a strong "
+    "Likely causes: a lattice speed above 1/sqrt(2) cells/step (1/sqrt(3) in 3-D; lower the grid courant), a strong "
     "density contrast at the stability limit with the conservative model (lower courant by ~1%), "
     "or float32 overflow from extreme source amplitudes (scale the weights or use float64)."
 )
 SPEED_MESSAGE = (
     "difflattice: a medium speed exceeds 1/sqrt(2) cells/step, the stability limit (2-D and rz): lower the "
+    "grid courant or set c_max_m_s to the fastest medium's speed."
+)
+SPEED_MESSAGE_3D = (
+    "difflattice: a medium speed exceeds 1/sqrt(3) cells/step, the 3-D stability limit: lower the "
     "grid courant or set c_max_m_s to the fastest medium's speed."
 )
 
@@ -267,6 +276,7 @@ def simulate(
     adjoint: Literal["autodiff", "lattice", "auto"] = "autodiff",
     throw: bool = True,
     backend: Literal["auto", "jax", "native"] = "auto",
+    preflight: Literal["check", "print", "off"] = "check",
 ) -> Result:
     """Simulate `n_steps` time steps of the scene and return what the sensors recorded.
 
@@ -284,8 +294,16 @@ def simulate(
       faster and memory-bounded) or "auto" (see `run`).
     - `throw`: raise on non-finite fields (otherwise inspect `result.peak_history`).
     - `backend`: "auto" (native CPU kernels where supported), "jax" or "native" (see `run`).
+    - `preflight` (3-D grids): "check" (default) refuses a run whose memory estimate does not fit
+      in the available memory (`solver.estimate`, a `RunTooLargeError` naming the estimate and the
+      fix), "print" also prints the memory and time estimate before the run starts, "off" skips
+      both.
     """
     stepper = Stepper.build(grid, medium, sources, sensors, edges)
+    if grid.kind == "3d" and preflight != "off":
+        from .estimate import preflight as _preflight
+
+        _preflight(stepper, n_steps, checkpoint=checkpoint, show=preflight == "print")
     return _simulate(stepper, n_steps, checkpoint, unroll, sharding, adjoint, throw, backend)
 
 
@@ -296,7 +314,8 @@ def _simulate(stepper: Stepper, n_steps: int, checkpoint, unroll: int | None, sh
     if jnp.ndim(lat.c) != 0 or isinstance(lat.c, jax.core.Tracer):
         # speeds may be traced (e.g. fitted): check the stability limit at run time
         limit = stability_limit(stepper.grid.kind)
-        stepper = eqx.error_if(stepper, jnp.max(lat.c) > limit * (1 + 1e-6), SPEED_MESSAGE)
+        msg = SPEED_MESSAGE_3D if stepper.grid.kind == "3d" else SPEED_MESSAGE
+        stepper = eqx.error_if(stepper, jnp.max(lat.c) > limit * (1 + 1e-6), msg)
     result = run(stepper, n_steps, checkpoint=checkpoint, unroll=unroll, sharding=sharding, adjoint=adjoint,
                  backend=backend)
     if throw:

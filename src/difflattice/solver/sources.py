@@ -106,7 +106,7 @@ class PointSources(eqx.Module):
       or "velocity" (a vibrating low z face of each cell; see the module docstring).
     """
 
-    cells: Int[Array, "n 2"] = eqx.field(converter=lambda c: as_cells(c))
+    cells: Int[Array, "n d"] = eqx.field(converter=lambda c: as_cells(c))
     signal: Signal
     weights: Float[Array, " n"]
     lags_s: Float[Array, " n"]
@@ -127,9 +127,9 @@ class PointSources(eqx.Module):
         return int(self.cells.shape[0])
 
     @property
-    def cells_array(self) -> Int[np.ndarray, "n 2"]:
+    def cells_array(self) -> Int[np.ndarray, "n d"]:
         """The cells as a NumPy array (outside jit)."""
-        return np.asarray(self.cells, dtype=np.int64).reshape(-1, 2)
+        return np.asarray(self.cells, dtype=np.int64).reshape(-1, self.cells.shape[-1])
 
     def values(self, t_s):
         """Source values at time t_s (scalar seconds): weights * signal(t - lags)."""
@@ -153,21 +153,25 @@ INJECTIONS = ("soft", "hard", "velocity")
 
 
 
-def as_cells(cells) -> Int[Array, "n 2"]:
-    """Cell indices as an (n, 2) int32 array: NumPy when given concrete values (traced by
-    `eqx.filter_jit` as data, so new positions do not recompile), left alone when traced."""
+def as_cells(cells) -> Int[Array, "n d"]:
+    """Cell indices as an (n, 2) or, on a 3-D grid, (n, 3) int32 array: NumPy when given concrete
+    values (traced by `eqx.filter_jit` as data, so new positions do not recompile), left alone
+    when traced. An empty set is (0, 2) (no cell to index on any grid)."""
     if isinstance(cells, jax.Array) and not isinstance(cells, np.ndarray):
-        if cells.ndim != 2 or cells.shape[-1] != 2 or not jnp.issubdtype(cells.dtype, jnp.integer):
-            raise ValueError(f"cells must be an (n, 2) integer array, got {cells.shape} {cells.dtype}")
+        if cells.ndim != 2 or cells.shape[-1] not in (2, 3) or not jnp.issubdtype(cells.dtype, jnp.integer):
+            raise ValueError(f"cells must be an (n, 2) or (n, 3) integer array, got {cells.shape} {cells.dtype}")
         return cells
     arr = np.asarray(cells)
     if arr.size == 0:
         return np.zeros((0, 2), np.int32)
     if not np.issubdtype(arr.dtype, np.integer):
         if not np.all(np.equal(np.mod(arr, 1), 0)):
-            raise ValueError("cells must be integer cell indices (ix, iy); convert positions in metres "
+            raise ValueError("cells must be integer cell indices (ix, iy[, iz]); convert positions in metres "
                              "with difflattice.sensors.probe_cells or line_cells")
-    return arr.astype(np.int32).reshape(-1, 2)
+    d = arr.shape[-1] if arr.ndim >= 1 else 0
+    if d not in (2, 3) or arr.ndim > 2:
+        raise ValueError(f"cells must be (n, 2) or (n, 3) cell indices, got an array of shape {arr.shape}")
+    return arr.astype(np.int32).reshape(-1, d)
 
 
 def line_cells(
@@ -178,6 +182,8 @@ def line_cells(
     rasterised to the nearest cells; cell k = 0 is at the start of the line."""
     if n_cells < 1:
         raise ValueError(f"n_cells = {n_cells} must be >= 1")
+    if len(grid.shape) != 2:
+        raise ValueError(f"a line transducer needs a 2-D grid, got shape {grid.shape}: on a 3-D grid use disc_transducer_3d")
     theta = math.radians(direction_deg)
     tx, ty = -math.sin(theta), math.cos(theta)  # along the face
     # snap the centre to the half-cell lattice so round-off never splits the line
@@ -372,3 +378,126 @@ def disc_housing(
     fz = jnp.clip(jnp.minimum(i + 1, zf) - jnp.maximum(i, zf - depth), 0.0, 1.0)
     fr = ring_fractions(outer, ny).astype(dtype)
     return (fz[:, None] * fr[None, :]).astype(dtype)
+
+
+# ------------------------------------------------------------------------------------------
+# a circular transducer on a 3-D grid
+
+
+def _disc_basis(axis) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(unit axis, e1, e2): the disc's facing direction and two unit vectors spanning its face."""
+    a = np.asarray(axis, dtype=float).reshape(-1)
+    if a.shape != (3,) or not np.linalg.norm(a) > 0:
+        raise ValueError(f"disc axis {axis!r}: give the 3-vector the face points to (any length, not zero)")
+    a = a / np.linalg.norm(a)
+    helper = np.array([0.0, 0.0, 1.0]) if abs(a[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    e1 = np.cross(helper, a)
+    e1 /= np.linalg.norm(e1)
+    return a, e1, np.cross(a, e1)
+
+
+def ring_table(rings: dict | None, radius_m: float | None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(edges (n, 2) in m, weights (n,), lags (n,) in s) of a disc's rings from a plain dict:
+    `ring_edges_m` (n, 2) inner/outer radii (a disc fit report's layout) or `radii_m` (n,) ring
+    centre radii (edges half-way between them; the outer edge at `radius_m`, or as far beyond the
+    last centre as the last half-spacing), with `weights` (n,) and optional `lags_s` (n,).
+    None: one uniform ring of `radius_m`."""
+    if rings is None:
+        if radius_m is None:
+            raise ValueError("give diameter_m, or rings with their radii")
+        return np.array([[0.0, radius_m]]), np.ones(1), np.zeros(1)
+    if not isinstance(rings, dict) or "weights" not in rings:
+        raise ValueError("rings must be a dict with 'weights' and 'ring_edges_m' (n, 2) or 'radii_m' (n,) "
+                         "(and optionally 'lags_s')")
+    w = np.asarray(rings["weights"], dtype=float).ravel()
+    lag = np.asarray(rings.get("lags_s", np.zeros_like(w)), dtype=float).ravel()
+    if "ring_edges_m" in rings:
+        edges = np.asarray(rings["ring_edges_m"], dtype=float).reshape(-1, 2)
+    elif "radii_m" in rings:
+        r = np.asarray(rings["radii_m"], dtype=float).ravel()
+        mid = 0.5 * (r[1:] + r[:-1])
+        outer = radius_m if radius_m is not None else (r[-1] + (r[-1] - mid[-1]) if len(mid) else 2 * r[-1])
+        edges = np.stack([np.r_[0.0, mid], np.r_[mid, outer]], axis=1)
+    else:
+        raise ValueError(f"rings needs 'ring_edges_m' (n, 2) or 'radii_m' (n,); got keys {sorted(rings)}")
+    if not (len(edges) == len(w) == len(lag)):
+        raise ValueError(f"rings: {len(edges)} rings but {len(w)} weights and {len(lag)} lags")
+    if np.any(edges[:, 1] <= edges[:, 0]) or np.any(edges[1:, 0] < edges[:-1, 1] - 1e-12):
+        raise ValueError("rings: ring edges must increase (inner < outer, rings in order, not overlapping)")
+    return edges, w, lag
+
+
+def disc_cells_3d(
+    grid: Grid, centre_m, axis, diameter_m: float | None = None, *, rings: dict | None = None,
+    samples_per_cell: int = 12,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Cells of a flat disc on a 3-D grid at any position and orientation, weighted by the area of
+    the disc they hold: (cells (n, 3), weights (n,), lags_s (n,), area_cells (n,)).
+
+    The disc (centre `centre_m`, face normal `axis`, diameter `diameter_m`, or the outer edge of
+    `rings`) is sampled on a square sub-grid of `samples_per_cell` points per cell width in its
+    plane; each sample goes to the nearest cell. A cell's weight is the disc area it holds (in
+    cell faces: 1 for a cell a disc normal to an axis covers fully) times the ring weight there;
+    its lag is the weight-averaged ring lag. A disc normal to a grid axis lies in one layer of
+    cells and its rim cells get their covered fraction."""
+    if len(grid.shape) != 3:
+        raise ValueError(f"disc_cells_3d needs a 3-D grid (kind='3d'), got shape {grid.shape}; in 2-D use line_transducer")
+    if diameter_m is not None and not diameter_m > 0:
+        raise ValueError(f"diameter_m = {diameter_m} must be > 0")
+    if samples_per_cell < 2:
+        raise ValueError(f"samples_per_cell = {samples_per_cell} must be >= 2")
+    a, e1, e2 = _disc_basis(axis)
+    edges, rw, rl = ring_table(rings, None if diameter_m is None else 0.5 * diameter_m)
+    radius = 0.5 * diameter_m if diameter_m is not None else float(edges[-1, 1])
+    h = grid.dx_m / samples_per_cell
+    m = int(math.ceil(radius / h))
+    u = (np.arange(-m, m) + 0.5) * h
+    U, V = np.meshgrid(u, u, indexing="ij")
+    rho = np.hypot(U, V)
+    inside = rho < radius
+    U, V, rho = U[inside], V[inside], rho[inside]
+    ring = np.minimum(np.searchsorted(edges[:, 1], rho, side="right"), len(edges) - 1)
+    in_ring = (rho >= edges[ring, 0]) & (rho < edges[ring, 1] + 1e-12 * radius)
+    area = np.full(rho.shape, (h / grid.dx_m) ** 2)
+    wt = np.where(in_ring, rw[ring], 0.0) * area
+    pos = np.asarray(centre_m, dtype=float).reshape(1, 3) + U[:, None] * e1 + V[:, None] * e2
+    idx = np.floor(pos / grid.dx_m + 0.5).astype(np.int64)
+    cells, inv = np.unique(idx, axis=0, return_inverse=True)
+    inv = inv.ravel()
+    w = np.bincount(inv, wt, len(cells))
+    a_cells = np.bincount(inv, area, len(cells))
+    wl = np.bincount(inv, wt * rl[ring], len(cells))
+    lags = np.where(w != 0, wl / np.where(w != 0, w, 1.0), 0.0)
+    if (cells < 0).any() or (cells >= np.asarray(grid.shape)).any():
+        raise ValueError(
+            f"disc of diameter {2 * radius:.4g} m at {tuple(centre_m)} m does not fit in the grid "
+            f"({' x '.join(f'{s:.4f}' for s in grid.size_m)} m): move it or enlarge the grid"
+        )
+    return cells, w, lags, a_cells
+
+
+def disc_transducer_3d(
+    grid: Grid,
+    centre_m,
+    axis,
+    *,
+    diameter_m: float | None = None,
+    rings: dict | None = None,
+    signal: Signal | None = None,
+    injection: Literal["soft", "hard", "velocity"] = "soft",
+    samples_per_cell: int = 12,
+) -> PointSources:
+    """A circular transducer on a 3-D grid: the cells of `disc_cells_3d` driven by one `signal`
+    (default: a 5-cycle Hann burst at the grid frequency), weights = covered area x ring weight,
+    lags from the rings. `rings` is a plain dict (see `ring_table`), e.g. the ring edges, weights
+    and lags of a disc fit report. `injection`: "soft" (a pressure source, transparent), "hard",
+    or "velocity" (each cell's low x face vibrates, see the module docstring: a disc facing +x,
+    e.g. on a rigid x_lo window face as a baffled piston)."""
+    if injection == "velocity" and not np.allclose(_disc_basis(axis)[0], (1.0, 0.0, 0.0)):
+        raise ValueError(f"injection = 'velocity' moves each cell's low x face: the disc must face +x, got axis {axis}")
+    cells, w, lags, _ = disc_cells_3d(grid, centre_m, axis, diameter_m, rings=rings, samples_per_cell=samples_per_cell)
+    keep = w != 0
+    dtype = grid.jnp_dtype
+    sig = signal if signal is not None else ToneBurst(grid.frequency_hz, 5.0)
+    return PointSources(cells=cells[keep], signal=sig, weights=jnp.asarray(w[keep], dtype),
+                        lags_s=jnp.asarray(lags[keep], dtype), injection=injection)

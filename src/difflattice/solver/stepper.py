@@ -5,9 +5,11 @@ Two steppers share one spatial operator (`difflattice.lattice.operators`):
 - staggered split-field form, identical to the leapfrog where no PML damps, used with a PML:
   face fluxes ``w += b grad q`` and ``P_x += K div_x w``, ``P_y += K div_y w``, ``P = P_x + P_y``.
 
-Both run on 2-D and on axisymmetric (rz) grids: the ring metric lives in the operator
+Both run on 2-D, axisymmetric (rz) and 3-D grids: the ring metric lives in the operator
 (`Lattice.metric`); an rz grid's r_hi PML carries one more field, the ring correction `c_r` on the
-layer's rings (`lattice.coefficients.RadialPML`).
+layer's rings (`lattice.coefficients.RadialPML`); a 3-D grid's split-field form carries P_z and
+the z face flux too (``P = P_x + P_y + P_z``). The loops over axes unroll at trace time, so a
+plane or rz scene compiles exactly its 2-D arithmetic (no z term, no z field).
 """
 
 from __future__ import annotations
@@ -46,10 +48,14 @@ class State(eqx.Module):
     p_max: Float[Array, "nx ny"] | None
     p_sq: Float[Array, "nx ny"] | None
     arrival: Int[Array, "nx ny"] | None
+    pz: Float[Array, "nx ny nz"] | None = None  # 3-D staggered only
+    wz: Float[Array, "nx ny nz1"] | None = None
 
     @property
     def pressure(self) -> Float[Array, "nx ny"]:
-        return self.p if self.p is not None else self.px + self.py
+        if self.p is not None:
+            return self.p
+        return self.px + self.py if self.pz is None else self.px + self.py + self.pz
 
 
 # ------------------------------------------------------------------------------------------
@@ -87,15 +93,19 @@ class Stepper(eqx.Module):
                 "jax.config.update('jax_enable_x64', True) first (or use dtype='float32')"
             )
         sensors.check_inside(grid)
+        edges = edges.for_rank(grid.ndim)
         lat = build_lattice(grid, medium, edges)
-        nx, ny = grid.shape
+        shape = tuple(grid.shape)
+        dims = " x ".join(map(str, shape))
         L = edges.thickness_cells if (edges.kinds() & {"pml", "sponge"}) else 0
         for s in sources:
             if not isinstance(s.cells, np.ndarray):
                 continue  # traced positions: not checkable at build time
             cells = s.cells_array
-            if cells.size and ((cells < 0).any() or (cells[:, 0] >= nx).any() or (cells[:, 1] >= ny).any()):
-                raise ValueError(f"source cells outside the {nx} x {ny} grid")
+            if cells.size and cells.shape[1] != len(shape):
+                raise ValueError(f"source cells have {cells.shape[1]} indices each; the {dims} grid needs {len(shape)}")
+            if cells.size and ((cells < 0).any() or (cells >= np.asarray(shape)).any()):
+                raise ValueError(f"source cells outside the {dims} grid")
         if L:
             for s in sources:
                 if not isinstance(s.cells, np.ndarray):
@@ -111,22 +121,30 @@ class Stepper(eqx.Module):
 
     # -- state ---------------------------------------------------------------------------
     def init(self) -> State:
-        nx, ny = self.grid.shape
+        shape = tuple(self.grid.shape)
+        nx = shape[0]
         dt = self.grid.jnp_dtype
-        z = jnp.zeros((nx, ny), dt)
+        z = jnp.zeros(shape, dt)
         sens = self.sensors
         m = sens.n_phasors
         lat = self.lattice
         need_prev = (not self.staggered) or lat.eta > 0
         rad = None if lat.pml is None else lat.pml.radial
+
+        def faces(axis):
+            return jnp.zeros(tuple(n + 1 if a == axis else n for a, n in enumerate(shape)), dt)
+
+        stag3 = self.staggered and len(shape) == 3
         return State(
             n=jnp.asarray(0, jnp.int32),
             p=None if self.staggered else z,
             p_prev=z if need_prev else None,
             px=z if self.staggered else None,
             py=z if self.staggered else None,
-            wx=jnp.zeros((nx + 1, ny), dt) if self.staggered else None,
-            wy=jnp.zeros((nx, ny + 1), dt) if self.staggered else None,
+            pz=z if stag3 else None,
+            wx=faces(0) if self.staggered else None,
+            wy=faces(1) if self.staggered else None,
+            wz=faces(2) if stag3 else None,
             src_acc=tuple(jnp.zeros(s.n_cells, dt) for s in self.sources if s.adds)
             if self.staggered
             else None,
@@ -135,7 +153,7 @@ class Stepper(eqx.Module):
             phasor_im=jnp.zeros(m, dt) if m else None,
             p_max=z if sens.p_max else None,
             p_sq=z if sens.p_rms else None,
-            arrival=jnp.full((nx, ny), -1, jnp.int32) if sens.arrival_threshold_pa else None,
+            arrival=jnp.full(shape, -1, jnp.int32) if sens.arrival_threshold_pa else None,
         )
 
     def _source_values(self, n_next):
@@ -154,8 +172,7 @@ class Stepper(eqx.Module):
         state = self._record(state, p_new, n_next)
         probes = None
         if self.sensors.n_probes:
-            c = self.sensors.probes
-            probes = p_new[c[:, 0], c[:, 1]]
+            probes = p_new[cell_index(self.sensors.probes)]
         return state, probes
 
     def _step_leapfrog(self, state: State, values):
@@ -173,11 +190,11 @@ class Stepper(eqx.Module):
         if lat.keep is not None:
             p_new = lat.keep * p_new
         for src, v in zip(self.sources, values):
-            c = src.cells
+            c = cell_index(src.cells)
             if src.adds:
-                p_new = p_new.at[c[:, 0], c[:, 1]].add(v)
+                p_new = p_new.at[c].add(v)
             else:
-                p_new = p_new.at[c[:, 0], c[:, 1]].set(v)
+                p_new = p_new.at[c].set(v)
         return eqx.tree_at(lambda s: (s.p, s.p_prev, s.n), state, (p_new, p, state.n + 1)), p_new
 
     def _mur(self, p, p_new):
@@ -204,46 +221,63 @@ class Stepper(eqx.Module):
     def _step_staggered(self, state: State, values):
         lat = self.lattice
         pml = lat.pml
-        p = state.px + state.py
+        ndim = len(self.grid.shape)
+        parts = (state.px, state.py, state.pz)[:ndim]
+        fluxes = (state.wx, state.wy, state.wz)[:ndim]
+        p = parts[0] + parts[1] if ndim == 2 else parts[0] + parts[1] + parts[2]
         p_eff = p if lat.eta == 0 else (1 + lat.eta) * p - lat.eta * state.p_prev
         q = p_eff if lat.q_scale is None else lat.q_scale * p_eff
         rad = pml.radial
-        wx = pml.ax_face * state.wx + pml.bx_face * face_gradient(lat, q, 0)
-        wy = pml.ay_face * state.wy + pml.by_face * face_gradient(lat, q, 1)
-        px = pml.ax_cell * state.px + pml.bx_cell * (lat.K * divergence(lat, wx, 0))
-        div_y = divergence(lat, wy, 1)
+        new_w = []
+        for axis in range(ndim):
+            a, b = pml.factors(axis, "face")
+            new_w.append(a * fluxes[axis] + b * face_gradient(lat, q, axis))
         c_r = state.c_r
-        if rad is not None:  # cylindrical stretching of the ring metric in the r_hi layer
-            w = rad.width
-            w_sum = wy[:, -w:] + wy[:, -w - 1:-1] + state.wy[:, -w:] + state.wy[:, -w - 1:-1]
-            c_r = rad.decay * state.c_r + rad.drive * w_sum
-            # zero-padded to full width, not added in place: XLA fuses the pad into the update
-            # (measured, XLA CPU: an in-place strip update 0.6x the 2-D speed, the pad 0.75x)
-            div_y = div_y + jnp.pad(c_r, ((0, 0), (div_y.shape[1] - w, 0)))
-        py = pml.ay_cell * state.py + pml.by_cell * (lat.K * div_y)
+        new_p = []
+        for axis in range(ndim):
+            div = divergence(lat, new_w[axis], axis)
+            if axis == 1 and rad is not None:  # cylindrical stretching of the ring metric in the r_hi layer
+                wy = new_w[1]
+                w = rad.width
+                w_sum = wy[:, -w:] + wy[:, -w - 1:-1] + state.wy[:, -w:] + state.wy[:, -w - 1:-1]
+                c_r = rad.decay * state.c_r + rad.drive * w_sum
+                # zero-padded to full width, not added in place: XLA fuses the pad into the update
+                # (measured, XLA CPU: an in-place strip update 0.6x the 2-D speed, the pad 0.75x)
+                div = div + jnp.pad(c_r, ((0, 0), (div.shape[1] - w, 0)))
+            a, b = pml.factors(axis, "cell")
+            new_p.append(a * parts[axis] + b * (lat.K * div))
         if lat.keep is not None:
-            px, py = lat.keep * px, lat.keep * py
+            new_p = [lat.keep * pa for pa in new_p]
+        share = 1.0 / ndim  # each source value is split evenly over the pressure parts
         acc = list(state.src_acc)
         i_soft = 0
         for src, v in zip(self.sources, values):
-            c = src.cells
+            c = cell_index(src.cells)
             if src.adds:
                 acc[i_soft] = acc[i_soft] + v
-                half = 0.5 * acc[i_soft]
+                part = share * acc[i_soft]
                 i_soft += 1
-                px = px.at[c[:, 0], c[:, 1]].add(half)
-                py = py.at[c[:, 0], c[:, 1]].add(half)
+                new_p = [pa.at[c].add(part) for pa in new_p]
             else:
-                px = px.at[c[:, 0], c[:, 1]].set(0.5 * v)
-                py = py.at[c[:, 0], c[:, 1]].set(0.5 * v)
+                new_p = [pa.at[c].set(share * v) for pa in new_p]
         p_prev = p if state.p_prev is not None else None
+        if ndim == 2:
+            px, py = new_p
+            wx, wy = new_w
+            new = eqx.tree_at(
+                lambda s: (s.px, s.py, s.wx, s.wy, s.src_acc, s.n, s.p_prev, s.c_r),
+                state,
+                (px, py, wx, wy, tuple(acc), state.n + 1, p_prev, c_r),
+                is_leaf=lambda x: x is None,
+            )
+            return new, px + py
         new = eqx.tree_at(
-            lambda s: (s.px, s.py, s.wx, s.wy, s.src_acc, s.n, s.p_prev, s.c_r),
+            lambda s: (s.px, s.py, s.pz, s.wx, s.wy, s.wz, s.src_acc, s.n, s.p_prev),
             state,
-            (px, py, wx, wy, tuple(acc), state.n + 1, p_prev, c_r),
+            (*new_p, *new_w, tuple(acc), state.n + 1, p_prev),
             is_leaf=lambda x: x is None,
         )
-        return new, px + py
+        return new, new_p[0] + new_p[1] + new_p[2]
 
     def _record(self, state: State, p_new, n_next) -> State:
         sens = self.sensors
@@ -253,7 +287,7 @@ class Stepper(eqx.Module):
             f = sens.phasor_frequency_hz or self.grid.frequency_hz
             w = self.grid.hz_to_lattice_omega(f)
             ang = (n_next.astype(self.grid.jnp_dtype) * w) % (2 * math.pi)
-            vals = p_new[c[:, 0], c[:, 1]]
+            vals = p_new[cell_index(c)]
             if sens.phasor_from_step:
                 vals = jnp.where(n_next > sens.phasor_from_step, vals, 0.0)
             updates["phasor_re"] = state.phasor_re + vals * jnp.cos(ang)
@@ -276,20 +310,22 @@ def source_injection(src: PointSources, t_s, grid: Grid, lat: Lattice):
     `PointSources.injected`); velocity sources scale by the lattice speed at their cells."""
     c = None
     if src.injection == "velocity":
-        c = lat.c if jnp.ndim(lat.c) == 0 else lat.c[src.cells[:, 0], src.cells[:, 1]]
+        c = lat.c if jnp.ndim(lat.c) == 0 else lat.c[cell_index(src.cells)]
     return src.injected(t_s, grid.dt_s, c)
 
 
+def cell_index(cells):
+    """Advanced index of (n, d) cells into a d-dimensional field: (c[:, 0], c[:, 1][, c[:, 2]])."""
+    return tuple(cells[:, i] for i in range(cells.shape[1]))
+
+
 def _in_layer(cells: np.ndarray, shape, edges: Edges, L: int) -> np.ndarray:
-    nx, ny = shape
-    ix, iy = cells[:, 0], cells[:, 1]
     m = np.zeros(len(cells), bool)
-    if edges.x_lo in ("pml", "sponge"):
-        m |= ix < L
-    if edges.x_hi in ("pml", "sponge"):
-        m |= ix >= nx - L
-    if edges.y_lo in ("pml", "sponge"):
-        m |= iy < L
-    if edges.y_hi in ("pml", "sponge"):
-        m |= iy >= ny - L
+    for axis, n in enumerate(shape):
+        key = "xyz"[axis]
+        i = cells[:, axis]
+        if getattr(edges, f"{key}_lo") in ("pml", "sponge"):
+            m |= i < L
+        if getattr(edges, f"{key}_hi") in ("pml", "sponge"):
+            m |= i >= n - L
     return m

@@ -42,10 +42,15 @@ def dispatch(stepper, n_steps: int, *, state, checkpoint, unroll, sharding, adjo
         raise ValueError(f"backend = {backend!r}; allowed: {', '.join(map(repr, BACKENDS))}")
     if backend == "jax":
         return None
-    if adjoint != "autodiff":
+    if adjoint == "auto":
+        from ..adjoint import supports
+
+        if supports(stepper, state) is None and sharding is None:
+            adjoint = "lattice"  # what "auto" picks here; otherwise it is "autodiff"
+    if adjoint == "lattice":
         # the adjoint-wave-equation reverse mode has its own forward pass (solver/adjoint.py)
         if backend == "native":
-            raise ValueError(f"backend='native' runs with adjoint='autodiff' only (got adjoint={adjoint!r}): "
+            raise ValueError("backend='native' runs with adjoint='autodiff' only (here adjoint='lattice' applies): "
                              "use backend='auto' or 'jax' for the lattice adjoint")
         return None
     reason = why_not(stepper, state, sharding)

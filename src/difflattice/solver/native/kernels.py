@@ -27,6 +27,13 @@ from ..stepper import State, Stepper
 # runs) until the kernels learn it
 KNOWN_LATTICE_FIELDS = frozenset({"K", "q_scale", "bx", "by", "ax_lo", "ax_hi", "ay_lo", "ay_hi", "keep", "c",
                                   "sponge", "pml", "metric", "eta", "ghosts", "mur"})
+# likewise the carried state, the sensors' options and the sources' injection modes
+KNOWN_STATE_FIELDS = frozenset({"n", "p", "p_prev", "px", "py", "wx", "wy", "src_acc", "c_r", "phasor_re", "phasor_im",
+                                "p_max", "p_sq", "arrival"})
+KNOWN_SENSOR_FIELDS = frozenset({"probes", "phasor_cells", "phasor_frequency_hz", "p_max", "p_rms",
+                                 "arrival_threshold_pa", "snapshot_every", "phasor_from_step"})
+KNOWN_INJECTIONS = frozenset({"soft", "hard", "velocity"})
+BANDS_MAX_BYTES = 8 * 2**20  # the leapfrog runs row bands per step when its two fields fit in this
 L1_BYTES = 40 * 1024  # working-set budgets of the temporal blocking (most x86 cores: 48 KB L1d,
 L2_BYTES = 512 * 1024  # >= 1 MB L2)
 
@@ -47,6 +54,19 @@ def unsupported(stepper: Stepper, state: State | None, sharding) -> str | None:
     extra = [f.name for f in dataclasses.fields(lat) if f.name not in KNOWN_LATTICE_FIELDS and getattr(lat, f.name) is not None]
     if extra:
         return f"lattice terms the kernels do not implement ({', '.join(extra)})"
+    sens = stepper.sensors
+    new_options = [f.name for f in dataclasses.fields(sens)
+                   if f.name not in KNOWN_SENSOR_FIELDS and _is_set(getattr(sens, f.name))]
+    if new_options:
+        return f"sensor options the kernels do not implement ({', '.join(new_options)})"
+    modes = {s.injection for s in stepper.sources} - KNOWN_INJECTIONS
+    if modes:
+        return f"source injection {', '.join(sorted(modes))}"
+    carried = jax.eval_shape(stepper.init)
+    new_state = [f.name for f in dataclasses.fields(carried)
+                 if f.name not in KNOWN_STATE_FIELDS and getattr(carried, f.name) is not None]
+    if new_state:
+        return f"carried state the kernels do not update ({', '.join(new_state)})"
     if any(lat.mur):
         return "Mur edges"
     rad = None if lat.pml is None else getattr(lat.pml, "radial", None)
@@ -71,19 +91,49 @@ def unsupported(stepper: Stepper, state: State | None, sharding) -> str | None:
     return None
 
 
+def _bands(stepper: Stepper) -> bool:
+    """Row bands with a barrier per step (each core keeps its rows) rather than the pipeline of
+    blocked steps: for a leapfrog whose two fields fit in the last-level cache, where blocking
+    saves little and the pipeline's row hand-over between cores costs (840x630 on 2 vCPUs of an
+    EPYC: 4670 MLUPS pipelined); `DIFFLATTICE_NATIVE_SCHEDULE` = "bands" or "pipeline" forces one."""
+    env = os.environ.get("DIFFLATTICE_NATIVE_SCHEDULE")
+    if env in ("bands", "pipeline"):
+        return env == "bands"
+    nx, ny = stepper.grid.shape
+    fields = 2 * nx * ny * jnp.dtype(stepper.grid.jnp_dtype).itemsize
+    return not stepper.staggered and fields <= BANDS_MAX_BYTES
+
+
+def _is_set(v) -> bool:
+    """An option away from its 'off' value (None, False, 0, empty)."""
+    if v is None or isinstance(v, bool):
+        return bool(v)
+    if isinstance(v, (int, float)):
+        return v != 0
+    if hasattr(v, "size"):
+        return int(v.size) > 0
+    if isinstance(v, (tuple, list)):
+        return len(v) > 0
+    return True
+
+
 def _broadcasts(shape, full) -> bool:
     n, m = full
     return tuple(shape) in ((), (1,), (1, 1), (n, m), (n, 1), (1, m))
 
 
-def _threads() -> int:
+def _threads(nx: int, levels: int) -> int:
+    """Threads of the pipeline: every CPU this process may use, but no more than keep the
+    pipeline's fill and drain (each thread starts ~levels + 2 rows after the one before it) under
+    a quarter of a sweep."""
     env = os.environ.get("DIFFLATTICE_NATIVE_THREADS")
     if env:
         return max(1, int(env))
     try:
-        return max(1, len(os.sched_getaffinity(0)))
+        cpus = len(os.sched_getaffinity(0))
     except AttributeError:  # not Linux
-        return max(1, os.cpu_count() or 1)
+        cpus = os.cpu_count() or 1
+    return max(1, min(cpus, nx // (4 * (levels + 2))))
 
 
 def _levels(ny: int, itemsize: int, staggered: bool) -> int:
@@ -116,13 +166,14 @@ def _cells(cells):
 class _Chunk:
     """The constant inputs of the FFI calls of one stepper (built once per trace)."""
 
-    def __init__(self, stepper: Stepper, threads: int, levels: int):
+    def __init__(self, stepper: Stepper, threads: int, levels: int, bands: bool):
         self.stepper = stepper
         grid, lat, sens = stepper.grid, stepper.lattice, stepper.sensors
         self.dt = dt = grid.jnp_dtype
         self.shape = grid.shape
         self.attrs = dict(threads=np.int64(threads), levels=np.int64(levels), eta=float(lat.eta),
                           threshold=float(sens.arrival_threshold_pa or 0.0))
+        self.bands = np.int64(bands)
         as_dt = lambda v: _absent(dt) if v is None else jnp.asarray(v, dt)
         bx, by = _face_coefficients(lat, self.shape, dt)
         self.coef = [as_dt(lat.K), as_dt(bx), as_dt(by), as_dt(lat.q_scale), as_dt(lat.keep)]
@@ -188,7 +239,7 @@ class _Chunk:
             out = jax.ffi.ffi_call(
                 "difflattice_leapfrog", [field, field, rec_shape, *stat_shapes],
                 input_output_aliases={0: 0, 1: 1, 18: 3, 19: 4, 20: 5, 21: 6, 22: 7}, vmap_method="sequential",
-            )(*args, n_steps=np.int64(length), combine=np.int64(0), **self.attrs)
+            )(*args, n_steps=np.int64(length), combine=np.int64(0), bands=self.bands, **self.attrs)
             p, p_prev, rec, *stats_out = out
             st = eqx.tree_at(lambda s: (s.p, s.p_prev), st, (p, p_prev))
         else:
@@ -251,10 +302,10 @@ class _Chunk:
 # the loop
 
 
-def _native_loop(stepper: Stepper, state: State, n_steps: int, chunk: int, threads: int, levels: int):
+def _native_loop(stepper: Stepper, state: State, n_steps: int, chunk: int, threads: int, levels: int, bands: bool):
     """(final state, probes, peak history, snapshots) of `loop.run`, on the native kernels."""
     sens = stepper.sensors
-    kern = _Chunk(stepper, threads, levels)
+    kern = _Chunk(stepper, threads, levels, bands)
     n_chunks, rem = divmod(n_steps, chunk)
 
     def outer(st, _):
@@ -276,12 +327,12 @@ def _native_loop(stepper: Stepper, state: State, n_steps: int, chunk: int, threa
 
 
 @eqx.filter_custom_jvp
-def _loop(stepper, state, *, n_steps, chunk, checkpoint, unroll, threads, levels):
-    return _native_loop(stepper, state, n_steps, chunk, threads, levels)
+def _loop(stepper, state, *, n_steps, chunk, checkpoint, unroll, threads, levels, bands):
+    return _native_loop(stepper, state, n_steps, chunk, threads, levels, bands)
 
 
 @_loop.def_jvp
-def _loop_jvp(primals, tangents, *, n_steps, chunk, checkpoint, unroll, threads, levels):
+def _loop_jvp(primals, tangents, *, n_steps, chunk, checkpoint, unroll, threads, levels, bands):
     """Derivatives of the native loop = those of the JAX reference loop (same chunks)."""
     from ..loop import run as jax_run
 
@@ -299,10 +350,12 @@ def run_native(stepper: Stepper, n_steps: int, *, state: State | None, checkpoin
     sens = stepper.sensors
     chunk = _chunking(n_steps, sens, checkpoint)
     state = stepper.init() if state is None else state
+    nx, ny = stepper.grid.shape
+    levels = _levels(ny, jnp.dtype(stepper.grid.jnp_dtype).itemsize, stepper.staggered)
+    bands = _bands(stepper)
+    threads = _threads(nx, 0 if bands else levels)
     final, ys, peaks, snaps = _loop(stepper, state, n_steps=n_steps, chunk=chunk, checkpoint=checkpoint,
-                                    unroll=unroll, threads=_threads(),
-                                    levels=_levels(stepper.grid.shape[1], jnp.dtype(stepper.grid.jnp_dtype).itemsize,
-                                                   stepper.staggered))
+                                    unroll=unroll, threads=threads, levels=levels, bands=bands)
     n_chunks, rem = divmod(n_steps, chunk)
     steps = [chunk * (i + 1) for i in range(n_chunks)] + ([n_steps] if rem else [])
     phasors = None if final.phasor_re is None else jax.lax.complex(final.phasor_re, final.phasor_im)

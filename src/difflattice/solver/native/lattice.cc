@@ -158,6 +158,25 @@ void pipeline(int64_t nx, int64_t ny, int64_t n_steps, int n_threads, int levels
   });
 }
 
+// Row bands, one step at a time: thread t updates rows [nx t / n, nx (t + 1) / n) of every step,
+// with a barrier per step. No temporal blocking, but each core keeps its own rows (the pipeline
+// hands every row from core to core, which costs more than it saves when the fields fit in the
+// caches; measured on a 2-vCPU EPYC VM: 840x630 on two threads 4670 MLUPS pipelined).
+template <typename MakeWorker, typename Finish>
+void bands(int64_t nx, int64_t n_steps, int n_threads, MakeWorker&& make_worker, Finish&& finish) {
+  const int nt = std::max(1, n_threads);
+  SpinBarrier barrier(nt);
+  parallel(nt, [&](int t) {
+    auto row = make_worker(t);
+    const int64_t r0 = nx * t / nt, r1 = nx * (t + 1) / nt;
+    for (int64_t s = 1; s <= n_steps; ++s) {
+      for (int64_t i = r0; i < r1; ++i) row(0, s, i);
+      barrier.wait();
+    }
+    finish(t, nt);
+  });
+}
+
 // ----------------------------------------------------------------------------------------------
 // coefficient arrays broadcast to a grid: absent, one value (scalar), one value per row (n, 1),
 // one vector for all rows (1, m), or a full array (n, m)
@@ -182,15 +201,18 @@ Coef<T> make_coef(const ffi::AnyBuffer& b, int64_t rows, int64_t cols, bool* ok)
   auto d = b.dimensions();
   if (b.element_count() == 0) return c;
   c.data = reinterpret_cast<const T*>(b.untyped_data());
-  if (d.size() == 0 || b.element_count() == 1) {
+  // the narrowest layout that matches (a grid one cell wide has (n, 1) arrays: one value per row)
+  if (d.size() == 0) {
     c.mode = kScalar;
-  } else if (d.size() == 2 && d[0] == rows && d[1] == cols) {
-    c.mode = kFull;
-    c.ld = cols;
   } else if (d.size() == 2 && d[0] == rows && d[1] == 1) {
     c.mode = kPerRow;
   } else if (d.size() == 2 && d[0] == 1 && d[1] == cols) {
     c.mode = kPerCol;
+  } else if (d.size() == 2 && d[0] == rows && d[1] == cols) {
+    c.mode = kFull;
+    c.ld = cols;
+  } else if (b.element_count() == 1) {
+    c.mode = kScalar;
   } else {
     *ok = false;
   }
@@ -463,6 +485,7 @@ template <typename T>
 struct LeapfrogArgs {
   int64_t nx, ny, n_steps;
   int n_threads, levels;
+  bool bands;   // row bands with a barrier per step instead of the pipeline (no q buffering)
   int combine;  // kFwd (plain or with extras) or kAdj
   T* p;         // P(t) in, the latest field out
   T* pp;        // P(t-1) in, the previous field out
@@ -695,7 +718,8 @@ bool leapfrog(const LeapfrogArgs<T>& a) {
     const int64_t r0 = nx * t / nt, r1 = nx * (t + 1) / nt;
     for (int64_t i = r0; i < r1; ++i) std::swap_ranges(a.p + i * ny, a.p + (i + 1) * ny, a.pp + i * ny);
   };
-  pipeline(nx, ny, a.n_steps, a.n_threads, levels, make_worker, finish);
+  if (a.bands && !qbuf) bands(nx, a.n_steps, a.n_threads, make_worker, finish);
+  else pipeline(nx, ny, a.n_steps, a.n_threads, levels, make_worker, finish);
   return true;
 }
 
@@ -1008,8 +1032,8 @@ ffi::Error leapfrog_typed(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K,
                           ffi::Result<ffi::AnyBuffer> rec_o, ffi::Result<ffi::AnyBuffer> ph_re_o,
                           ffi::Result<ffi::AnyBuffer> ph_im_o, ffi::Result<ffi::AnyBuffer> p_max_o,
                           ffi::Result<ffi::AnyBuffer> p_sq_o, ffi::Result<ffi::AnyBuffer> arrival_o,
-                          int64_t n_steps, int64_t threads, int64_t levels, int64_t combine, double eta,
-                          double threshold) {
+                          int64_t n_steps, int64_t threads, int64_t levels, int64_t bands, int64_t combine,
+                          double eta, double threshold) {
   auto dims = p.dimensions();
   if (dims.size() != 2) return ffi::Error::InvalidArgument("difflattice_leapfrog: the field must be 2-D");
   const int64_t nx = dims[0], ny = dims[1];
@@ -1019,6 +1043,7 @@ ffi::Error leapfrog_typed(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K,
   a.n_steps = n_steps;
   a.n_threads = int(threads);
   a.levels = int(levels);
+  a.bands = bands != 0;
   a.combine = int(combine);
   bool ok = true;
   a.K = dl::make_coef<T>(K, nx, ny, &ok);
@@ -1058,12 +1083,12 @@ ffi::Error leapfrog_impl(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K, 
                          ffi::Result<ffi::AnyBuffer> rec_o, ffi::Result<ffi::AnyBuffer> ph_re_o,
                          ffi::Result<ffi::AnyBuffer> ph_im_o, ffi::Result<ffi::AnyBuffer> p_max_o,
                          ffi::Result<ffi::AnyBuffer> p_sq_o, ffi::Result<ffi::AnyBuffer> arrival_o,
-                         int64_t n_steps, int64_t threads, int64_t levels, int64_t combine, double eta,
-                         double threshold) {
+                         int64_t n_steps, int64_t threads, int64_t levels, int64_t bands, int64_t combine,
+                         double eta, double threshold) {
 #define DL_ARGS                                                                                                 \
   p, pp, K, bx, by, qs, keep, sponge, my_lo, my_hi, src_cells, src_hard, src_vals, rec_cells, zero_cells, ph_cells, ph_cos, \
       ph_sin, ph_re, ph_im, p_max, p_sq, arrival, n0, p_o, pp_o, rec_o, ph_re_o, ph_im_o, p_max_o, p_sq_o,     \
-      arrival_o, n_steps, threads, levels, combine, eta, threshold
+      arrival_o, n_steps, threads, levels, bands, combine, eta, threshold
   switch (p.element_type()) {
     case ffi::DataType::F32:
       return leapfrog_typed<float>(DL_ARGS);
@@ -1205,6 +1230,7 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(DifflatticeLeapfrog, leapfrog_impl,
                                   .Arg<ffi::AnyBuffer>() DL_RETS_4 DL_RETS_4.Attr<int64_t>("n_steps")
                                   .Attr<int64_t>("threads")
                                   .Attr<int64_t>("levels")
+                                  .Attr<int64_t>("bands")
                                   .Attr<int64_t>("combine")
                                   .Attr<double>("eta")
                                   .Attr<double>("threshold"));

@@ -1,0 +1,285 @@
+"""The native CPU kernels (`difflattice.solver.native`) against the JAX loop, the reference: the
+same fields, probes, phasors and statistics to rounding in every scene kind they run; scenes they
+do not run fall back to the JAX loop under backend="auto" and are refused under "native";
+derivatives through a native run are the JAX loop's; threads and temporal blocking never change
+a result.
+
+Tolerance: both loops evaluate the same update with the operations in a different order, so each
+step's new field differs by at most ~16 roundings (the split-field PML update has 16 operations
+per cell) of values bounded by the run's peak |p|; the schemes are neutrally stable, so the
+differences add at most linearly: |native - jax| <= n_steps * 16 * eps * peak.
+"""
+
+import os
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from difflattice.lattice import Edges
+from difflattice.lattice.grid import make_grid
+from difflattice.lattice.medium import Medium
+from difflattice.solver import Sensors, Stepper, native, run, simulate
+from difflattice.solver.native import build
+from difflattice.solver.sources import PointSources, ToneBurst, line_transducer
+
+_LIB = native.load()
+pytestmark = pytest.mark.skipif(isinstance(_LIB, str), reason=f"native kernels unavailable: {_LIB}")
+
+N = 97  # steps: not a multiple of the chunk (exercises the remainder chunk)
+SHAPE = (48, 40)
+X = jnp.arange(48.0)[:, None] * jnp.ones((1, 40))
+SENS = Sensors(probes=[(30, 20), (36, 12)], phasor_cells=[(28, 25), (33, 18), (40, 30), (33, 18)],
+               p_max=True, p_rms=True, arrival_threshold_pa=1e-3)
+
+
+def _grid(dtype, courant=None, kind=None):
+    kw = {} if courant is None else {"courant": courant}
+    if kind is not None:
+        kw["kind"] = kind
+    return make_grid(frequency_hz=50e3, cells_per_wavelength=10, c_max_m_s=343.0, shape=SHAPE, dtype=dtype, **kw)
+
+
+def _scene(kind, dtype):
+    """(grid, medium, sources, sensors, edges) of a scene kind."""
+    g = _grid(dtype, courant=0.6 if kind.startswith("absorbing") else None)
+    rho = jnp.where(X > 30, 2.0, 1.2)
+    rigid = (X > 42).astype(jnp.float64)
+    soft = ((X < 4) & (X > 1)).astype(jnp.float64)
+    src = line_transducer(g, (14 * g.dx_m, 20 * g.dx_m), n_cells=5, signal=ToneBurst(50e3, 2))
+    hard = line_transducer(g, (14 * g.dx_m, 20 * g.dx_m), n_cells=5, signal=ToneBurst(50e3, 2), injection="hard")
+    sens = SENS
+    if kind == "homogeneous":
+        return g, Medium(343.0, 1.2), src, sens, Edges.all("rigid")
+    if kind == "conservative":  # density map, rigid and soft obstacles, rigid and soft window sides
+        return g, Medium(343.0, rho, rigid=rigid, soft=soft), src, sens, Edges(x_lo="soft", x_hi="rigid", y_lo="rigid", y_hi="soft")
+    if kind == "conservative+pml":
+        return g, Medium(343.0, rho, rigid=rigid, soft=soft), (src, hard), sens, Edges(thickness_cells=6)
+    if kind == "homogeneous+pml":
+        return g, Medium(343.0, 1.2), hard, sens, Edges(x_lo="rigid", thickness_cells=6)
+    if kind == "speed_zero+sponge":
+        return g, Medium(343.0, 1.2, rigid=rigid, boundary_model="speed_zero"), hard, sens, Edges.all("sponge", thickness_cells=6)
+    if kind == "absorbing":
+        return g, Medium(343.0, rho, absorption_db_per_m=3.0), src, sens, Edges.all("rigid")
+    if kind == "absorbing+pml":
+        return g, Medium(343.0, rho, absorption_db_per_m=3.0), src, sens, Edges(thickness_cells=6)
+    if kind == "snapshots":
+        return g, Medium(343.0, 1.2), src, Sensors(probes=[(30, 20)], snapshot_every=20), Edges(thickness_cells=6)
+    if kind == "late_phasors":  # phasors summed after a start step only (where Sensors has that option)
+        try:
+            late = Sensors(probes=[(30, 20)], phasor_cells=[(28, 25), (33, 18)], phasor_from_step=40)
+        except TypeError:
+            pytest.skip("this version's Sensors has no phasor_from_step")
+        return g, Medium(343.0, rho), src, late, Edges(thickness_cells=6)
+    raise AssertionError(kind)
+
+
+KINDS = ["homogeneous", "conservative", "conservative+pml", "homogeneous+pml", "speed_zero+sponge", "absorbing",
+         "absorbing+pml", "snapshots", "late_phasors"]
+
+
+def _compare(ref, got, dtype, n_steps=N):
+    eps = float(jnp.finfo(jnp.dtype(dtype)).eps)
+    peak = float(jnp.max(ref.peak_history))
+    assert np.isfinite(peak) and peak > 1e-3
+    tol = n_steps * 16 * eps * peak
+    pairs = [("pressure", ref.final.pressure, got.final.pressure), ("probes", ref.probes, got.probes),
+             ("peak history", ref.peak_history, got.peak_history), ("snapshots", ref.snapshots, got.snapshots),
+             ("p_max", ref.p_max, got.p_max), ("p_rms", ref.p_rms, got.p_rms)]
+    for name, a, b in pairs:
+        assert (a is None) == (b is None), name
+        if a is not None:
+            err = float(jnp.max(jnp.abs(a - b)))
+            assert err <= tol, f"{name}: {err:.3g} > {tol:.3g}"
+    if ref.phasors is not None:  # sums over n_steps values: n_steps times the field tolerance
+        err = float(jnp.max(jnp.abs(ref.phasors - got.phasors)))
+        assert err <= n_steps * tol, f"phasors: {err:.3g}"
+    if ref.arrival is not None:  # first step above the threshold: equal unless a value sits within tol of it
+        assert int(jnp.sum(ref.arrival != got.arrival)) == 0
+
+
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+@pytest.mark.parametrize("kind", KINDS)
+def test_native_equals_jax(kind, dtype):
+    g, medium, src, sens, edges = _scene(kind, dtype)
+    ref = simulate(g, medium, src, sens, n_steps=N, edges=edges, backend="jax", checkpoint=10)
+    got = simulate(g, medium, src, sens, n_steps=N, edges=edges, backend="native", checkpoint=10)
+    _compare(ref, got, dtype)
+
+
+def test_axisymmetric_lattice_runs_natively():
+    """The rz lattice (metric coefficients, velocity sources, the r_hi PML's cylindrical
+    correction) runs on the same kernels."""
+    try:
+        g = _grid("float32", kind="rz")
+    except TypeError:
+        pytest.skip("this version has no axisymmetric grids")
+    src = PointSources(cells=[(10, j) for j in range(6)], signal=ToneBurst(50e3, 2), weights=jnp.ones(6),
+                       lags_s=jnp.zeros(6), injection="velocity")
+    sens = Sensors(probes=[(30, 0), (36, 12)], phasor_cells=[(28, 25), (33, 18)])
+    medium = Medium(343.0, jnp.where(X > 30, 2.0, 1.2), rigid=(X > 42).astype(jnp.float64))
+    for edges in (Edges.axisymmetric("rigid", "rigid", "rigid"), Edges.axisymmetric("rigid", "pml", "pml", thickness_cells=6)):
+        assert native.why_not(Stepper.build(g, medium, src, sens, edges)) is None
+        ref = simulate(g, medium, src, sens, n_steps=N, edges=edges, backend="jax")
+        got = simulate(g, medium, src, sens, n_steps=N, edges=edges, backend="native")
+        _compare(ref, got, "float32")
+
+
+@pytest.mark.parametrize("kind", ["conservative", "conservative+pml"])
+def test_threads_and_blocking_do_not_change_results(kind, monkeypatch):
+    g, medium, src, sens, edges = _scene(kind, "float32")
+    st = Stepper.build(g, medium, src, sens, edges)
+    out = []
+    for threads, levels, schedule in ((1, 1, "pipeline"), (3, 5, "pipeline"), (2, 64, "pipeline"), (7, 2, "pipeline"),
+                                      (2, 8, "bands"), (5, 8, "bands")):
+        monkeypatch.setenv("DIFFLATTICE_NATIVE_THREADS", str(threads))
+        monkeypatch.setenv("DIFFLATTICE_NATIVE_LEVELS", str(levels))
+        monkeypatch.setenv("DIFFLATTICE_NATIVE_SCHEDULE", schedule)
+        r = eqx.filter_jit(lambda s: run(s, N, backend="native"))(st)  # traced anew: reads the settings
+        out.append(r)
+    for r in out[1:]:
+        for name in ("pressure", "probes", "phasors", "p_max", "p_rms", "arrival"):
+            a = r.final.pressure if name == "pressure" else getattr(r, name)
+            b = out[0].final.pressure if name == "pressure" else getattr(out[0], name)
+            np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=name)
+
+
+def _uses_native(fn, *args) -> bool:
+    text = str(jax.make_jaxpr(fn)(*args))
+    return "difflattice_leapfrog" in text or "difflattice_staggered" in text
+
+
+def test_auto_runs_native_where_supported_and_falls_back_elsewhere():
+    g = _grid("float32")
+    src = line_transducer(g, (14 * g.dx_m, 20 * g.dx_m), n_cells=5, signal=ToneBurst(50e3, 2))
+    ok = Stepper.build(g, Medium(343.0, 1.2), src, SENS, Edges(thickness_cells=6))
+    assert _uses_native(lambda s: run(s, 20).final.pressure, ok)
+    assert not _uses_native(lambda s: run(s, 20, backend="jax").final.pressure, ok)
+    st = Stepper.build(g, Medium(343.0, 1.2), src, SENS, Edges.all("mur"))
+    assert "Mur edges" in native.why_not(st)
+    assert not _uses_native(lambda s: run(s, 20).final.pressure, st)
+    a = run(st, 20).final.pressure
+    b = run(st, 20, backend="jax").final.pressure
+    np.testing.assert_array_equal(np.asarray(a), np.asarray(b))  # the same JAX loop
+    with pytest.raises(ValueError, match="Mur edges"):
+        run(st, 20, backend="native")
+    with pytest.raises(ValueError, match="backend"):
+        run(ok, 20, backend="fortran")
+
+
+def test_paper_model_falls_back():
+    g = _grid("float32")
+    src = line_transducer(g, (14 * g.dx_m, 20 * g.dx_m), n_cells=5, signal=ToneBurst(50e3, 2))
+    st = Stepper.build(g, Medium(343.0, 1.2, rigid=(X > 40).astype(jnp.float32), boundary_model="paper"), src, SENS,
+                       Edges.all("rigid"))
+    assert "paper" in native.why_not(st)
+    assert not _uses_native(lambda s: run(s, 20).final.pressure, st)
+
+
+def test_gradients_through_native_runs_equal_jax_autodiff():
+    """jax.grad and jax.jvp of a native run are the JAX loop's derivatives (float64, 1e-6)."""
+    g = _grid("float64")
+    sens = Sensors(probes=[(30, 20), (36, 12)], phasor_cells=[(28, 25), (33, 18), (40, 30)])
+
+    def loss(w, lag, c, backend):
+        src = line_transducer(g, (14 * g.dx_m, 20 * g.dx_m), n_cells=5, signal=ToneBurst(50e3, 2), weights=w, lags_s=lag)
+        r = simulate(g, Medium(c, jnp.where(X > 30, 2.0, 1.2)), src, sens, n_steps=60, edges=Edges(thickness_cells=6),
+                     backend=backend, checkpoint=10)
+        return jnp.sum(r.probes ** 2) + jnp.sum(jnp.abs(r.phasors) ** 2) * 1e-3 + jnp.sum(r.final.pressure * jnp.sin(X / 5))
+
+    w, lag = jnp.linspace(0.8, 1.2, 5), jnp.linspace(0.0, 3e-6, 5)
+    c = 343.0 - 20.0 * jnp.exp(-((X - 26) ** 2 + (jnp.arange(40.0)[None] - 20) ** 2) / 30)
+    assert _uses_native(lambda w: loss(w, lag, c, "auto"), w)  # the value alone runs natively
+    v_ref, g_ref = jax.value_and_grad(loss, argnums=(0, 1, 2))(w, lag, c, "jax")
+    v_nat, g_nat = jax.value_and_grad(loss, argnums=(0, 1, 2))(w, lag, c, "auto")
+    assert abs(float(v_nat - v_ref)) <= 1e-6 * abs(float(v_ref))
+    for name, a, b in zip(("weights", "lags", "speed map"), g_nat, g_ref):
+        scale = float(jnp.max(jnp.abs(b)))
+        assert scale > 0 and float(jnp.max(jnp.abs(a - b))) <= 1e-6 * scale, name
+    t_ref = jax.jvp(lambda w: loss(w, lag, c, "jax"), (w,), (jnp.ones_like(w),))[1]
+    t_nat = jax.jvp(lambda w: loss(w, lag, c, "auto"), (w,), (jnp.ones_like(w),))[1]
+    assert abs(float(t_nat - t_ref)) <= 1e-6 * abs(float(t_ref))
+    # and the forward value of the native loop itself agrees with JAX's, also under vmap
+    assert abs(float(loss(w, lag, c, "native") - v_ref)) <= 1e-9 * abs(float(v_ref))
+    ws = jnp.stack([w, 0.5 * w])
+    batched = jax.vmap(lambda w_: loss(w_, lag, c, "native"))(ws)
+    np.testing.assert_allclose(np.asarray(batched), [float(v_ref), float(loss(0.5 * w, lag, c, "jax"))], rtol=1e-9)
+
+
+def test_cells_outside_the_grid_raise_at_run_time():
+    g = _grid("float32")
+
+    @jax.jit
+    def f(ix):
+        cells = jnp.stack([ix, jnp.asarray(20)])[None]
+        src = PointSources(cells=cells, signal=ToneBurst(50e3, 2), weights=jnp.ones(1), lags_s=jnp.zeros(1))
+        return run(Stepper.build(g, Medium(343.0, 1.2), src, Sensors(), Edges.all("rigid")), 10, backend="native").final.pressure
+
+    assert np.isfinite(np.asarray(f(jnp.asarray(10)))).all()
+    with pytest.raises(Exception, match="outside the grid"):
+        jax.block_until_ready(f(jnp.asarray(500)))
+
+
+def test_no_compiler_means_the_jax_loop_with_the_reason(monkeypatch, tmp_path):
+    monkeypatch.setenv("DIFFLATTICE_NATIVE_CACHE", str(tmp_path))
+    monkeypatch.setenv("CXX", "/nonexistent/c++")
+    monkeypatch.setenv("PATH", str(tmp_path))  # no c++, g++ or clang++ on the path
+    assert "no C++ compiler" in build._load()
+    monkeypatch.setenv("DIFFLATTICE_NATIVE", "0")
+    assert build._load() == "DIFFLATTICE_NATIVE=0"
+
+
+def test_the_cached_library_is_reused():
+    """Loading again (as a new process does) finds the compiled library by its hash: no rebuild."""
+    assert isinstance(_LIB, build.Library)
+    before = os.stat(_LIB.path).st_mtime_ns
+    again = build._load()
+    assert isinstance(again, build.Library) and again.path == _LIB.path
+    assert os.stat(_LIB.path).st_mtime_ns == before
+
+
+def test_adjoint_step_mode_is_the_transposed_operator():
+    """The kernel's adjoint step (combine=2, the building block of a native backward pass):
+    out = 2 a + L(K a) - h with L the flux stencil, for a conservative lattice."""
+    from difflattice.lattice.operators import _face_coefficients, stencil
+
+    g = _grid("float64")
+    st = Stepper.build(g, Medium(343.0, jnp.where(X > 30, 2.0, 1.2), rigid=(X > 42).astype(jnp.float64)), (),
+                       Sensors(), Edges(x_lo="rigid", y_hi="rigid", x_hi="soft", y_lo="soft"))
+    lat = st.lattice
+    rng = np.random.default_rng(1)
+    a = jnp.asarray(rng.standard_normal(SHAPE))
+    h = jnp.asarray(rng.standard_normal(SHAPE))
+    bx, by = _face_coefficients(lat, SHAPE, jnp.float64)
+    e = jnp.zeros((0,), jnp.float64)
+    cells = jnp.zeros((0, 2), jnp.int32)
+    args = [a, h, jnp.asarray(lat.K), bx, by, e, e, e, e, e, cells, jnp.zeros((0,), jnp.int32),
+            jnp.zeros((1, 0)), cells, cells, cells, jnp.zeros(1), jnp.zeros(1), e, e, e, e,
+            jnp.zeros((0,), jnp.int32), jnp.asarray(0, jnp.int32)]
+    shapes = [jax.ShapeDtypeStruct(SHAPE, jnp.float64)] * 2 + [jax.ShapeDtypeStruct((1, 0), jnp.float64)] + \
+        [jax.ShapeDtypeStruct((0,), jnp.float64)] * 4 + [jax.ShapeDtypeStruct((0,), jnp.int32)]
+    out = jax.ffi.ffi_call("difflattice_leapfrog", shapes)(*args, n_steps=np.int64(1), threads=np.int64(2),
+                                                           levels=np.int64(1), bands=np.int64(0),
+                                                           combine=np.int64(2), eta=0.0, threshold=0.0)
+    new, prev = out[0], out[1]
+    ref = 2 * a + stencil(lat, lat.K * a) - h
+    np.testing.assert_allclose(np.asarray(new), np.asarray(ref), rtol=0, atol=1e-12 * float(jnp.abs(ref).max()))
+    np.testing.assert_array_equal(np.asarray(prev), np.asarray(a))  # (a, h) -> (new, a): the step's pair
+
+
+def test_bench_refuses_a_busy_machine_and_computes_ratios(monkeypatch):
+    """`difflattice bench`: a 1-minute load above 1 is refused unless forced; the ratios are the
+    MLUPS quotients of the same case and grid."""
+    from difflattice.apps import bench
+
+    monkeypatch.setattr(os, "getloadavg", lambda: (3.0, 2.0, 1.0))
+    with pytest.raises(RuntimeError, match="load average 3.00"):
+        bench.bench()
+    rows = [{"case": "homogeneous", "grid": "840x630", "impl": "native", "mlups": 6000.0},
+            {"case": "homogeneous", "grid": "840x630", "impl": "numba-1thread", "mlups": 4000.0},
+            {"case": "full", "grid": "840x630", "impl": "native", "mlups": 1800.0}]
+    ratios = {r["ratio"]: r["value"] for r in bench._ratios(rows)}
+    assert ratios["native/numba-1thread"] == 1.5
+    assert ratios["full/homogeneous (native)"] == 0.3

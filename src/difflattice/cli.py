@@ -49,7 +49,7 @@ def _gallery(args) -> int:
 def _demo(args) -> int:
     from .apps.demo import run_demo
 
-    return run_demo(args.out, quick=args.quick)
+    return run_demo(args.out, quick=args.quick, model=args.model)
 
 
 def _fit(args) -> int:
@@ -146,6 +146,9 @@ def build_parser() -> argparse.ArgumentParser:
     d = sub.add_parser("demo", help="main job: emulated rig -> capture -> fit -> report")
     d.add_argument("--out", type=Path, default=Path("out/demo"), help="output directory (its data/ folder is emptied first)")
     d.add_argument("--quick", action="store_true", help="smaller scans (for tests)")
+    d.add_argument("--model", choices=("disc", "line"), default="disc",
+                   help="the emulated transducer and the model fitted: disc (a circular transducer, the disc model on the "
+                        "axisymmetric lattice) or line (the paper's Polaroid-like line, the line model) (default: disc)")
     d.set_defaults(func=_demo)
 
     from .config import keys_help

@@ -92,3 +92,22 @@ def test_run_that_does_not_fit_is_refused_before_it_starts():
     huge = make_grid(frequency_hz=40e3, cells_per_wavelength=20, c_max_m_s=343.0, shape=(4000, 4000, 4000), kind="3d")
     with pytest.raises(RunTooLargeError, match=r"4000 x 4000 x 4000.*estimated memory.*Fix"):
         simulate(huge, Medium(343.0, 1.2), (), Sensors(), n_steps=10)
+
+
+def test_rings_from_a_disc_fit_report(tmp_path):
+    import json
+
+    from difflattice.solver.sources import rings_from_fit_report
+
+    report = {"parameters": {"diameter_m": 14 * H, "weights": [1.0, 0.8, 0.3], "ring_fraction": [1.0, 1.0, 0.5],
+                             "lags_s": [0.0, 1e-6, 2e-6]},
+              "model": {"dx_m": 3 * H, "n_cells": 3}}
+    f = tmp_path / "fit_report.json"
+    f.write_text(json.dumps(report))
+    rings = rings_from_fit_report(f)
+    assert np.allclose(rings["ring_edges_m"], [[0, 3 * H], [3 * H, 6 * H], [6 * H, 9 * H]])
+    assert np.allclose(rings["weights"], [1.0, 0.8, 0.6])  # the profile: the rim fraction divided out
+    src = disc_transducer_3d(G, C, (1, 0, 0), diameter_m=rings["diameter_m"], rings=rings)
+    # the disc holds rings 0-1 fully and ring 2 out to r = 7 cells, with the profile weights
+    expect = math.pi * (9 * 1.0 + 27 * 0.8 + (49 - 36) * 0.6)
+    assert float(jnp.sum(src.weights)) == pytest.approx(expect, rel=3e-3)

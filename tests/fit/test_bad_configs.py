@@ -151,7 +151,8 @@ CASES = [
     ("solver name", patched(solver={"name": '"newton"'}), "[solver.name]"),
     ("loss", patched(solver={"loss": '"l1"'}), "[solver.loss]"),
     ("weights family", patched(model={"weights": '"gaussian"'}), "[model.weights]"),
-    ("disc model not available", patched(model={"model": '"disc"'}), "[model.model]"),
+    ("disc-only profile on a line", patched(model={"weights": '"rim_taper"'}), "[model.weights]"),
+    ("model family", patched(model={"model": '"cone"'}), "[model.model]"),
     (
         "second resolution equal",
         patched(uncertainty={"second_cells_per_wavelength": "20.0"}),

@@ -151,3 +151,19 @@ def test_tapered_disc_with_lags_recovers_profiles(transfer):
     for k in (0, 15, 30, 45, rim - 1):
         got, want = r.physical["lags_s"][k] * 1e6, float(true["lags_s"][k]) * 1e6
         assert abs(got - want) < 3 * r.stderr[f"lag_us[{k}]"], (k, got, want)
+
+
+@pytest.mark.slow
+def test_shipped_config_recovers_the_piston(tmp_path):
+    """`difflattice fit fitting/piston_disc.toml` (captures through the emulated rig): the true
+    38.4 mm inside the quoted total uncertainty (statistical + resolution + model)."""
+    from pathlib import Path
+
+    from difflattice.fit.config import load_config, run_fit
+
+    root = Path(__file__).resolve().parents[2]
+    rep = run_fit(load_config(root / "fitting" / "piston_disc.toml"), out=tmp_path, verbose=False)
+    assert rep["fit"]["converged"]
+    d = next(e for e in rep["budget"]["scalars"] if e["name"] == "diameter_mm")
+    assert d["status"] == "determined" and abs(d["value"] - 38.4) <= d["total"], d
+    assert rep["fit"]["rms"]["wave_phase_deg"] <= 1.0

@@ -35,6 +35,7 @@ import numpy as np
 from ..config import ConfigError, ConfigWarning, Section, message, parse_section, setting, show, specs
 
 PROFILES = ("uniform", "free", "symmetric", "smooth")  # fit.model.PROFILES (not imported: no JAX here)
+DISC_PROFILES = (*PROFILES, "rim_taper")  # fit.disc.DISC_PROFILES; a disc takes "symmetric" as "free"
 SOLVERS = ("levenberg_marquardt", "dogleg", "gauss_newton", "bfgs")  # fit.solve.SOLVERS
 LOSSES = ("l2", "huber", "cauchy")
 MIN_FIT_CELLS_PER_WAVELENGTH = 8.0
@@ -121,24 +122,26 @@ class DataSection(Section):
 
 @dataclass(frozen=True)
 class ModelSection(Section):
-    """The transducer model: a line of source cells with weight and lag profiles and an active
-    diameter (docs/fitting.md, "How it works")."""
+    """The transducer model: a line of source cells (2-D lattice) or a disc of ring source cells
+    (axisymmetric lattice, `fit.disc`), with weight and lag profiles and an active diameter
+    (docs/fitting.md, "How it works")."""
 
     SECTION: ClassVar[str] = "model"
     model: str = setting(
         "line",
         kind="str",
         choices=("line", "disc"),
-        unavailable={"disc": "the axisymmetric disc model comes in a later version"},
-        doc="model family: line (a 2-D line of cells); disc (axisymmetric circular transducer) is planned",
-        fix='use model = "line"',
+        doc="model family: line (a 2-D line of cells); disc (a circular transducer: a disc of ring cells on the "
+        "axisymmetric lattice, lobe and wavefront exact at the data's range)",
+        fix='use model = "disc" for a circular transducer, "line" for the 2-D line model',
     )
     line_length_m: float = setting(
         kind="number",
         gt=0,
         le=10,
         unit="m",
-        doc="length of the modelled line of source cells (>= the largest diameter to try)",
+        doc='the modelled face: the length of the line of source cells, or for model = "disc" the diameter of '
+        "the modelled disc (>= the largest diameter to try)",
         fix="give the length of the transducer face plus a margin, e.g. 0.04",
     )
     diameter_m: float | None = setting(
@@ -168,15 +171,15 @@ class ModelSection(Section):
     weights: str = setting(
         "smooth",
         kind="str",
-        choices=PROFILES,
-        doc="weight profile across the face",
+        choices=DISC_PROFILES,
+        doc='weight profile across the face (rim_taper: model = "disc" only; for a disc, symmetric = free)',
         fix="choose one of the profile families",
     )
     lags: str = setting(
         "smooth",
         kind="str",
-        choices=PROFILES,
-        doc="lag profile across the face",
+        choices=DISC_PROFILES,
+        doc='lag profile across the face (rim_taper: model = "disc" only; for a disc, symmetric = free)',
         fix="choose one of the profile families",
     )
     n_basis: int = setting(
@@ -334,6 +337,13 @@ class FitConfig:
                     f"= {show(m.diameter_m)} m must be {rel} line_length_m = "
                     f"{show(m.line_length_m)} m (the active aperture lies on the modelled line); fix: "
                     "lengthen line_length_m or correct diameter_m",
+                )
+        for key in ("weights", "lags"):
+            if m.model != "disc" and getattr(m, key) not in PROFILES:
+                raise self.error(
+                    f"model.{key}",
+                    f"= {show(getattr(m, key))} is a profile of the disc model only; fix: use one of "
+                    f'{", ".join(PROFILES)}, or model = "disc"',
                 )
         if d.lobe_mask_deg and d.lobe is None:
             raise self.error(
@@ -635,6 +645,8 @@ def load_fit_data(cfg: FitConfig) -> FitData:
 
 
 def _symmetric_model(m: ModelSection) -> bool:
+    if m.model == "disc":  # symmetric about its axis by construction
+        return True
     return all(p in ("uniform", "symmetric") or (p == "smooth" and m.symmetric) for p in (m.weights, m.lags))
 
 
@@ -785,31 +797,14 @@ def _warn_unused_uncertainty(cfg: FitConfig) -> None:
             )
 
 
-def run_fit(cfg: FitConfig, *, out: str | Path | None = None, quick: bool = False, verbose: bool = True) -> dict:
-    """Run a checked config; returns the report dict (also written to the output dir).
-
-    Data problems are `ConfigError`s naming the key (see `load_fit_data`). Uses the JAX precision
-    the caller set (float64 expected; see the module docstring)."""
-    import jax
-
-    if not jax.config.read("jax_enable_x64"):
-        warnings.warn(
-            "run_fit: JAX runs in float32 (jax_enable_x64 is off); fits expect float64: call "
-            "jax.config.update('jax_enable_x64', True) at start-up",
-            RuntimeWarning,
-            stacklevel=2,
-        )
-    from ..air import speed_of_sound_m_s
+def _fit_line(cfg: FitConfig, lobe, wave, f: float, c: float, ppw: float, opts, verbose: bool):
+    """The line model's transfer, fit and untuned uniform fit: (fitted, uniform, transfer,
+    make_transfer(cells_per_wavelength), transfer time in s)."""
     from .model import ModelSpec
-    from .report import write_report
     from .solve import fit
     from .transfer import free_field_transfer
 
-    data = load_fit_data(cfg)
-    lobe, wave, f = data.lobe, data.wave, data.frequency_hz
-    c = speed_of_sound_m_s(data.temperature_c)
     m = cfg.model
-    ppw = 12.0 if quick else m.cells_per_wavelength
     dx = c / (f * ppw)
     n_cells = int(round(m.line_length_m / dx))
     if n_cells < 3:
@@ -818,19 +813,21 @@ def run_fit(cfg: FitConfig, *, out: str | Path | None = None, quick: bool = Fals
             f"= {show(m.line_length_m)} m is {n_cells} cells at {ppw:g} cells per "
             f"wavelength ({dx * 1e3:.2f} mm); the line needs >= 3 cells; fix: give the face length in metres",
         )
-    opts = fit_options(cfg)
-    _warn_unused_uncertainty(cfg)
+
+    def make_transfer(cpw: float):
+        return free_field_transfer(
+            frequency_hz=f,
+            c_m_s=c,
+            n_cells=int(round(m.line_length_m / (c / (f * cpw)))),
+            cells_per_wavelength=cpw,
+            lobe_angle_deg=None if lobe is None else lobe.angle_deg,
+            lobe_range_m=None if lobe is None else (m.lobe_range_m or lobe.range_m),
+            wave_x_m=None if wave is None else wave.x_m,
+            wave_z_m=None if wave is None else wave.z_m,
+        )
+
     t0 = time.perf_counter()
-    transfer = free_field_transfer(
-        frequency_hz=f,
-        c_m_s=c,
-        n_cells=n_cells,
-        cells_per_wavelength=ppw,
-        lobe_angle_deg=None if lobe is None else lobe.angle_deg,
-        lobe_range_m=None if lobe is None else (m.lobe_range_m or lobe.range_m),
-        wave_x_m=None if wave is None else wave.x_m,
-        wave_z_m=None if wave is None else wave.z_m,
-    )
+    transfer = make_transfer(ppw)
     t_transfer = time.perf_counter() - t0
     try:
         spec = ModelSpec(
@@ -849,7 +846,6 @@ def run_fit(cfg: FitConfig, *, out: str | Path | None = None, quick: bool = Fals
     # a given diameter is the start of a fitted one (no scan over diameters)
     params0 = spec.init_params() if (m.fit_diameter and m.diameter_m is not None) else None
     fitted = fit(spec, transfer, lobe, wave, opts, progress=verbose, params0=params0)
-    fitted.warnings[:0] = [f"data: {n}" for n in data.notes]
     uspec = ModelSpec(
         n_cells=n_cells,
         dx_m=dx,
@@ -860,17 +856,71 @@ def run_fit(cfg: FitConfig, *, out: str | Path | None = None, quick: bool = Fals
         diameter_m=m.diameter_m or m.line_length_m,
     )
     uniform = fit(uspec, transfer, lobe, wave, opts)
+    return fitted, uniform, transfer, make_transfer, t_transfer
+
+
+def _fit_disc(cfg: FitConfig, lobe, wave, f: float, c: float, ppw: float, opts, verbose: bool):
+    """The disc model's (`fit.disc`) transfer on the axisymmetric lattice, fit and untuned uniform
+    piston fit, as `_fit_line`; `line_length_m` is the modelled disc's diameter."""
+    from .solve import fit
+    from .transfer_disc import disc_setup
+
+    m = cfg.model
+    t0 = time.perf_counter()
+    try:
+        setup = disc_setup(
+            frequency_hz=f,
+            c_m_s=c,
+            face_diameter_m=m.line_length_m,
+            cells_per_wavelength=ppw,
+            lobe=lobe,
+            wave=wave,
+            lobe_range_m=m.lobe_range_m,
+            weights=m.weights,
+            lags=m.lags,
+            n_basis=m.n_basis,
+            fit_diameter=m.fit_diameter,
+            diameter_m=m.diameter_m,
+        )
+    except ValueError as e:
+        raise cfg.error("model", str(e)) from None
+    t_transfer = time.perf_counter() - t0
+    spec, transfer = setup.spec, cast(Any, setup.transfer)  # a DiscTransfer: the interface of a Transfer
+    params0 = spec.init_params() if (m.fit_diameter and m.diameter_m is not None) else None
+    fitted = fit(spec, transfer, lobe, wave, opts, progress=verbose, params0=params0)
+    uniform = fit(setup.uniform_spec, transfer, lobe, wave, opts)
+    return fitted, uniform, transfer, setup.make_transfer, t_transfer
+
+
+def run_fit(cfg: FitConfig, *, out: str | Path | None = None, quick: bool = False, verbose: bool = True) -> dict:
+    """Run a checked config; returns the report dict (also written to the output dir).
+
+    Data problems are `ConfigError`s naming the key (see `load_fit_data`). Uses the JAX precision
+    the caller set (float64 expected; see the module docstring)."""
+    import jax
+
+    if not jax.config.read("jax_enable_x64"):
+        warnings.warn(
+            "run_fit: JAX runs in float32 (jax_enable_x64 is off); fits expect float64: call "
+            "jax.config.update('jax_enable_x64', True) at start-up",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+    from ..air import speed_of_sound_m_s
+    from .report import write_report
+
+    data = load_fit_data(cfg)
+    lobe, wave, f = data.lobe, data.wave, data.frequency_hz
+    c = speed_of_sound_m_s(data.temperature_c)
+    m = cfg.model
+    ppw = 12.0 if quick else m.cells_per_wavelength
+    opts = fit_options(cfg)
+    _warn_unused_uncertainty(cfg)
+    fit_model = _fit_disc if m.model == "disc" else _fit_line
+    fitted, uniform, transfer, make_transfer, t_transfer = fit_model(cfg, lobe, wave, f, c, ppw, opts, verbose)
+    fitted.warnings[:0] = [f"data: {n}" for n in data.notes]
     # error budget (fit.uncertainty): refits at a second resolution and with other model families
     from .uncertainty import error_budget
-
-    def make_transfer(cpw: float):
-        dx2 = c / (f * cpw)
-        return free_field_transfer(
-            frequency_hz=f, c_m_s=c, n_cells=int(round(m.line_length_m / dx2)), cells_per_wavelength=cpw,
-            lobe_angle_deg=None if lobe is None else lobe.angle_deg,
-            lobe_range_m=None if lobe is None else (m.lobe_range_m or lobe.range_m),
-            wave_x_m=None if wave is None else wave.x_m, wave_z_m=None if wave is None else wave.z_m,
-        )
 
     t1 = time.perf_counter()
     budget = error_budget(fitted, transfer, lobe, wave, opts, make_transfer=make_transfer,
@@ -897,7 +947,7 @@ def run_fit(cfg: FitConfig, *, out: str | Path | None = None, quick: bool = Fals
         lobe,
         wave,
         provenance=prov,
-        field_image=cfg.output.field_image and not quick,
+        field_image=cfg.output.field_image and not quick and m.model == "line",  # fit.report draws a line's field
         budget=budget,
     )
     if verbose:

@@ -129,7 +129,7 @@ class Estimate:
     def z(self, true_value: float) -> float:
         """Error in units of the total uncertainty (against the nearest equally good value)."""
         d = min(abs(v - true_value) for v in (self.value, *self.alternatives))
-        return d / self.total if self.total > 0 else math.inf
+        return d / self.total if self.total > 0 else (0.0 if d == 0 else math.inf)  # exact by construction: 0
 
     def text(self, digits: int = 3) -> str:
         """'v ± stat (stat) ± sys (sys) = ± total', or the limit / status."""
@@ -878,7 +878,10 @@ def error_budget(
             a, b = f"{prefix}{k}]", f"{prefix}{n - 1 - k}]"
             if a in est and b in est:
                 ia, ib = names.index(a), names.index(b)
-                if np.allclose(G[ia], G[ib], rtol=1e-9, atol=1e-12 * max(1.0, float(np.abs(G[ia]).max()))):
+                same_value = abs(v[ia] - v[ib]) <= 1e-9 * max(1.0, abs(float(v[ia])))  # (a disc's rings differ)
+                if same_value and np.allclose(
+                    G[ia], G[ib], rtol=1e-9, atol=1e-12 * max(1.0, float(np.abs(G[ia]).max()))
+                ):
                     drop.add(a)
                     pairs += 1
         if pairs:

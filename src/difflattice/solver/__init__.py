@@ -22,6 +22,7 @@ from .sources import (
     line_transducer,
     ring_fractions,
     ring_radii_m,
+    rings_from_fit_report,
 )
 from .stepper import State, Stepper
 
@@ -29,5 +30,5 @@ __all__ = [
     "INSTABILITY_MESSAGE", "SPEED_MESSAGE", "SPEED_MESSAGE_3D", "ContinuousWave", "PointSources", "Result",
     "Sensors", "State", "Stepper", "ToneBurst", "check_result", "disc_housing", "disc_transducer",
     "disc_transducer_3d", "grid_sharding", "line_transducer", "received_signal", "ring_fractions",
-    "ring_radii_m", "run", "simulate",
+    "ring_radii_m", "rings_from_fit_report", "run", "simulate",
 ]

@@ -427,6 +427,40 @@ def ring_table(rings: dict | None, radius_m: float | None) -> tuple[np.ndarray, 
     return edges, w, lag
 
 
+def rings_from_fit_report(report) -> dict:
+    """The `rings` dict of `disc_transducer_3d` from a disc fit report (a dict, or the path of its
+    JSON file): ring edges from `ring_edges_m` if the report has them, else rings of width
+    `model.dx_m` from the axis (the r-z lattice's layout, axis on a cell face); weights from
+    `weights_raw` (the profile alone: the 3-D disc applies the rim's covered area itself), else
+    `weights` divided by `ring_fraction` where the report gives it; lags from `lags_s`; the
+    diameter as `diameter_m` (pass it on as `diameter_m`)."""
+    import json
+    from pathlib import Path
+
+    if not isinstance(report, dict):
+        report = json.loads(Path(report).read_text())
+    par = report.get("parameters", report)
+    if "weights" not in par and "weights_raw" not in par:
+        raise ValueError("fit report: no ring 'weights' (or 'weights_raw') under 'parameters'")
+    w = np.asarray(par.get("weights_raw", par.get("weights")), dtype=float)
+    if "weights_raw" not in par and "ring_fraction" in par:
+        frac = np.asarray(par["ring_fraction"], dtype=float)
+        w = np.where(frac > 0, w / np.where(frac > 0, frac, 1.0), 0.0)
+    lags = np.asarray(par.get("lags_s", np.zeros_like(w)), dtype=float)
+    if "ring_edges_m" in par or "ring_edges_m" in report.get("model", {}):
+        edges = np.asarray(par.get("ring_edges_m", report.get("model", {}).get("ring_edges_m")), dtype=float)
+    else:
+        dx = report.get("model", {}).get("dx_m")
+        if dx is None:
+            raise ValueError("fit report: give 'ring_edges_m' or 'model.dx_m' (the ring width)")
+        j = np.arange(len(w), dtype=float)
+        edges = np.stack([j * dx, (j + 1) * dx], axis=1)
+    out = {"ring_edges_m": edges.tolist(), "weights": w.tolist(), "lags_s": lags.tolist()}
+    if "diameter_m" in par:
+        out["diameter_m"] = float(par["diameter_m"])
+    return out
+
+
 def disc_cells_3d(
     grid: Grid, centre_m, axis, diameter_m: float | None = None, *, rings: dict | None = None,
     samples_per_cell: int = 12,

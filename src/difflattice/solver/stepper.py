@@ -315,7 +315,7 @@ def source_injection(src: PointSources, t_s, grid: Grid, lat: Lattice):
 
 
 def cell_index(cells):
-    """Advanced index of (n, d) cells into a d-dimensional field: (c[:, 0], c[:, 1][, c[:, 2]])."""
+    """Advanced index of (n, d) cells into a d-dimensional field: `(c[:, 0], c[:, 1])`, plus `c[:, 2]` in 3-D."""
     return tuple(cells[:, i] for i in range(cells.shape[1]))
 
 

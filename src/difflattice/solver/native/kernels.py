@@ -33,7 +33,6 @@ KNOWN_STATE_FIELDS = frozenset({"n", "p", "p_prev", "px", "py", "wx", "wy", "src
 KNOWN_SENSOR_FIELDS = frozenset({"probes", "phasor_cells", "phasor_frequency_hz", "p_max", "p_rms",
                                  "arrival_threshold_pa", "snapshot_every", "phasor_from_step"})
 KNOWN_INJECTIONS = frozenset({"soft", "hard", "velocity"})
-BANDS_MAX_BYTES = 8 * 2**20  # the leapfrog runs row bands per step when its two fields fit in this
 L1_BYTES = 40 * 1024  # working-set budgets of the temporal blocking (most x86 cores: 48 KB L1d,
 L2_BYTES = 512 * 1024  # >= 1 MB L2)
 
@@ -92,16 +91,11 @@ def unsupported(stepper: Stepper, state: State | None, sharding) -> str | None:
 
 
 def _bands(stepper: Stepper) -> bool:
-    """Row bands with a barrier per step (each core keeps its rows) rather than the pipeline of
-    blocked steps: for a leapfrog whose two fields fit in the last-level cache, where blocking
-    saves little and the pipeline's row hand-over between cores costs (840x630 on 2 vCPUs of an
-    EPYC: 4670 MLUPS pipelined); `DIFFLATTICE_NATIVE_SCHEDULE` = "bands" or "pipeline" forces one."""
-    env = os.environ.get("DIFFLATTICE_NATIVE_SCHEDULE")
-    if env in ("bands", "pipeline"):
-        return env == "bands"
-    nx, ny = stepper.grid.shape
-    fields = 2 * nx * ny * jnp.dtype(stepper.grid.jnp_dtype).itemsize
-    return not stepper.staggered and fields <= BANDS_MAX_BYTES
+    """Row bands with a barrier per step instead of the pipeline of blocked steps, only where
+    `DIFFLATTICE_NATIVE_SCHEDULE=bands` asks (leapfrog only). Measured on a quiet 2-vCPU EPYC,
+    840x630 x 1000, two threads: pipeline 8621 MLUPS (median of 5; numba's two threads 8761),
+    bands 3618 (best 7549: a barrier per step stalls both threads whenever one is disturbed)."""
+    return os.environ.get("DIFFLATTICE_NATIVE_SCHEDULE") == "bands" and not stepper.staggered
 
 
 def _is_set(v) -> bool:

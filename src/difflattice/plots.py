@@ -86,24 +86,23 @@ def field_image(
     return fig if fig is not None else ax.figure
 
 
-def level_image(p_max, dx_m: float, *, floor_db: float = -60.0, sources=(), title="peak level (dB re max)"):
-    """Peak |p| map in dB (for beam patterns)."""
-    a = np.asarray(p_max)
+def _db_image(a, dx_m: float, floor_db: float):
+    """A 2-D magnitude map in dB re its peak (floored at `floor_db`), axes in mm, with a colour bar."""
     db = 20 * np.log10(np.maximum(a / max(float(a.max()), 1e-30), 10 ** (floor_db / 20)))
     fig = Figure(figsize=(7, 7 * a.shape[1] / a.shape[0] + 0.6))
     ax = fig.add_subplot()
-    im = ax.imshow(
-        db.T,
-        origin="lower",
-        cmap="magma",
-        vmin=floor_db,
-        vmax=0,
-        extent=(0, a.shape[0] * dx_m * 1e3, 0, a.shape[1] * dx_m * 1e3),
-    )
+    extent = (0, a.shape[0] * dx_m * 1e3, 0, a.shape[1] * dx_m * 1e3)
+    im = ax.imshow(db.T, origin="lower", cmap="magma", vmin=floor_db, vmax=0, extent=extent)
+    fig.colorbar(im, ax=ax, label="dB")
+    return fig, ax
+
+
+def level_image(p_max, dx_m: float, *, floor_db: float = -60.0, sources=(), title="peak level (dB re max)"):
+    """Peak |p| map in dB (for beam patterns)."""
+    fig, ax = _db_image(np.asarray(p_max), dx_m, floor_db)
     for cells in sources:
         c = np.asarray(cells)
         ax.plot(c[:, 0] * dx_m * 1e3, c[:, 1] * dx_m * 1e3, color="cyan", lw=2)
-    fig.colorbar(im, ax=ax, label="dB")
     ax.set_xlabel("x (mm)")
     ax.set_ylabel("y (mm)")
     ax.set_title(title)
@@ -359,18 +358,7 @@ def max_intensity_projection(volume, dx_m: float, *, axis: int = 2, floor_db: fl
         raise ValueError(f"max_intensity_projection needs a 3-D array, got shape {v.shape}")
     m = v.max(axis=axis)
     names = [n for i, n in enumerate("xyz") if i != axis]
-    db = 20 * np.log10(np.maximum(m / max(float(m.max()), 1e-30), 10 ** (floor_db / 20)))
-    fig = Figure(figsize=(7, 7 * m.shape[1] / m.shape[0] + 0.6))
-    ax = fig.add_subplot()
-    im = ax.imshow(
-        db.T,
-        origin="lower",
-        cmap="magma",
-        vmin=floor_db,
-        vmax=0,
-        extent=(0, m.shape[0] * dx_m * 1e3, 0, m.shape[1] * dx_m * 1e3),
-    )
-    fig.colorbar(im, ax=ax, label="dB")
+    fig, ax = _db_image(m, dx_m, floor_db)
     ax.set_xlabel(f"{names[0]} (mm)")
     ax.set_ylabel(f"{names[1]} (mm)")
     ax.set_title(title or f"maximum-intensity projection along {'xyz'[axis]} (dB re max)")

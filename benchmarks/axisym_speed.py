@@ -44,12 +44,17 @@ def main(argv=None) -> int:
     cases = {}
     for edge in ("rigid", "pml"):
         for kind in ("2d", "rz"):
-            g = make_grid(frequency_hz=50e3, cells_per_wavelength=20, c_max_m_s=343.0, shape=(nx, ny), dtype=args.dtype, kind=kind)
+            g = make_grid(
+                frequency_hz=50e3, cells_per_wavelength=20, c_max_m_s=343.0, shape=(nx, ny), dtype=args.dtype, kind=kind
+            )
             if edge == "rigid":
                 e = Edges.axisymmetric("rigid", "rigid", "rigid") if kind == "rz" else Edges.all("rigid")
             else:
-                e = (Edges.axisymmetric("rigid", "pml", "pml", thickness_cells=20) if kind == "rz"
-                     else Edges(x_lo="rigid", x_hi="pml", y_lo="rigid", y_hi="pml", thickness_cells=20))
+                e = (
+                    Edges.axisymmetric("rigid", "pml", "pml", thickness_cells=20)
+                    if kind == "rz"
+                    else Edges(x_lo="rigid", x_hi="pml", y_lo="rigid", y_hi="pml", thickness_cells=20)
+                )
             st = Stepper.build(g, Medium(343.0, 1.2), (), edges=e)
             f = jax.jit(lambda s, n=args.steps, b=args.backend: run(s, n, backend=b).final.pressure)
             t0 = time.perf_counter()
@@ -68,18 +73,41 @@ def main(argv=None) -> int:
             c = cases[(edge, kind)]
             t = statistics.median(c["times"])
             m[kind] = nx * ny * args.steps / t / 1e6
-            rows.append({"edges": edge, "kind": kind, "median_s": t, "times_s": c["times"], "mlups": m[kind],
-                         "compile_s": c["compile_s"]})
+            rows.append(
+                {
+                    "edges": edge,
+                    "kind": kind,
+                    "median_s": t,
+                    "times_s": c["times"],
+                    "mlups": m[kind],
+                    "compile_s": c["compile_s"],
+                }
+            )
         rows.append({"edges": edge, "kind": "rz / 2d", "mlups_ratio": m["rz"] / m["2d"]})
         print(f"{edge:5s}: 2d {m['2d']:.1f} MLUPS, rz {m['rz']:.1f} MLUPS, ratio {m['rz'] / m['2d']:.3f}")
-    res = {"shape": [nx, ny], "steps": args.steps, "repeats": args.repeats, "dtype": args.dtype, "backend": args.backend,
-           "jax": jax.__version__, "devices": [str(d) for d in jax.devices()], "machine": platform.platform(),
-           "cpus": os.cpu_count(), "loadavg_before": load0, "loadavg_after": load1, "rows": rows}
+    res = {
+        "shape": [nx, ny],
+        "steps": args.steps,
+        "repeats": args.repeats,
+        "dtype": args.dtype,
+        "backend": args.backend,
+        "jax": jax.__version__,
+        "devices": [str(d) for d in jax.devices()],
+        "machine": platform.platform(),
+        "cpus": os.cpu_count(),
+        "loadavg_before": load0,
+        "loadavg_after": load1,
+        "rows": rows,
+    }
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "axisym_speed.json").write_text(json.dumps(res, indent=2))
-    lines = [f"rz vs 2-D stepper, {nx} x {ny} cells, {args.steps} steps, {args.dtype}, backend {args.backend}, "
-             f"median of {args.repeats} (interleaved), load average {load0[0]:.2f} -> {load1[0]:.2f} on {os.cpu_count()} CPUs",
-             "", "| edges | 2-D MLUPS | rz MLUPS | rz / 2-D |", "|---|---|---|---|"]
+    lines = [
+        f"rz vs 2-D stepper, {nx} x {ny} cells, {args.steps} steps, {args.dtype}, backend {args.backend}, "
+        f"median of {args.repeats} (interleaved), load average {load0[0]:.2f} -> {load1[0]:.2f} on {os.cpu_count()} CPUs",
+        "",
+        "| edges | 2-D MLUPS | rz MLUPS | rz / 2-D |",
+        "|---|---|---|---|",
+    ]
     for edge in ("rigid", "pml"):
         a = next(r for r in rows if r["edges"] == edge and r["kind"] == "2d")
         b = next(r for r in rows if r["edges"] == edge and r["kind"] == "rz")

@@ -62,10 +62,13 @@ def main():
     pml = 12
     x0 = pml + 8
     c = (x0, n / 2 - 0.5, n / 2 - 0.5)
-    src = disc_transducer_3d(g, tuple(v * g.dx_m for v in c), (1, 0, 0), diameter_m=2 * 20 * g.dx_m,
-                          signal=ToneBurst(40e3, 5))
+    src = disc_transducer_3d(
+        g, tuple(v * g.dx_m for v in c), (1, 0, 0), diameter_m=2 * 20 * g.dx_m, signal=ToneBurst(40e3, 5)
+    )
     t = math.radians(20)
-    wall = HalfSpace(jnp.array([x0 + min(150, n - x0 - pml - 30), c[1], c[2]]) * g.dx_m, jnp.array([-math.cos(t), math.sin(t), 0.0]))
+    wall = HalfSpace(
+        jnp.array([x0 + min(150, n - x0 - pml - 30), c[1], c[2]]) * g.dx_m, jnp.array([-math.cos(t), math.sin(t), 0.0])
+    )
     med = Medium(343.0, 1.2, rigid=rasterise3d(wall, g))
     edges = Edges.all("pml", thickness_cells=pml)
     sensors = Sensors(probes=src.cells_array)
@@ -74,9 +77,12 @@ def main():
     feats = features_of(stepper, args.steps)
     est_bytes, est_s = estimate_run(g.shape, args.steps, "float32", feats)
     del stepper
-    print(f"estimate at {mlups:.1f} MLUPS (measured now): memory {format_bytes(est_bytes)} + runtime "
-          f"{format_bytes(RUNTIME_OVERHEAD_BYTES)}, time {est_s:.1f} s; available {format_bytes(available_memory_bytes())}",
-          file=sys.stderr, flush=True)
+    print(
+        f"estimate at {mlups:.1f} MLUPS (measured now): memory {format_bytes(est_bytes)} + runtime "
+        f"{format_bytes(RUNTIME_OVERHEAD_BYTES)}, time {est_s:.1f} s; available {format_bytes(available_memory_bytes())}",
+        file=sys.stderr,
+        flush=True,
+    )
     t0 = time.perf_counter()
     r = simulate(g, med, src, sensors, n_steps=args.steps, edges=edges, preflight="print")
     jax.block_until_ready(r.probes)
@@ -84,14 +90,26 @@ def main():
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
     load1 = list(os.getloadavg())
     out = {
-        "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "cpu_count": os.cpu_count(),
-        "device": str(jax.devices()[0]), "shape": list(g.shape), "n_steps": args.steps, "dtype": "float32",
-        "source_cells": src.n_cells, "mlups_measured": mlups,
-        "estimate_bytes": est_bytes, "estimate_bytes_with_runtime": est_bytes + RUNTIME_OVERHEAD_BYTES,
-        "estimate_s": est_s, "actual_s": wall_s, "actual_mlups": n**3 * args.steps / wall_s / 1e6,
-        "peak_rss_bytes": rss, "rss_before_bytes": rss0, "load_average_at_start": load0, "load_average_at_end": load1,
+        "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "cpu_count": os.cpu_count(),
+        "device": str(jax.devices()[0]),
+        "shape": list(g.shape),
+        "n_steps": args.steps,
+        "dtype": "float32",
+        "source_cells": src.n_cells,
+        "mlups_measured": mlups,
+        "estimate_bytes": est_bytes,
+        "estimate_bytes_with_runtime": est_bytes + RUNTIME_OVERHEAD_BYTES,
+        "estimate_s": est_s,
+        "actual_s": wall_s,
+        "actual_mlups": n**3 * args.steps / wall_s / 1e6,
+        "peak_rss_bytes": rss,
+        "rss_before_bytes": rss0,
+        "load_average_at_start": load0,
+        "load_average_at_end": load1,
         "provisional": max(load0[0], load1[0]) > (os.cpu_count() or 1),
-        "within_time": wall_s <= est_s, "within_memory": rss <= est_bytes + RUNTIME_OVERHEAD_BYTES,
+        "within_time": wall_s <= est_s,
+        "within_memory": rss <= est_bytes + RUNTIME_OVERHEAD_BYTES,
         "peak_history_finite": bool(jnp.all(jnp.isfinite(r.peak_history))),
     }
     print(json.dumps(out))
@@ -105,7 +123,8 @@ def main():
         f"{' x '.join(map(str, g.shape))} cells x {args.steps} steps, float32, PML, disc transducer, rigid wall "
         f"(cut cells), A-scan recorded; {out['date_utc']}, {os.cpu_count()} cores, load average "
         f"{load0[0]:.2f} at start, {load1[0]:.2f} at end"
-        + (" (**provisional**: load above the core count)" if out["provisional"] else "") + ".",
+        + (" (**provisional**: load above the core count)" if out["provisional"] else "")
+        + ".",
         "",
         "| | estimate | actual |",
         "|---|---:|---:|",

@@ -125,8 +125,14 @@ def role_reference(spec: dict) -> dict:
             yj = (np.arange(n) - (n - 1) / 2) * dx
             R = np.hypot(RANGE_M * np.cos(th)[:, None], RANGE_M * np.sin(th)[:, None] - yj[None, :])
             arr = (0.25j * hankel1(0, k * R)).sum(1)
-            out[key] = {"length_m": n * dx, "n_cells": n, "re": lobe.real.tolist(), "im": lobe.imag.tolist(),
-                        "array_re": arr.real.tolist(), "array_im": arr.imag.tolist()}
+            out[key] = {
+                "length_m": n * dx,
+                "n_cells": n,
+                "re": lobe.real.tolist(),
+                "im": lobe.imag.tolist(),
+                "array_re": arr.real.tolist(),
+                "array_im": arr.imag.tolist(),
+            }
     return out
 
 
@@ -192,7 +198,7 @@ def contour_transform(P, box, k_cells, obs, up: int):
     h = 1.0 / up
     xs = np.arange(ix0 * up, ix1 * up + 1)
     ys = np.arange(iy0 * up, iy1 * up + 1)
-    for side, (ii, jj, n) in {
+    for _side, (ii, jj, n) in {
         "left": (np.full_like(ys, ix0 * up), ys, (-1.0, 0.0)),
         "right": (np.full_like(ys, ix1 * up), ys, (1.0, 0.0)),
         "bottom": (xs, np.full_like(xs, iy0 * up), (0.0, -1.0)),
@@ -213,19 +219,29 @@ def contour_transform(P, box, k_cells, obs, up: int):
     o = obs.reshape(-1, 2)
     out = np.empty(len(o), complex)
     for s in range(0, len(o), 4096):
-        d = o[s:s + 4096, None, :] - pts[None]
+        d = o[s : s + 4096, None, :] - pts[None]
         R = np.sqrt((d**2).sum(-1))
         dR_dn = -(d * nrm[None]).sum(-1) / R
         kR = k_cells * R
         H0, H1 = hankel01_asym(kR)
         G = 0.25j * H0
         dG_dR = -0.25j * k_cells * H1
-        out[s:s + 4096] = (dG_dR * dR_dn) @ (p * w) - G @ (dpdn * w)
+        out[s : s + 4096] = (dG_dR * dR_dn) @ (p * w) - G @ (dpdn * w)
     return out.reshape(shp)
 
 
-def jwave_case(ppw: float, mode: str, cfl: float, repeats: int, ref, pml: int = 20, gap: int | None = None,
-               source: str = "gauss", sigma: float = 1.2, tail_periods: float = 6.0) -> dict:
+def jwave_case(
+    ppw: float,
+    mode: str,
+    cfl: float,
+    repeats: int,
+    ref,
+    pml: int = 20,
+    gap: int | None = None,
+    source: str = "gauss",
+    sigma: float = 1.2,
+    tail_periods: float = 6.0,
+) -> dict:
     import jax
     import jax.numpy as jnp
     import numpy as np
@@ -265,12 +281,17 @@ def jwave_case(ppw: float, mode: str, cfl: float, repeats: int, ref, pml: int = 
 
         def on_grid(self, step):
             return self.signal[step.astype(jnp.int32)] * mask
+
     kern = jnp.asarray(np.exp(1j * 2 * np.pi * F_HZ * t).astype(np.complex64))
 
     @jax.jit
     def run(signals):
-        sources = Sources(positions=pos, signals=signals, dt=dt, domain=domain) if source == "point" else MaskSource(signals)
-        field = simulate_wave_propagation(medium, time_axis, sources=sources, sensors=lambda p, u, rho: p.on_grid[..., 0])
+        sources = (
+            Sources(positions=pos, signals=signals, dt=dt, domain=domain) if source == "point" else MaskSource(signals)
+        )
+        field = simulate_wave_propagation(
+            medium, time_axis, sources=sources, sensors=lambda p, u, rho: p.on_grid[..., 0]
+        )
         return jnp.tensordot(kern, field.astype(jnp.complex64), axes=1)  # phasor at F_HZ, (nx, ny)
 
     t0 = time.perf_counter()
@@ -299,12 +320,27 @@ def jwave_case(ppw: float, mode: str, cfl: float, repeats: int, ref, pml: int = 
         sims.append(t1 - t0)
         posts.append(t2 - t1)
     sim_s, post_s = statistics.median(sims), statistics.median(posts)
-    row = {"solver": "j-Wave", "setup": mode, "points_per_wavelength": ppw, "n_cells": n, "dx_m": dx, "grid": [nx, ny],
-           "n_steps": nt, "cfl": cfl, "pml_points": pml, "contour_upsampling": up, "contour_gap_cells": gap,
-           "source": source if source == "point" else f"gauss sigma={sigma} cells",
-           "simulation_s": sim_s, "farfield_s": post_s, "wall_time_s": sim_s + post_s,
-           "simulation_times_s": sims, "compile_s": max(0.0, first_s - sim_s), "first_call_s": first_s,
-           **lobe_errors(lobe, ref)}
+    row = {
+        "solver": "j-Wave",
+        "setup": mode,
+        "points_per_wavelength": ppw,
+        "n_cells": n,
+        "dx_m": dx,
+        "grid": [nx, ny],
+        "n_steps": nt,
+        "cfl": cfl,
+        "pml_points": pml,
+        "contour_upsampling": up,
+        "contour_gap_cells": gap,
+        "source": source if source == "point" else f"gauss sigma={sigma} cells",
+        "simulation_s": sim_s,
+        "farfield_s": post_s,
+        "wall_time_s": sim_s + post_s,
+        "simulation_times_s": sims,
+        "compile_s": max(0.0, first_s - sim_s),
+        "first_call_s": first_s,
+        **lobe_errors(lobe, ref),
+    }
     log(json.dumps(row))
     return row
 
@@ -321,7 +357,13 @@ def role_jwave(spec: dict) -> dict:
             try:
                 row = jwave_case(ppw, ser["setup"], ser["cfl"], spec["repeats"], load_ref(refs, n, dx))
             except Exception as e:  # noqa: BLE001 (reported, not hidden)
-                row = {"solver": "j-Wave", "setup": ser["setup"], "cfl": ser["cfl"], "points_per_wavelength": ppw, "error": repr(e)[-800:]}
+                row = {
+                    "solver": "j-Wave",
+                    "setup": ser["setup"],
+                    "cfl": ser["cfl"],
+                    "points_per_wavelength": ppw,
+                    "error": repr(e)[-800:],
+                }
                 log(row)
             rows.append({"series": ser["name"], **row})
     from importlib.metadata import version
@@ -344,7 +386,9 @@ def role_difflattice(spec: dict) -> dict:
 
     refs = json.loads(Path(spec["ref"]).read_text())
     with redirect_stdout(io.StringIO()):
-        sweep = accuracy.sweep(cells_per_wavelength=tuple(spec["ppw"]), dtypes=tuple(spec["sweep_dtypes"]), repeats=spec["repeats"])
+        sweep = accuracy.sweep(
+            cells_per_wavelength=tuple(spec["ppw"]), dtypes=tuple(spec["sweep_dtypes"]), repeats=spec["repeats"]
+        )
     for r in sweep["rows"]:
         log(json.dumps(r))
     a = angles()
@@ -356,20 +400,42 @@ def role_difflattice(spec: dict) -> dict:
             times, sims = [], []
             for _ in range(spec["repeats"] + 1):  # the first run compiles
                 t0 = time.perf_counter()
-                T = free_field_transfer(frequency_hz=F_HZ, c_m_s=C_M_S, n_cells=n, cells_per_wavelength=ppw, lobe_angle_deg=a,
-                                        lobe_range_m=RANGE_M, dtype=dtype, dispersion="continuum")
+                T = free_field_transfer(
+                    frequency_hz=F_HZ,
+                    c_m_s=C_M_S,
+                    n_cells=n,
+                    cells_per_wavelength=ppw,
+                    lobe_angle_deg=a,
+                    lobe_range_m=RANGE_M,
+                    dtype=dtype,
+                    dispersion="continuum",
+                )
                 lobe = T.lobe @ np.ones(n)
                 times.append(time.perf_counter() - t0)
                 sims.append(T.info["simulation_s"])
-            row = {"series": f"difflattice {dtype}", "solver": "difflattice", "setup": "cell (lobe only)", "points_per_wavelength": ppw,
-                   "dtype": dtype, "n_cells": n, "grid": T.info["grid_shape"], "n_steps": T.info["n_steps"],
-                   "wall_time_s": statistics.median(times[1:]), "simulation_s": statistics.median(sims[1:]),
-                   "compile_s": max(0.0, times[0] - statistics.median(times[1:])), **lobe_errors(lobe, ref)}
+            row = {
+                "series": f"difflattice {dtype}",
+                "solver": "difflattice",
+                "setup": "cell (lobe only)",
+                "points_per_wavelength": ppw,
+                "dtype": dtype,
+                "n_cells": n,
+                "grid": T.info["grid_shape"],
+                "n_steps": T.info["n_steps"],
+                "wall_time_s": statistics.median(times[1:]),
+                "simulation_s": statistics.median(sims[1:]),
+                "compile_s": max(0.0, times[0] - statistics.median(times[1:])),
+                **lobe_errors(lobe, ref),
+            }
             lobe_only.append(row)
             log(json.dumps(row))
     from importlib.metadata import version
 
-    return {"versions": {"difflattice": version("difflattice"), "jax": jax.__version__}, "sweep": sweep, "lobe_only": lobe_only}
+    return {
+        "versions": {"difflattice": version("difflattice"), "jax": jax.__version__},
+        "sweep": sweep,
+        "lobe_only": lobe_only,
+    }
 
 
 # --- roles: throughput on one grid --------------------------------------------------------------
@@ -411,8 +477,19 @@ def role_throughput_jwave(spec: dict) -> dict:
         jax.block_until_ready(run(sig * 1.0))
         ts.append(time.perf_counter() - t0)
     t = statistics.median(ts)
-    return {"solver": "j-Wave", "nx": nx, "ny": ny, "steps": nt, "cfl": spec["cfl"], "dtype": "float32", "time_s": t, "times_s": ts,
-            "compile_s": max(0.0, first - t), "first_call_s": first, "mlups": nx * ny * nt / t / 1e6}
+    return {
+        "solver": "j-Wave",
+        "nx": nx,
+        "ny": ny,
+        "steps": nt,
+        "cfl": spec["cfl"],
+        "dtype": "float32",
+        "time_s": t,
+        "times_s": ts,
+        "compile_s": max(0.0, first - t),
+        "first_call_s": first,
+        "mlups": nx * ny * nt / t / 1e6,
+    }
 
 
 def role_throughput_difflattice(spec: dict) -> dict:
@@ -421,11 +498,11 @@ def role_throughput_difflattice(spec: dict) -> dict:
     import jax
     import jax.numpy as jnp
 
-    from difflattice.lattice.grid import make_grid
     from difflattice.lattice import Edges
+    from difflattice.lattice.grid import make_grid
     from difflattice.lattice.medium import Medium
-    from difflattice.solver.sensors import Sensors
     from difflattice.solver import Stepper, run
+    from difflattice.solver.sensors import Sensors
     from difflattice.solver.sources import ToneBurst, line_transducer
 
     nx, ny, steps = spec["nx"], spec["ny"], spec["steps"]
@@ -446,9 +523,19 @@ def role_throughput_difflattice(spec: dict) -> dict:
         jax.block_until_ready(f(w0 * 1.01))
         ts.append(time.perf_counter() - t0)
     t = statistics.median(ts)
-    return {"solver": "difflattice", "case": "homogeneous air, PML edges, 104-cell line source, forward", "nx": nx, "ny": ny,
-            "steps": steps, "dtype": "float32", "time_s": t, "times_s": ts, "compile_s": max(0.0, first - t), "first_call_s": first,
-            "mlups": nx * ny * steps / t / 1e6}
+    return {
+        "solver": "difflattice",
+        "case": "homogeneous air, PML edges, 104-cell line source, forward",
+        "nx": nx,
+        "ny": ny,
+        "steps": steps,
+        "dtype": "float32",
+        "time_s": t,
+        "times_s": ts,
+        "compile_s": max(0.0, first - t),
+        "first_call_s": first,
+        "mlups": nx * ny * steps / t / 1e6,
+    }
 
 
 # --- driver -----------------------------------------------------------------------------------
@@ -471,8 +558,12 @@ def call(py: Path, role: str, spec: dict, tmp: Path) -> dict:
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
     log(f"--- {role} ({py})")
     t0 = time.perf_counter()
-    r = subprocess.run([str(py), str(Path(__file__).resolve()), "--role", role, "--spec", json.dumps(spec)], env=env,
-                       stdout=subprocess.PIPE, text=True)
+    r = subprocess.run(
+        [str(py), str(Path(__file__).resolve()), "--role", role, "--spec", json.dumps(spec)],
+        env=env,
+        stdout=subprocess.PIPE,
+        text=True,
+    )
     if r.returncode != 0:
         raise RuntimeError(f"role {role} failed (exit {r.returncode}); stdout tail:\n{r.stdout[-2000:]}")
     res = json.loads(out.read_text())
@@ -515,7 +606,15 @@ def summarise(res: dict) -> dict:
                 row = {"threshold_db": thr}
                 for s in series:
                     c = coarsest([r for r in rows if r["series"] == s], key, thr)
-                    row[s] = None if c is None else {"time_s": c[tkey], "points_per_wavelength": c["points_per_wavelength"], "error_db": c[key]}
+                    row[s] = (
+                        None
+                        if c is None
+                        else {
+                            "time_s": c[tkey],
+                            "points_per_wavelength": c["points_per_wavelength"],
+                            "error_db": c[key],
+                        }
+                    )
                 base = row.get("difflattice float32")
                 for s in series:
                     if s.startswith("j-Wave") and row[s] and base:
@@ -537,13 +636,20 @@ def projection(res: dict) -> list[dict]:
     over the 1 m range, i.e. what a direct simulation to 1 m gives)."""
     tp = res["throughput"]
     jw_rows = [r for r in res["jwave"]["rows"] if r.get("series") == "j-Wave line" and "error" not in r]
-    dl_rows = [{**r, "points_per_wavelength": r["cells_per_wavelength"]} for r in res["difflattice"]["sweep"]["rows"]
-               if r["dtype"] == "float32" and r["farfield_dispersion"] == "lattice"]
+    dl_rows = [
+        {**r, "points_per_wavelength": r["cells_per_wavelength"]}
+        for r in res["difflattice"]["sweep"]["rows"]
+        if r["dtype"] == "float32" and r["farfield_dispersion"] == "lattice"
+    ]
     out = []
     for thr in THRESHOLDS_DB:
         j = coarsest(jw_rows, "lobe_db_max_error", thr)
         d = coarsest(dl_rows, "lobe_db_max_error", thr)
-        row = {"threshold_db": thr, "jwave_ppw": j and j["points_per_wavelength"], "difflattice_ppw": d and d["points_per_wavelength"]}
+        row = {
+            "threshold_db": thr,
+            "jwave_ppw": j and j["points_per_wavelength"],
+            "difflattice_ppw": d and d["points_per_wavelength"],
+        }
         if j and d:
             cj = j["points_per_wavelength"] ** 3 / (tp["j-Wave"]["cfl"] * tp["j-Wave"]["mlups"])
             cd = d["points_per_wavelength"] ** 3 / ((1 / math.sqrt(2)) * tp["difflattice"]["mlups"])
@@ -560,105 +666,160 @@ def write_docs(res: dict) -> None:
     d = ROOT / "docs" / "benchmarks"
     d.mkdir(parents=True, exist_ok=True)
     (d / "jwave.json").write_text(json.dumps(res, indent=2) + "\n")
-    L = ["# j-Wave against difflattice at equal lobe accuracy", "",
-         f"{res['date_utc']}; {res['machine']}; {res['cpu_count']} CPUs; load average {res['load_average_start']} at the start, "
-         f"{res['load_average_end']} at the end ({res['load_note']}).", "",
-         f"Reproduce: `python3 {Path(__file__).relative_to(ROOT)}{' --quick' if res['quick'] else ''}` "
-         "(creates `.venv-jwave` if missing; each side runs in its own venv and process, one after the other).", ""]
+    L = [
+        "# j-Wave against difflattice at equal lobe accuracy",
+        "",
+        f"{res['date_utc']}; {res['machine']}; {res['cpu_count']} CPUs; load average {res['load_average_start']} at the start, "
+        f"{res['load_average_end']} at the end ({res['load_note']}).",
+        "",
+        f"Reproduce: `python3 {Path(__file__).relative_to(ROOT)}{' --quick' if res['quick'] else ''}` "
+        "(creates `.venv-jwave` if missing; each side runs in its own venv and process, one after the other).",
+        "",
+    ]
     if res.get("reused_sweeps_from"):
-        L += [f"The accuracy sweeps are from {res['reused_sweeps_from']}; the throughput part was run on "
-              f"{res['throughput_date_utc']}.", ""]
+        L += [
+            f"The accuracy sweeps are from {res['reused_sweeps_from']}; the throughput part was run on "
+            f"{res['throughput_date_utc']}.",
+            "",
+        ]
     if "jwave_error" in res:
         L += ["**j-Wave could not be run here:**", "", "```", res["jwave_error"], "```", ""]
     else:
         v = res["jwave"]["versions"]
-        L += [f"Versions: jwave {v['jwave']} (jax {v['jax']}, jaxlib {v['jaxlib']}) in `.venv-jwave`; "
-              f"difflattice {res['difflattice']['versions']['difflattice']} (jax {res['difflattice']['versions']['jax']}) in `.venv`.", ""]
+        L += [
+            f"Versions: jwave {v['jwave']} (jax {v['jax']}, jaxlib {v['jaxlib']}) in `.venv-jwave`; "
+            f"difflattice {res['difflattice']['versions']['difflattice']} (jax {res['difflattice']['versions']['jax']}) in `.venv`.",
+            "",
+        ]
     if res.get("conclusion"):
         L += ["## Conclusion", "", res["conclusion"], ""]
-    L += ["## Set-up", "",
-          "Problem: `difflattice.apps.accuracy`'s case: a uniform line of n = round(35.7 mm / dx) cells one dx apart, 50 kHz, "
-          "c = 343 m/s; lobe at 1 m, 0-60 deg in 0.05 deg steps, dB re its maximum. Error: max |dB| difference over the "
-          "directions where the reference is above -20 dB (main lobe and first side lobes), against two references:",
-          "",
-          "- **continuous line** of length n dx (`difflattice.apps.accuracy.reference`, scipy Hankel quadrature): the measure "
-          "of accuracy.py. It includes the error of replacing the face by n point cells (midpoint rule, "
-          "≈ 0.11 dB × (6 / cells per λ)², the same for any solver that models the face as n cells);",
-          "- **discrete array** of the same n isotropic point sources (exact 2-D Green's function, scipy): the solver's "
-          "own error only.", "",
-          "Series: **j-Wave line**: the whole line simulated with `jwave.acoustics.simulate_wave_propagation` "
-          "(pseudo-spectral k-space, default PML of 20 points), Kirchhoff-Helmholtz transform from a box around it. "
-          "**j-Wave cell**: one source simulated, its contour field translated over the n cell positions (difflattice's "
-          "own fast path with the solver swapped). CFL 0.3 is `TimeAxis.from_medium`'s default; 0.6 shown as well (the "
-          "k-space scheme is exact in time for a homogeneous medium, so the error does not change). **difflattice**: "
-          "`free_field_transfer` (one cell + translation, continuum far field), lobe only; `accuracy.sweep`'s own rows "
-          "(which also compute the wavefront block) are in the JSON and the last table.", "",
-          f"Times: median of {res['repeats']} runs after a compiling run. *total*: j-Wave = jitted simulation (with the "
-          "in-graph DFT at 50 kHz) + far-field transform (NumPy); difflattice = the whole `free_field_transfer` call "
-          "(simulation + JAX far-field transform). *simulation only*: the time-stepping part.", ""]
+    L += [
+        "## Set-up",
+        "",
+        "Problem: `difflattice.apps.accuracy`'s case: a uniform line of n = round(35.7 mm / dx) cells one dx apart, 50 kHz, "
+        "c = 343 m/s; lobe at 1 m, 0-60 deg in 0.05 deg steps, dB re its maximum. Error: max |dB| difference over the "
+        "directions where the reference is above -20 dB (main lobe and first side lobes), against two references:",
+        "",
+        "- **continuous line** of length n dx (`difflattice.apps.accuracy.reference`, scipy Hankel quadrature): the measure "
+        "of accuracy.py. It includes the error of replacing the face by n point cells (midpoint rule, "
+        "≈ 0.11 dB × (6 / cells per λ)², the same for any solver that models the face as n cells);",
+        "- **discrete array** of the same n isotropic point sources (exact 2-D Green's function, scipy): the solver's "
+        "own error only.",
+        "",
+        "Series: **j-Wave line**: the whole line simulated with `jwave.acoustics.simulate_wave_propagation` "
+        "(pseudo-spectral k-space, default PML of 20 points), Kirchhoff-Helmholtz transform from a box around it. "
+        "**j-Wave cell**: one source simulated, its contour field translated over the n cell positions (difflattice's "
+        "own fast path with the solver swapped). CFL 0.3 is `TimeAxis.from_medium`'s default; 0.6 shown as well (the "
+        "k-space scheme is exact in time for a homogeneous medium, so the error does not change). **difflattice**: "
+        "`free_field_transfer` (one cell + translation, continuum far field), lobe only; `accuracy.sweep`'s own rows "
+        "(which also compute the wavefront block) are in the JSON and the last table.",
+        "",
+        f"Times: median of {res['repeats']} runs after a compiling run. *total*: j-Wave = jitted simulation (with the "
+        "in-graph DFT at 50 kHz) + far-field transform (NumPy); difflattice = the whole `free_field_transfer` call "
+        "(simulation + JAX far-field transform). *simulation only*: the time-stepping part.",
+        "",
+    ]
     for name, summ in res.get("equal_accuracy", {}).items():
         if name == "projection":
             continue
         series = summ["series"]
-        L += [f"## Time to reach a lobe error: {name}", "",
-              "Each cell: the median time at the coarsest measured resolution whose error is at or below the threshold "
-              "(resolution in brackets). Ratio > 1: j-Wave slower.", "",
-              "| max err ≤ (dB) | " + " | ".join(series) + " | " + " | ".join(f"{s} / difflattice f32" for s in series if s.startswith("j-Wave")) + " |",
-              "|---" * (len(series) + sum(s.startswith("j-Wave") for s in series) + 1) + "|"]
+        L += [
+            f"## Time to reach a lobe error: {name}",
+            "",
+            "Each cell: the median time at the coarsest measured resolution whose error is at or below the threshold "
+            "(resolution in brackets). Ratio > 1: j-Wave slower.",
+            "",
+            "| max err ≤ (dB) | "
+            + " | ".join(series)
+            + " | "
+            + " | ".join(f"{s} / difflattice f32" for s in series if s.startswith("j-Wave"))
+            + " |",
+            "|---" * (len(series) + sum(s.startswith("j-Wave") for s in series) + 1) + "|",
+        ]
         for r in summ["rows"]:
-            cells = ["not reached" if not r.get(s) else f"{r[s]['time_s']:.3f} s ({r[s]['points_per_wavelength']:g}/λ)" for s in series]
+            cells = [
+                "not reached" if not r.get(s) else f"{r[s]['time_s']:.3f} s ({r[s]['points_per_wavelength']:g}/λ)"
+                for s in series
+            ]
             rat = [fmt(r.get(f"ratio {s} / difflattice float32"), ".2f") for s in series if s.startswith("j-Wave")]
             L.append(f"| {r['threshold_db']:g} | " + " | ".join(cells) + " | " + " | ".join(rat) + " |")
         L.append("")
     tp = res.get("throughput")
     if tp:
         tj, td = tp["j-Wave"], tp["difflattice"]
-        L += ["## Throughput on one grid", "",
-              f"{tj['nx']}x{tj['ny']} cells, float32, PML 20 cells, {td['steps']} steps, median of 3 after compiling, same session "
-              f"(load average {tp['load_average']}): j-Wave {tj['mlups']:.1f} MLUPS (CFL {tj['cfl']}, first call incl. compile "
-              f"{tj.get('first_call_s', float('nan')):.1f} s); difflattice {td['mlups']:.1f} MLUPS (homogeneous air, PML "
-              f"edges, as the kernel benchmark's homogeneous+pml case; first call incl. compile {td.get('first_call_s', float('nan')):.1f} s). Per cell update j-Wave costs {td['mlups'] / tj['mlups']:.0f}x "
-              "difflattice's (a k-space pseudo-spectral step is several FFTs over the whole grid; a lattice step is a local "
-              "stencil).", ""]
+        L += [
+            "## Throughput on one grid",
+            "",
+            f"{tj['nx']}x{tj['ny']} cells, float32, PML 20 cells, {td['steps']} steps, median of 3 after compiling, same session "
+            f"(load average {tp['load_average']}): j-Wave {tj['mlups']:.1f} MLUPS (CFL {tj['cfl']}, first call incl. compile "
+            f"{tj.get('first_call_s', float('nan')):.1f} s); difflattice {td['mlups']:.1f} MLUPS (homogeneous air, PML "
+            f"edges, as the kernel benchmark's homogeneous+pml case; first call incl. compile {td.get('first_call_s', float('nan')):.1f} s). Per cell update j-Wave costs {td['mlups'] / tj['mlups']:.0f}x "
+            "difflattice's (a k-space pseudo-spectral step is several FFTs over the whole grid; a lattice step is a local "
+            "stencil).",
+            "",
+        ]
         proj = res.get("equal_accuracy", {}).get("projection")
         if proj:
-            L += ["### Projection (not measured): a direct full-domain simulation", "",
-                  "Cost of simulating a fixed region and duration without the translation trick, so that the solver itself "
-                  "carries the wave to the far field: cost ∝ (points per wavelength)³ / (Courant number × MLUPS), at the "
-                  "coarsest resolution reaching each lobe error (accuracy.py's measure). j-Wave: its \"line\" rows (the "
-                  "k-space scheme has no numerical dispersion in a homogeneous medium, so its error does not grow with range); "
-                  "difflattice: accuracy.sweep's \"lattice\" far-field rows (the lattice's own dispersion over 1 m, i.e. "
-                  "what propagating 1 m on the lattice gives). Courant numbers: j-Wave 0.3 (its default), difflattice "
-                  "1/√2.", "",
-                  "| max err ≤ (dB) | j-Wave pts/λ | difflattice cells/λ | cost j-Wave / difflattice |", "|---|---|---|---|"]
+            L += [
+                "### Projection (not measured): a direct full-domain simulation",
+                "",
+                "Cost of simulating a fixed region and duration without the translation trick, so that the solver itself "
+                "carries the wave to the far field: cost ∝ (points per wavelength)³ / (Courant number × MLUPS), at the "
+                'coarsest resolution reaching each lobe error (accuracy.py\'s measure). j-Wave: its "line" rows (the '
+                "k-space scheme has no numerical dispersion in a homogeneous medium, so its error does not grow with range); "
+                "difflattice: accuracy.sweep's \"lattice\" far-field rows (the lattice's own dispersion over 1 m, i.e. "
+                "what propagating 1 m on the lattice gives). Courant numbers: j-Wave 0.3 (its default), difflattice "
+                "1/√2.",
+                "",
+                "| max err ≤ (dB) | j-Wave pts/λ | difflattice cells/λ | cost j-Wave / difflattice |",
+                "|---|---|---|---|",
+            ]
             for r in proj:
                 c = r.get("cost_ratio_jwave_over_difflattice")
-                L.append(f"| {r['threshold_db']:g} | {r['jwave_ppw'] if r['jwave_ppw'] is not None else 'not reached'} | "
-                         f"{r['difflattice_ppw'] if r['difflattice_ppw'] is not None else 'not reached in the sweep'} | "
-                         f"{'' if c is None else f'{c:.3f}'} |")
+                L.append(
+                    f"| {r['threshold_db']:g} | {r['jwave_ppw'] if r['jwave_ppw'] is not None else 'not reached'} | "
+                    f"{r['difflattice_ppw'] if r['difflattice_ppw'] is not None else 'not reached in the sweep'} | "
+                    f"{'' if c is None else f'{c:.3f}'} |"
+                )
             L.append("")
     if "jwave" in res:
-        L += ["## j-Wave runs", "", "| series | pts/λ | n | grid | steps | sim (s) | far field (s) | total (s) | compile (s) | "
-              "err vs line (dB) | RMS | err vs array (dB) | RMS |", "|---" * 13 + "|"]
+        L += [
+            "## j-Wave runs",
+            "",
+            "| series | pts/λ | n | grid | steps | sim (s) | far field (s) | total (s) | compile (s) | "
+            "err vs line (dB) | RMS | err vs array (dB) | RMS |",
+            "|---" * 13 + "|",
+        ]
         for r in res["jwave"]["rows"]:
             if "error" in r:
                 L.append(f"| {r['series']} | {r['points_per_wavelength']:g} | error: {r['error'][:150]} |" + " |" * 10)
                 continue
-            L.append(f"| {r['series']} | {r['points_per_wavelength']:g} | {r['n_cells']} | {r['grid'][0]}x{r['grid'][1]} | {r['n_steps']} | "
-                     f"{r['simulation_s']:.3f} | {r['farfield_s']:.3f} | {r['wall_time_s']:.3f} | {r['compile_s']:.2f} | "
-                     f"{r['lobe_db_max_error']:.3f} | {r['lobe_db_rms_error']:.3f} | {r['array_db_max_error']:.4f} | {r['array_db_rms_error']:.4f} |")
+            L.append(
+                f"| {r['series']} | {r['points_per_wavelength']:g} | {r['n_cells']} | {r['grid'][0]}x{r['grid'][1]} | {r['n_steps']} | "
+                f"{r['simulation_s']:.3f} | {r['farfield_s']:.3f} | {r['wall_time_s']:.3f} | {r['compile_s']:.2f} | "
+                f"{r['lobe_db_max_error']:.3f} | {r['lobe_db_rms_error']:.3f} | {r['array_db_max_error']:.4f} | {r['array_db_rms_error']:.4f} |"
+            )
         L.append("")
     dl = res["difflattice"]
-    L += ["## difflattice runs", "", "| run | dtype | cells/λ | n | grid | steps | sim (s) | total (s) | compile (s) | err vs line (dB) | RMS | "
-          "err vs array (dB) | RMS |", "|---" * 13 + "|"]
+    L += [
+        "## difflattice runs",
+        "",
+        "| run | dtype | cells/λ | n | grid | steps | sim (s) | total (s) | compile (s) | err vs line (dB) | RMS | "
+        "err vs array (dB) | RMS |",
+        "|---" * 13 + "|",
+    ]
     for r in dl["lobe_only"]:
-        L.append(f"| lobe only | {r['dtype']} | {r['points_per_wavelength']:g} | {r['n_cells']} | {r['grid'][0]}x{r['grid'][1]} | {r['n_steps']} | "
-                 f"{r['simulation_s']:.3f} | {r['wall_time_s']:.3f} | {r['compile_s']:.2f} | {r['lobe_db_max_error']:.3f} | "
-                 f"{r['lobe_db_rms_error']:.3f} | {r['array_db_max_error']:.4f} | {r['array_db_rms_error']:.4f} |")
+        L.append(
+            f"| lobe only | {r['dtype']} | {r['points_per_wavelength']:g} | {r['n_cells']} | {r['grid'][0]}x{r['grid'][1]} | {r['n_steps']} | "
+            f"{r['simulation_s']:.3f} | {r['wall_time_s']:.3f} | {r['compile_s']:.2f} | {r['lobe_db_max_error']:.3f} | "
+            f"{r['lobe_db_rms_error']:.3f} | {r['array_db_max_error']:.4f} | {r['array_db_rms_error']:.4f} |"
+        )
     for r in dl["sweep"]["rows"]:
         if r["farfield_dispersion"] == "continuum":
-            L.append(f"| accuracy.sweep | {r['dtype']} | {r['cells_per_wavelength']:g} | {r['n_cells']} | | | {r['simulation_s']:.3f} | "
-                     f"{r['wall_time_s']:.3f} | | {r['lobe_db_max_error']:.3f} | | | |")
+            L.append(
+                f"| accuracy.sweep | {r['dtype']} | {r['cells_per_wavelength']:g} | {r['n_cells']} | | | {r['simulation_s']:.3f} | "
+                f"{r['wall_time_s']:.3f} | | {r['lobe_db_max_error']:.3f} | | | |"
+            )
     L.append("")
     if res.get("notes"):
         L += ["## Notes and differences from accuracy.py", ""] + [f"- {n}" for n in res["notes"]] + [""]
@@ -670,33 +831,60 @@ def main():
     ap.add_argument("--quick", action="store_true", help="fewer resolutions, one repeat")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--no-write", action="store_true", help="do not write docs/benchmarks/jwave.*")
-    ap.add_argument("--reuse", default=None, help="take the j-Wave and difflattice sweeps from this earlier jwave.json "
-                    "(re-runs only the throughput part and the summary)")
+    ap.add_argument(
+        "--reuse",
+        default=None,
+        help="take the j-Wave and difflattice sweeps from this earlier jwave.json "
+        "(re-runs only the throughput part and the summary)",
+    )
     ap.add_argument("--no-throughput", action="store_true", help="skip the 840x630 throughput runs")
     ap.add_argument("--role", default=None, help=argparse.SUPPRESS)
     ap.add_argument("--spec", default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.role:
         spec = json.loads(args.spec)
-        fn = {"reference": role_reference, "jwave": role_jwave, "difflattice": role_difflattice,
-              "throughput_jwave": role_throughput_jwave, "throughput_difflattice": role_throughput_difflattice}[args.role]
+        fn = {
+            "reference": role_reference,
+            "jwave": role_jwave,
+            "difflattice": role_difflattice,
+            "throughput_jwave": role_throughput_jwave,
+            "throughput_difflattice": role_throughput_difflattice,
+        }[args.role]
         Path(spec["out"]).write_text(json.dumps(fn(spec)))
         return
     jw_ppw = [2, 3, 4, 6] if args.quick else [2, 2.5, 3, 4, 5, 6, 8, 10]
     dl_ppw = [6, 8, 10] if args.quick else [6, 7, 8, 10, 12, 14, 20, 28, 40]
-    series = [{"name": "j-Wave line", "setup": "line", "cfl": 0.3}, {"name": "j-Wave cell", "setup": "cell", "cfl": 0.3},
-              {"name": "j-Wave line CFL 0.6", "setup": "line", "cfl": 0.6}]
+    series = [
+        {"name": "j-Wave line", "setup": "line", "cfl": 0.3},
+        {"name": "j-Wave cell", "setup": "cell", "cfl": 0.3},
+        {"name": "j-Wave line CFL 0.6", "setup": "line", "cfl": 0.6},
+    ]
     repeats = 1 if args.quick else args.repeats
-    res = {"date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "machine": f"{platform.machine()} {platform.processor()}".strip(),
-           "cpu_count": os.cpu_count(), "python": platform.python_version(), "quick": args.quick, "repeats": repeats,
-           "load_average_start": [round(x, 2) for x in os.getloadavg()],
-           "load_note": "the 2 CPU cores were shared with other agents' jobs during the run, so absolute times are noisy; "
-                        "both sides ran in the same session, one after the other"}
+    res = {
+        "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "machine": f"{platform.machine()} {platform.processor()}".strip(),
+        "cpu_count": os.cpu_count(),
+        "python": platform.python_version(),
+        "quick": args.quick,
+        "repeats": repeats,
+        "load_average_start": [round(x, 2) for x in os.getloadavg()],
+        "load_note": "the 2 CPU cores were shared with other agents' jobs during the run, so absolute times are noisy; "
+        "both sides ran in the same session, one after the other",
+    }
     with tempfile.TemporaryDirectory() as tmpd:
         tmp = Path(tmpd)
         if args.reuse:
             old = json.loads(Path(args.reuse).read_text())
-            keep = ["jwave", "jwave_error", "difflattice", "date_utc", "load_average_start", "load_average_end", "repeats", "quick"]
+            keep = [
+                "jwave",
+                "jwave_error",
+                "difflattice",
+                "date_utc",
+                "load_average_start",
+                "load_average_end",
+                "repeats",
+                "quick",
+            ]
             if args.no_throughput:  # keep the earlier throughput numbers too: only the summary is redone
                 keep += ["throughput", "throughput_date_utc"]
             for k in keep:
@@ -708,13 +896,25 @@ def main():
             ref = references(sorted(set(jw_ppw) | set(dl_ppw)), tmp)
             try:
                 py = ensure_jwave_venv()
-                res["jwave"] = call(py, "jwave", {"ppw": jw_ppw, "series": series, "repeats": repeats, "ref": str(ref)}, tmp)
+                res["jwave"] = call(
+                    py, "jwave", {"ppw": jw_ppw, "series": series, "repeats": repeats, "ref": str(ref)}, tmp
+                )
             except Exception as e:  # noqa: BLE001 (written into the report)
                 res["jwave_error"] = str(e)
                 log(res["jwave_error"])
-            res["difflattice"] = call(MAIN_PY, "difflattice", {"ppw": dl_ppw, "lobe_only_ppw": [p for p in dl_ppw if p <= 20],
-                                                               "sweep_dtypes": ["float32"], "dtypes": ["float32", "float64"],
-                                                               "repeats": repeats, "ref": str(ref)}, tmp)
+            res["difflattice"] = call(
+                MAIN_PY,
+                "difflattice",
+                {
+                    "ppw": dl_ppw,
+                    "lobe_only_ppw": [p for p in dl_ppw if p <= 20],
+                    "sweep_dtypes": ["float32"],
+                    "dtypes": ["float32", "float64"],
+                    "repeats": repeats,
+                    "ref": str(ref),
+                },
+                tmp,
+            )
         partial = ROOT / "out" / "jwave_compare_partial.json"  # so a later failure does not lose the sweeps
         partial.parent.mkdir(parents=True, exist_ok=True)
         partial.write_text(json.dumps(res))
@@ -725,7 +925,8 @@ def main():
                 res["throughput"] = {
                     "j-Wave": call(py, "throughput_jwave", {**THROUGHPUT, "steps": steps, "cfl": 0.3}, tmp),
                     "difflattice": call(MAIN_PY, "throughput_difflattice", {**THROUGHPUT, "steps": steps}, tmp),
-                    "load_average": [round(x, 2) for x in os.getloadavg()]}
+                    "load_average": [round(x, 2) for x in os.getloadavg()],
+                }
             except Exception as e:  # noqa: BLE001 (reported in the JSON)
                 res["throughput_error"] = str(e)[-1500:]
                 log(res["throughput_error"])
@@ -779,34 +980,52 @@ def conclusion(res: dict) -> str:
             d, j = tot.get("difflattice float32"), tot.get("j-Wave line")
             if d and j:
                 ds, js = sim["difflattice float32"], sim["j-Wave line"]
-                bits.append(f"≤ {thr:g} dB needs {j['points_per_wavelength']:g} pts/λ in j-Wave and {d['points_per_wavelength']:g} cells/λ "
-                            f"in difflattice; total {j['time_s']:.2f} s vs {d['time_s']:.2f} s (j-Wave / difflattice "
-                            f"{j['time_s'] / d['time_s']:.2f}), simulation only {js['time_s']:.3f} s vs {ds['time_s']:.3f} s "
-                            f"({js['time_s'] / ds['time_s']:.1f})")
+                bits.append(
+                    f"≤ {thr:g} dB needs {j['points_per_wavelength']:g} pts/λ in j-Wave and {d['points_per_wavelength']:g} cells/λ "
+                    f"in difflattice; total {j['time_s']:.2f} s vs {d['time_s']:.2f} s (j-Wave / difflattice "
+                    f"{j['time_s'] / d['time_s']:.2f}), simulation only {js['time_s']:.3f} s vs {ds['time_s']:.3f} s "
+                    f"({js['time_s'] / ds['time_s']:.1f})"
+                )
             else:
-                bits.append(f"≤ {thr:g} dB: " + ("j-Wave not reached" if not j else "difflattice not reached in the sweep"))
+                bits.append(
+                    f"≤ {thr:g} dB: " + ("j-Wave not reached" if not j else "difflattice not reached in the sweep")
+                )
         parts.append(f"- **Against the {mname}**: " + "; ".join(bits) + ".")
-    parts.append("- Both simulations here are tiny (difflattice: one cell on 54x59 cells at every resolution; j-Wave: the "
-                 "whole line on 63x70 to 63x112 points), so the times are mostly per-call overhead and the far-field "
-                 "transform rather than time stepping. j-Wave reaches a given lobe error at a coarser resolution, and its "
-                 "line set-up needs one contour transform where difflattice's translation path transforms per cell; "
-                 "difflattice's simulation part is the cheaper one (simulation-only ratios above).")
+    parts.append(
+        "- Both simulations here are tiny (difflattice: one cell on 54x59 cells at every resolution; j-Wave: the "
+        "whole line on 63x70 to 63x112 points), so the times are mostly per-call overhead and the far-field "
+        "transform rather than time stepping. j-Wave reaches a given lobe error at a coarser resolution, and its "
+        "line set-up needs one contour transform where difflattice's translation path transforms per cell; "
+        "difflattice's simulation part is the cheaper one (simulation-only ratios above)."
+    )
     tp = res.get("throughput")
     if tp:
-        parts.append(f"- Per cell update on a large grid (840x630, float32, same session), difflattice runs "
-                     f"{tp['difflattice']['mlups']:.0f} MLUPS and j-Wave {tp['j-Wave']['mlups']:.0f} MLUPS "
-                     f"({tp['difflattice']['mlups'] / tp['j-Wave']['mlups']:.1f}x).")
+        parts.append(
+            f"- Per cell update on a large grid (840x630, float32, same session), difflattice runs "
+            f"{tp['difflattice']['mlups']:.0f} MLUPS and j-Wave {tp['j-Wave']['mlups']:.0f} MLUPS "
+            f"({tp['difflattice']['mlups'] / tp['j-Wave']['mlups']:.1f}x)."
+        )
         proj = ea.get("projection") or []
-        pb = [f"≤ {r['threshold_db']:g} dB: j-Wave {r['jwave_ppw']:g} pts/λ vs difflattice "
-              + (f"{r['difflattice_ppw']:g} cells/λ, j-Wave / difflattice cost {r['cost_ratio_jwave_over_difflattice']:.2f}"
-                 if r.get("cost_ratio_jwave_over_difflattice") is not None else "not reached up to 20 cells/λ")
-              for r in proj if r["threshold_db"] in (1.0, 0.5) and r["jwave_ppw"] is not None]
+        pb = [
+            f"≤ {r['threshold_db']:g} dB: j-Wave {r['jwave_ppw']:g} pts/λ vs difflattice "
+            + (
+                f"{r['difflattice_ppw']:g} cells/λ, j-Wave / difflattice cost {r['cost_ratio_jwave_over_difflattice']:.2f}"
+                if r.get("cost_ratio_jwave_over_difflattice") is not None
+                else "not reached up to 20 cells/λ"
+            )
+            for r in proj
+            if r["threshold_db"] in (1.0, 0.5) and r["jwave_ppw"] is not None
+        ]
         if pb:
-            parts.append("- Projection (not measured) for a direct full-domain simulation to 1 m, where difflattice's own "
-                         "dispersion counts: " + "; ".join(pb) + ". The translation + continuum far-field path is what "
-                         "keeps difflattice competitive on this problem.")
-    parts.append(f"- Machine: {res['cpu_count']} CPU cores shared with other agents' jobs (load average "
-                 f"{res['load_average_start']} → {res['load_average_end']}); times are noisy at the 10-30 % level.")
+            parts.append(
+                "- Projection (not measured) for a direct full-domain simulation to 1 m, where difflattice's own "
+                "dispersion counts: " + "; ".join(pb) + ". The translation + continuum far-field path is what "
+                "keeps difflattice competitive on this problem."
+            )
+    parts.append(
+        f"- Machine: {res['cpu_count']} CPU cores shared with other agents' jobs (load average "
+        f"{res['load_average_start']} → {res['load_average_end']}); times are noisy at the 10-30 % level."
+    )
     return "\n".join(parts)
 
 

@@ -45,8 +45,8 @@ def _scene(kind, nx, ny, dtype):
     """(grid, medium factory c -> Medium, edges, sensors) for a benchmark scene kind."""
     import jax.numpy as jnp
 
-    from difflattice.lattice.grid import make_grid
     from difflattice.lattice import Edges
+    from difflattice.lattice.grid import make_grid
     from difflattice.lattice.medium import Medium
     from difflattice.solver.sensors import Sensors
 
@@ -90,8 +90,9 @@ def jax_case(spec):
         assert len(jax.devices()) == spec["devices"], jax.devices()
 
     def make(w, lag, c, y0=ny / 2):
-        src = line_transducer(g, (40 * g.dx_m, y0 * g.dx_m), n_cells=104, signal=ToneBurst(50e3, 5),
-                              weights=w, lags_s=lag)
+        src = line_transducer(
+            g, (40 * g.dx_m, y0 * g.dx_m), n_cells=104, signal=ToneBurst(50e3, 5), weights=w, lags_s=lag
+        )
         return Stepper.build(g, medium(c), src, sensors, edges)
 
     w0, l0 = jnp.ones(104, dt), jnp.zeros(104, dt)
@@ -99,7 +100,7 @@ def jax_case(spec):
 
     def loss(w, lag, c, checkpoint=None, adjoint="autodiff"):
         r = run(make(w, lag, c), steps, checkpoint=checkpoint, adjoint=adjoint, backend=backend)
-        return jnp.sum(r.probes ** 2)
+        return jnp.sum(r.probes**2)
 
     out = {}
     if mode == "forward":
@@ -204,21 +205,72 @@ def main():
     cases = []
     for nx, ny, steps in sizes:
         for dtype in ("float32", "float64"):
-            cases.append({"impl": "numpy", "mode": "forward", "kind": "homogeneous", "nx": nx, "ny": ny, "steps": steps, "dtype": dtype})
+            cases.append(
+                {
+                    "impl": "numpy",
+                    "mode": "forward",
+                    "kind": "homogeneous",
+                    "nx": nx,
+                    "ny": ny,
+                    "steps": steps,
+                    "dtype": dtype,
+                }
+            )
             for kind in ("homogeneous", "homogeneous+pml", "full"):
                 c = {"impl": "jax", "mode": "forward", "kind": kind, "nx": nx, "ny": ny, "steps": steps, "dtype": dtype}
                 if kind == "full" and dtype == "float32":
                     c["recompile_check"] = True
                 cases.append(c)
         for kind in ("homogeneous", "full"):
-            cases.append({"impl": "jax", "mode": "forward", "kind": kind, "nx": nx, "ny": ny, "steps": steps, "dtype": "float32", "devices": 2})
+            cases.append(
+                {
+                    "impl": "jax",
+                    "mode": "forward",
+                    "kind": kind,
+                    "nx": nx,
+                    "ny": ny,
+                    "steps": steps,
+                    "dtype": "float32",
+                    "devices": 2,
+                }
+            )
     nx, ny, steps = 840, 630, 1000 if not args.quick else 200
-    for mode in ("loss", "grad_sources", "grad_sources_lattice", "grad_medium", "grad_medium_checkpointed",
-                 "grad_medium_lattice", "jvp_sources"):
-        cases.append({"impl": "jax", "mode": mode, "kind": "gradient", "nx": nx, "ny": ny, "steps": steps, "dtype": "float32"})
+    for mode in (
+        "loss",
+        "grad_sources",
+        "grad_sources_lattice",
+        "grad_medium",
+        "grad_medium_checkpointed",
+        "grad_medium_lattice",
+        "jvp_sources",
+    ):
+        cases.append(
+            {"impl": "jax", "mode": mode, "kind": "gradient", "nx": nx, "ny": ny, "steps": steps, "dtype": "float32"}
+        )
     for mode in ("loss", "grad_medium", "grad_medium_checkpointed", "grad_medium_lattice"):  # memory growth
-        cases.append({"impl": "jax", "mode": mode, "kind": "gradient", "nx": nx, "ny": ny, "steps": steps // 4, "dtype": "float32"})
-    cases.append({"impl": "jax", "mode": "vmap", "kind": "homogeneous", "nx": nx, "ny": ny, "steps": steps // 4, "dtype": "float32", "batch": 4})
+        cases.append(
+            {
+                "impl": "jax",
+                "mode": mode,
+                "kind": "gradient",
+                "nx": nx,
+                "ny": ny,
+                "steps": steps // 4,
+                "dtype": "float32",
+            }
+        )
+    cases.append(
+        {
+            "impl": "jax",
+            "mode": "vmap",
+            "kind": "homogeneous",
+            "nx": nx,
+            "ny": ny,
+            "steps": steps // 4,
+            "dtype": "float32",
+            "batch": 4,
+        }
+    )
 
     rows = []
     for c in cases:
@@ -229,15 +281,20 @@ def main():
     numba = None
     if not args.skip_numba:
         out_json = ROOT / "docs" / "benchmarks" / "reference_kernels.json"
-        cmd = [sys.executable, str(ROOT / "benchmarks" / "reference_kernels.py"), "--json", str(out_json)] + (["--quick"] if args.quick else [])
+        cmd = [sys.executable, str(ROOT / "benchmarks" / "reference_kernels.py"), "--json", str(out_json)] + (
+            ["--quick"] if args.quick else []
+        )
         r = subprocess.run(cmd, capture_output=True, text=True)
         if r.returncode == 0:
             numba = json.loads(r.stdout.strip().splitlines()[-1])
         else:
             numba = {"error": r.stderr[-800:]}
 
-    fwd = {(r["nx"], r["kind"], r["dtype"], r.get("devices", 1)): r for r in rows
-           if r["mode"] == "forward" and r["impl"] == "jax" and "time_s" in r}
+    fwd = {
+        (r["nx"], r["kind"], r["dtype"], r.get("devices", 1)): r
+        for r in rows
+        if r["mode"] == "forward" and r["impl"] == "jax" and "time_s" in r
+    }
     loss = {(r["steps"]): r for r in rows if r["mode"] == "loss" and "time_s" in r}
     for r in rows:
         if r["mode"] not in ("forward", "vmap", "loss") and "time_s" in r and r["steps"] in loss:
@@ -254,9 +311,15 @@ def main():
 
     out = {
         "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-        "machine": platform.machine(), "processor": platform.processor(), "cpus": os.cpu_count(),
-        "python": sys.version.split()[0], "jax": jax.__version__, "load_average_at_end": os.getloadavg(),
-        "repeats": REPEATS, "rows": rows, "numba_reference": numba,
+        "machine": platform.machine(),
+        "processor": platform.processor(),
+        "cpus": os.cpu_count(),
+        "python": sys.version.split()[0],
+        "jax": jax.__version__,
+        "load_average_at_end": os.getloadavg(),
+        "repeats": REPEATS,
+        "rows": rows,
+        "numba_reference": numba,
     }
     dest = ROOT / "docs" / "benchmarks"
     dest.mkdir(parents=True, exist_ok=True)
@@ -266,50 +329,77 @@ def main():
 
 
 def render_markdown(out) -> str:
-    L = ["# Kernel benchmark", "",
-         f"{out['date_utc']}, {out['machine']}, {out['cpus']} CPUs, Python {out['python']}, JAX {out['jax']}; "
-         f"median of {out['repeats']} after a compiling run; each case in its own process (peak RSS per case); "
-         f"load average at the end {', '.join(f'{x:.1f}' for x in out['load_average_at_end'])}.",
-         "Reproduce: `.venv/bin/python benchmarks/kernel_benchmark.py` (JSON: `docs/benchmarks/kernel.json`).", "",
-         "## Forward (million lattice updates per second)", "",
-         "| impl | scene | size x steps | dtype | devices | time (s) | MLUPS | vs homogeneous | vs 1 device | compile (s) | peak RSS (MB) |",
-         "|---|---|---|---|---|---|---|---|---|---|---|"]
+    L = [
+        "# Kernel benchmark",
+        "",
+        f"{out['date_utc']}, {out['machine']}, {out['cpus']} CPUs, Python {out['python']}, JAX {out['jax']}; "
+        f"median of {out['repeats']} after a compiling run; each case in its own process (peak RSS per case); "
+        f"load average at the end {', '.join(f'{x:.1f}' for x in out['load_average_at_end'])}.",
+        "Reproduce: `.venv/bin/python benchmarks/kernel_benchmark.py` (JSON: `docs/benchmarks/kernel.json`).",
+        "",
+        "## Forward (million lattice updates per second)",
+        "",
+        "| impl | scene | size x steps | dtype | devices | time (s) | MLUPS | vs homogeneous | vs 1 device | compile (s) | peak RSS (MB) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
     rows = out["rows"]
     for r in rows:
         if r["mode"] != "forward":
             continue
         if "error" in r:
-            L.append(f"| {r['impl']} | {r['kind']} | {r['nx']}x{r['ny']} x {r['steps']} | {r['dtype']} | {r.get('devices', 1)} | error | | | | | |")
+            L.append(
+                f"| {r['impl']} | {r['kind']} | {r['nx']}x{r['ny']} x {r['steps']} | {r['dtype']} | {r.get('devices', 1)} | error | | | | | |"
+            )
             continue
-        L.append(f"| {r['impl']} | {r['kind']} | {r['nx']}x{r['ny']} x {r['steps']} | {r['dtype']} | {r.get('devices', 1)} | "
-                 f"{r['time_s']:.3f} | {r['mlups']:.0f} | {_f(r.get('ratio_to_homogeneous'))} | {_f(r.get('speedup_vs_one_device'))} | "
-                 f"{r['compile_s']:.2f} | {r['max_rss_mb']:.0f} |")
+        L.append(
+            f"| {r['impl']} | {r['kind']} | {r['nx']}x{r['ny']} x {r['steps']} | {r['dtype']} | {r.get('devices', 1)} | "
+            f"{r['time_s']:.3f} | {r['mlups']:.0f} | {_f(r.get('ratio_to_homogeneous'))} | {_f(r.get('speedup_vs_one_device'))} | "
+            f"{r['compile_s']:.2f} | {r['max_rss_mb']:.0f} |"
+        )
     nb = out.get("numba_reference")
     if nb and "rows" in nb:
-        L += ["", "Reference kernels in their own venv (`benchmarks/reference_kernels.py`, numba "
-              f"{nb.get('numba')}, NumPy {nb.get('numpy')}), same run:", "",
-              "| kernel | size x steps | dtype | MLUPS |", "|---|---|---|---|"]
+        L += [
+            "",
+            "Reference kernels in their own venv (`benchmarks/reference_kernels.py`, numba "
+            f"{nb.get('numba')}, NumPy {nb.get('numpy')}), same run:",
+            "",
+            "| kernel | size x steps | dtype | MLUPS |",
+            "|---|---|---|---|",
+        ]
         for r in nb["rows"]:
             L.append(f"| {r['kernel']} | {r['nx']}x{r['ny']} x {r['steps']} | {r['dtype']} | {r['mlups']:.0f} |")
     elif nb:
         L += ["", f"numba reference failed: {nb.get('error', '')[:300]}"]
-    L += ["", "## Gradients and JVP (840x630, float32, heterogeneous medium map, rigid window, 11 probes)", "",
-          "| mode | steps | time (s) | ratio to forward | compile (s) | peak RSS (MB) |", "|---|---|---|---|---|---|"]
+    L += [
+        "",
+        "## Gradients and JVP (840x630, float32, heterogeneous medium map, rigid window, 11 probes)",
+        "",
+        "| mode | steps | time (s) | ratio to forward | compile (s) | peak RSS (MB) |",
+        "|---|---|---|---|---|---|",
+    ]
     for r in rows:
         if r["kind"] != "gradient":
             continue
         if "error" in r:
             L.append(f"| {r['mode']} | {r['steps']} | error | | | |")
             continue
-        L.append(f"| {r['mode']} | {r['steps']} | {r['time_s']:.3f} | {_f(r.get('ratio_to_forward'))} | {r['compile_s']:.2f} | {r['max_rss_mb']:.0f} |")
+        L.append(
+            f"| {r['mode']} | {r['steps']} | {r['time_s']:.3f} | {_f(r.get('ratio_to_forward'))} | {r['compile_s']:.2f} | {r['max_rss_mb']:.0f} |"
+        )
     for r in rows:
         if r.get("recompile_check") and "first_scene_s" in r:
-            L += ["", f"Compile: a new {r['kind']} scene {r['nx']}x{r['ny']} through `simulate`: first call "
-                  f"{r['first_scene_s']:.2f} s (compile + run); the same scene with the transducer moved by 37 cells: "
-                  f"{r['moved_transducer_s']:.2f} s (run only: no recompile)."]
+            L += [
+                "",
+                f"Compile: a new {r['kind']} scene {r['nx']}x{r['ny']} through `simulate`: first call "
+                f"{r['first_scene_s']:.2f} s (compile + run); the same scene with the transducer moved by 37 cells: "
+                f"{r['moved_transducer_s']:.2f} s (run only: no recompile).",
+            ]
         if r["mode"] == "vmap" and "time_s" in r:
-            L += ["", f"vmap: {r['batch']} weight variants of {r['nx']}x{r['ny']} x {r['steps']} steps in one call "
-                  f"{r['time_s']:.2f} s vs one by one {r['loop_time_s']:.2f} s (x{r['speedup_vs_loop']:.2f})."]
+            L += [
+                "",
+                f"vmap: {r['batch']} weight variants of {r['nx']}x{r['ny']} x {r['steps']} steps in one call "
+                f"{r['time_s']:.2f} s vs one by one {r['loop_time_s']:.2f} s (x{r['speedup_vs_loop']:.2f}).",
+            ]
     return "\n".join(L) + "\n"
 
 

@@ -60,9 +60,11 @@ def jax_case(case: str, n: int, steps: int) -> dict:
         med = Medium(343.0, 1.2, rigid=rasterise3d(wall, g))
     st = Stepper.build(g, med, edges=edges)
     st0 = st.init()
-    st0 = (st0.__class__(**{**st0.__dict__, "p": st0.p.at[n // 2, n // 2, n // 2].set(1.0)})
-           if st0.p is not None else
-           st0.__class__(**{**st0.__dict__, "px": st0.px.at[n // 2, n // 2, n // 2].set(1.0)}))
+    st0 = (
+        st0.__class__(**{**st0.__dict__, "p": st0.p.at[n // 2, n // 2, n // 2].set(1.0)})
+        if st0.p is not None
+        else st0.__class__(**{**st0.__dict__, "px": st0.px.at[n // 2, n // 2, n // 2].set(1.0)})
+    )
     f = jax.jit(lambda s, s0: run(s, steps, state=s0).final)
     t0 = time.perf_counter()
     jax.block_until_ready(f(st, st0))
@@ -75,10 +77,21 @@ def jax_case(case: str, n: int, steps: int) -> dict:
         times.append(time.perf_counter() - t0)
     t = statistics.median(times)
     p = out.pressure
-    return {"case": case, "n": n, "steps": steps, "dtype": "float32", "time_s": t, "times_s": times,
-            "compile_s": compile_s, "mlups": n**3 * steps / t / 1e6, "jax": jax.__version__,
-            "device": str(jax.devices()[0]), "load_average_at_start": load0, "load_average_at_end": list(os.getloadavg()),
-            "max_abs_field": float(jnp.max(jnp.abs(p)))}
+    return {
+        "case": case,
+        "n": n,
+        "steps": steps,
+        "dtype": "float32",
+        "time_s": t,
+        "times_s": times,
+        "compile_s": compile_s,
+        "mlups": n**3 * steps / t / 1e6,
+        "jax": jax.__version__,
+        "device": str(jax.devices()[0]),
+        "load_average_at_start": load0,
+        "load_average_at_end": list(os.getloadavg()),
+        "max_abs_field": float(jnp.max(jnp.abs(p))),
+    }
 
 
 def agreement_fields(path: str) -> None:
@@ -92,8 +105,15 @@ def agreement_fields(path: str) -> None:
 
     jax.config.update("jax_enable_x64", True)
     n = 34
-    g = make_grid(frequency_hz=40e3, cells_per_wavelength=20, c_max_m_s=343.0, shape=(n, n, n), kind="3d",
-                  courant=MAX_COURANT_3D, dtype="float64")
+    g = make_grid(
+        frequency_hz=40e3,
+        cells_per_wavelength=20,
+        c_max_m_s=343.0,
+        shape=(n, n, n),
+        kind="3d",
+        courant=MAX_COURANT_3D,
+        dtype="float64",
+    )
     st = Stepper.build(g, Medium(343.0, 1.2), edges=Edges.all("soft"))
     s0 = st.init()
     s0 = s0.__class__(**{**s0.__dict__, "p": s0.p.at[(n + 2) // 2 - 1, (n + 2) // 2 - 1, (n + 2) // 2 - 1].set(1.0)})
@@ -159,8 +179,20 @@ def main():
             if case in JAX_CASES:
                 row = _run_json([py, __file__, "--case", case, "--n", str(args.n), "--steps", str(args.steps)])
             else:
-                row = _run_json(["python3", str(ROOT / "benchmarks" / "reference_kernels_3d.py"), "--kernel", case,
-                                 "--n", str(args.n), "--steps", str(args.steps), "--threads", "2"])
+                row = _run_json(
+                    [
+                        "python3",
+                        str(ROOT / "benchmarks" / "reference_kernels_3d.py"),
+                        "--kernel",
+                        case,
+                        "--n",
+                        str(args.n),
+                        "--steps",
+                        str(args.steps),
+                        "--threads",
+                        "2",
+                    ]
+                )
                 row["case"] = case
             row["round"] = rnd + 1
             log(json.dumps({k: row[k] for k in ("case", "mlups", "time_s")}))
@@ -173,18 +205,34 @@ def main():
     subprocess.run([py, __file__, "--agreement", str(a)], check=True)
     subprocess.run([bench_py, __file__, "--numba-agreement", str(b)], check=True)
     fa, fb = np.load(a), np.load(b)
-    agreement = {"n_jax": 34, "n_numba": 36, "steps": 40, "dtype": "float64",
-                 "max_abs_diff": float(np.abs(fa - fb).max()), "max_abs_field": float(np.abs(fb).max())}
+    agreement = {
+        "n_jax": 34,
+        "n_numba": 36,
+        "steps": 40,
+        "dtype": "float64",
+        "max_abs_diff": float(np.abs(fa - fb).max()),
+        "max_abs_field": float(np.abs(fb).max()),
+    }
     summary = {}
     for case in cases:
         ms = [r["mlups"] for r in rows if r["case"] == case]
         summary[case] = {"mlups_median": statistics.median(ms), "mlups_rounds": ms}
     load_end = list(os.getloadavg())
-    out = {"date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "machine": platform.machine(),
-           "processor": platform.processor(), "cpu_count": os.cpu_count(), "n": args.n, "steps": args.steps,
-           "rounds": args.rounds, "load_average_at_start": load_start, "load_average_at_end": load_end,
-           "provisional": max(load_start[0], load_end[0]) > (os.cpu_count() or 1),
-           "summary": summary, "agreement": agreement, "rows": rows}
+    out = {
+        "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "machine": platform.machine(),
+        "processor": platform.processor(),
+        "cpu_count": os.cpu_count(),
+        "n": args.n,
+        "steps": args.steps,
+        "rounds": args.rounds,
+        "load_average_at_start": load_start,
+        "load_average_at_end": load_end,
+        "provisional": max(load_start[0], load_end[0]) > (os.cpu_count() or 1),
+        "summary": summary,
+        "agreement": agreement,
+        "rows": rows,
+    }
     print(json.dumps(out))
     if args.no_write:
         return
@@ -204,9 +252,14 @@ def main():
     ]
     for case, s in summary.items():
         lines.append(f"| {case} | {s['mlups_median']:.1f} | {', '.join(f'{m:.1f}' for m in s['mlups_rounds'])} |")
-    lines += ["", f"Agreement (34^3 difflattice leapfrog vs numba interior of 36^3, 40 steps, float64): max |diff| = "
-              f"{agreement['max_abs_diff']:.2e} (field max {agreement['max_abs_field']:.2e}).", "",
-              "Reproduce: `.venv/bin/python benchmarks/kernel_benchmark_3d.py`.", ""]
+    lines += [
+        "",
+        f"Agreement (34^3 difflattice leapfrog vs numba interior of 36^3, 40 steps, float64): max |diff| = "
+        f"{agreement['max_abs_diff']:.2e} (field max {agreement['max_abs_field']:.2e}).",
+        "",
+        "Reproduce: `.venv/bin/python benchmarks/kernel_benchmark_3d.py`.",
+        "",
+    ]
     (OUT / "kernel_3d.md").write_text("\n".join(lines))
 
 

@@ -26,8 +26,18 @@ def point(case: str, threads: int, levels: int | None) -> dict:
     env = dict(os.environ, DIFFLATTICE_NATIVE_THREADS=str(threads))
     if levels is None:  # numba
         kernel = "numba_serial" if threads == 1 else "numba_parallel"
-        cmd = [sys.executable, str(ROOT / "benchmarks" / "reference_kernels.py"), "--kernel", kernel, "--size", size,
-               "--dtypes", "float32", "--threads", str(threads)]
+        cmd = [
+            sys.executable,
+            str(ROOT / "benchmarks" / "reference_kernels.py"),
+            "--kernel",
+            kernel,
+            "--size",
+            size,
+            "--dtypes",
+            "float32",
+            "--threads",
+            str(threads),
+        ]
     else:
         env["DIFFLATTICE_NATIVE_LEVELS"] = str(levels)
         spec = json.dumps([{"name": name, "nx": nx, "ny": ny, "steps": steps}, "native"])
@@ -63,14 +73,26 @@ def main() -> None:
         for p in points:
             res.setdefault(p, []).append(point(*p))
             r = res[p][-1]
-            print(json.dumps({"case": p[0], "threads": p[1], "impl": "numba" if p[2] is None else "native",
-                              "levels": p[2], **r}), flush=True)
+            print(
+                json.dumps(
+                    {"case": p[0], "threads": p[1], "impl": "numba" if p[2] is None else "native", "levels": p[2], **r}
+                ),
+                flush=True,
+            )
     summary = []
     for (case, t, lv), runs in res.items():
         ok = [r["mlups"] for r in runs if "mlups" in r]
-        summary.append({"case": case, "threads": t, "impl": "numba" if lv is None else "native", "levels": lv,
-                        "mlups_median": statistics.median(ok) if ok else None, "mlups": ok,
-                        "load": [round(r["load"], 2) for r in runs]})
+        summary.append(
+            {
+                "case": case,
+                "threads": t,
+                "impl": "numba" if lv is None else "native",
+                "levels": lv,
+                "mlups_median": statistics.median(ok) if ok else None,
+                "mlups": ok,
+                "load": [round(r["load"], 2) for r in runs],
+            }
+        )
     for s in summary:
         print(json.dumps(s))
     if args.json:

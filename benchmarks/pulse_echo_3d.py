@@ -67,9 +67,18 @@ def main():
             m = echo_metrics(n, a, ref, sc.grid.omega, sc.gate_start_step)
             gate = n >= sc.gate_start_step
             ph = np.exp(1j * sc.grid.omega * n[gate])
-            rows.append({"scene": sc.name, "angle_deg": ang, "shape": list(sc.grid.shape), "n_steps": sc.n_steps,
-                         "run_s": dt, **m, "echo_abs": float(abs(np.sum(a[gate] * ph))),
-                         "image_abs": float(abs(np.sum(ref[gate] * ph)))})
+            rows.append(
+                {
+                    "scene": sc.name,
+                    "angle_deg": ang,
+                    "shape": list(sc.grid.shape),
+                    "n_steps": sc.n_steps,
+                    "run_s": dt,
+                    **m,
+                    "echo_abs": float(abs(np.sum(a[gate] * ph))),
+                    "image_abs": float(abs(np.sum(ref[gate] * ph))),
+                }
+            )
             scans[sc.name] = (t, a, ref, sc.gate_start_step)
             print(json.dumps(rows[-1]), flush=True)
     others = {"corner": corner_scene, "post": post_scene}
@@ -82,8 +91,15 @@ def main():
         n = np.arange(1, sc.n_steps + 1)
         gate = n >= sc.gate_start_step
         e = float(abs(np.sum(a[gate] * np.exp(1j * sc.grid.omega * n[gate]))))
-        rows.append({"scene": sc.name, "shape": list(sc.grid.shape), "n_steps": sc.n_steps,
-                     "run_s": time.perf_counter() - t0, "echo_abs": e})
+        rows.append(
+            {
+                "scene": sc.name,
+                "shape": list(sc.grid.shape),
+                "n_steps": sc.n_steps,
+                "run_s": time.perf_counter() - t0,
+                "echo_abs": e,
+            }
+        )
         scans[sc.name] = (t, a, None, sc.gate_start_step)
         print(json.dumps(rows[-1]), flush=True)
     walls = [r for r in rows if "angle_deg" in r]
@@ -96,21 +112,35 @@ def main():
             if "angle_deg" not in r:
                 r["echo_db_re_wall_normal"] = 20 * math.log10(r["echo_abs"] / e0["echo_abs"])
     load1 = list(os.getloadavg())
-    res = {"date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "cells_per_wavelength": args.cpw,
-           "cpu_count": os.cpu_count(), "load_average_at_start": load0, "load_average_at_end": load1, "rows": rows}
+    res = {
+        "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "cells_per_wavelength": args.cpw,
+        "cpu_count": os.cpu_count(),
+        "load_average_at_start": load0,
+        "load_average_at_end": load1,
+        "rows": rows,
+    }
     (out / "pulse_echo_3d.json").write_text(json.dumps(res, indent=2) + "\n")
-    md = ["# Pulse-echo in 3-D (issue 16)", "",
-          f"{args.cpw:g} cells per wavelength, 40 kHz, 8.6 mm disc transducer (transmitter and receiver), rigid objects "
-          f"25.7 mm ahead; {res['date_utc']}, load average {load0[0]:.2f} at start, {load1[0]:.2f} at end.", "",
-          "| scene | incidence (deg) | arrival vs image source (periods) | level vs image source (dB) | envelope peak (dB) "
-          "| echo re normal wall (dB): lattice / image | run (s) |",
-          "|---|---:|---:|---:|---:|---:|---:|"]
+    md = [
+        "# Pulse-echo in 3-D (issue 16)",
+        "",
+        f"{args.cpw:g} cells per wavelength, 40 kHz, 8.6 mm disc transducer (transmitter and receiver), rigid objects "
+        f"25.7 mm ahead; {res['date_utc']}, load average {load0[0]:.2f} at start, {load1[0]:.2f} at end.",
+        "",
+        "| scene | incidence (deg) | arrival vs image source (periods) | level vs image source (dB) | envelope peak (dB) "
+        "| echo re normal wall (dB): lattice / image | run (s) |",
+        "|---|---:|---:|---:|---:|---:|---:|",
+    ]
     for r in rows:
         if "angle_deg" in r:
-            md.append(f"| {r['scene']} | {r['angle_deg']:g} | {r['arrival_periods']:+.4f} | {r['level_db']:+.3f} | "
-                      f"{r['peak_db']:+.3f} | {r['echo_db_re_normal']:+.2f} / {r['image_db_re_normal']:+.2f} | {r['run_s']:.1f} |")
+            md.append(
+                f"| {r['scene']} | {r['angle_deg']:g} | {r['arrival_periods']:+.4f} | {r['level_db']:+.3f} | "
+                f"{r['peak_db']:+.3f} | {r['echo_db_re_normal']:+.2f} / {r['image_db_re_normal']:+.2f} | {r['run_s']:.1f} |"
+            )
         else:
-            md.append(f"| {r['scene']} | | | | | {r.get('echo_db_re_wall_normal', float('nan')):+.2f} / (none) | {r['run_s']:.1f} |")
+            md.append(
+                f"| {r['scene']} | | | | | {r.get('echo_db_re_wall_normal', float('nan')):+.2f} / (none) | {r['run_s']:.1f} |"
+            )
     md += ["", "Reproduce: `.venv/bin/python benchmarks/pulse_echo_3d.py`.", ""]
     (out / "pulse_echo_3d.md").write_text("\n".join(md))
     if args.no_figures:
@@ -119,9 +149,16 @@ def main():
 
     if walls:
         ang = [r["angle_deg"] for r in walls]
-        plots.save(plots.echo_angle_plot(ang, {"3-D lattice": ([r["echo_db_re_normal"] for r in walls], "o-"),
-                                               "image source": ([r["image_db_re_normal"] for r in walls], "k--")}),
-                   out / "pulse_echo_3d_angle.png")
+        plots.save(
+            plots.echo_angle_plot(
+                ang,
+                {
+                    "3-D lattice": ([r["echo_db_re_normal"] for r in walls], "o-"),
+                    "image source": ([r["image_db_re_normal"] for r in walls], "k--"),
+                },
+            ),
+            out / "pulse_echo_3d_angle.png",
+        )
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(len(scans), 1, figsize=(8, 2.2 * len(scans)), squeeze=False)
@@ -138,28 +175,49 @@ def main():
     # a field a person can look at: the 20 deg wall, slices through the transducer axis while the echo returns
     sc = wall_scene(20.0, cells_per_wavelength=args.cpw)
     every = max(1, sc.gate_start_step // 2)
-    r = simulate(sc.grid, sc.medium, sc.source, Sensors(snapshot_every=every, p_max=True), n_steps=sc.n_steps,
-                 edges=sc.edges)
+    r = simulate(
+        sc.grid, sc.medium, sc.source, Sensors(snapshot_every=every, p_max=True), n_steps=sc.n_steps, edges=sc.edges
+    )
     k = min(len(r.chunk_steps) - 1, int(round((sc.gate_start_step + sc.n_steps) / 2 / every)) - 1)
     cx, cy, cz = (int(round(v)) for v in sc.transducer_centre_cells)
     planes = sc.grid.shape
     snaps = r.snapshots  # mid-planes: x = nx/2, y = ny/2, z = nz/2 (the axis lies in the last two)
     cells = sc.source.cells_array
-    slices = {f"x-y plane through the axis (z = {planes[2] // 2})": (("x", "y"), snaps[2][k]),
-              f"x-z plane through the axis (y = {planes[1] // 2})": (("x", "z"), snaps[1][k]),
-              f"y-z plane (x = {planes[0] // 2})": (("y", "z"), snaps[0][k])}
-    marks = {f"x-y plane through the axis (z = {planes[2] // 2})": [cells[:, :2]],
-             f"x-z plane through the axis (y = {planes[1] // 2})": [cells[:, [0, 2]]]}
+    slices = {
+        f"x-y plane through the axis (z = {planes[2] // 2})": (("x", "y"), snaps[2][k]),
+        f"x-z plane through the axis (y = {planes[1] // 2})": (("x", "z"), snaps[1][k]),
+        f"y-z plane (x = {planes[0] // 2})": (("y", "z"), snaps[0][k]),
+    }
+    marks = {
+        f"x-y plane through the axis (z = {planes[2] // 2})": [cells[:, :2]],
+        f"x-z plane through the axis (y = {planes[1] // 2})": [cells[:, [0, 2]]],
+    }
     occ = np.asarray(sc.medium.rigid)
-    outlines = {f"x-y plane through the axis (z = {planes[2] // 2})": occ[:, :, planes[2] // 2],
-                f"x-z plane through the axis (y = {planes[1] // 2})": occ[:, planes[1] // 2, :],
-                f"y-z plane (x = {planes[0] // 2})": occ[planes[0] // 2]}
-    plots.save(plots.slices_3d(slices, sc.grid.dx_m, marks=marks, outlines=outlines,
-                               title=f"20 deg wall, step {r.chunk_steps[k]}: pressure on three planes"),
-               out / "pulse_echo_3d_slices.png")
-    plots.save(plots.max_intensity_projection(np.asarray(r.p_max), sc.grid.dx_m, axis=2, floor_db=-40,
-                                              title="20 deg wall: peak |p| projected along z (dB)"),
-               out / "pulse_echo_3d_mip.png")
+    outlines = {
+        f"x-y plane through the axis (z = {planes[2] // 2})": occ[:, :, planes[2] // 2],
+        f"x-z plane through the axis (y = {planes[1] // 2})": occ[:, planes[1] // 2, :],
+        f"y-z plane (x = {planes[0] // 2})": occ[planes[0] // 2],
+    }
+    plots.save(
+        plots.slices_3d(
+            slices,
+            sc.grid.dx_m,
+            marks=marks,
+            outlines=outlines,
+            title=f"20 deg wall, step {r.chunk_steps[k]}: pressure on three planes",
+        ),
+        out / "pulse_echo_3d_slices.png",
+    )
+    plots.save(
+        plots.max_intensity_projection(
+            np.asarray(r.p_max),
+            sc.grid.dx_m,
+            axis=2,
+            floor_db=-40,
+            title="20 deg wall: peak |p| projected along z (dB)",
+        ),
+        out / "pulse_echo_3d_mip.png",
+    )
     del jnp
 
 

@@ -104,7 +104,9 @@ def make_numba_kernels():
         for _ in range(steps):
             for i in range(1, nx - 1):
                 for j in range(1, ny - 1):
-                    q[i, j] = (centre * p[i, j] - q[i, j]) + c2 * (((p[i + 1, j] + p[i - 1, j]) + p[i, j + 1]) + p[i, j - 1])
+                    q[i, j] = (centre * p[i, j] - q[i, j]) + c2 * (
+                        ((p[i + 1, j] + p[i - 1, j]) + p[i, j + 1]) + p[i, j - 1]
+                    )
             p, q = q, p
         return p, q
 
@@ -114,7 +116,9 @@ def make_numba_kernels():
         for _ in range(steps):
             for i in nb.prange(1, nx - 1):
                 for j in range(1, ny - 1):
-                    q[i, j] = (centre * p[i, j] - q[i, j]) + c2 * (((p[i + 1, j] + p[i - 1, j]) + p[i, j + 1]) + p[i, j - 1])
+                    q[i, j] = (centre * p[i, j] - q[i, j]) + c2 * (
+                        ((p[i + 1, j] + p[i - 1, j]) + p[i, j + 1]) + p[i, j - 1]
+                    )
             p, q = q, p
         return p, q
 
@@ -151,8 +155,17 @@ def measure(name, fn, nx, ny, steps, dtype, repeats=REPEATS):
         times.append(time.perf_counter() - t0)
         final = out[0]
     t = statistics.median(times)
-    row = {"kernel": name, "dtype": dtype, "nx": nx, "ny": ny, "steps": steps, "time_s": t, "times_s": times,
-           "compile_s": compile_s if name != "numpy_inplace" else 0.0, "mlups": nx * ny * steps / t / 1e6}
+    row = {
+        "kernel": name,
+        "dtype": dtype,
+        "nx": nx,
+        "ny": ny,
+        "steps": steps,
+        "time_s": t,
+        "times_s": times,
+        "compile_s": compile_s if name != "numpy_inplace" else 0.0,
+        "mlups": nx * ny * steps / t / 1e6,
+    }
     log(json.dumps(row))
     return row, np.array(final, dtype=np.float64)
 
@@ -168,8 +181,13 @@ def one_case(args) -> dict:
     nx, ny, steps = (int(v) for v in args.size.lower().split("x"))
     row, _ = measure(args.kernel, fn, nx, ny, steps, args.dtypes[0], repeats=args.repeats)
     row["threads"] = numba.get_num_threads() if args.kernel == "numba_parallel" else 1
-    return {"date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "numba": numba.__version__,
-            "load_average_at_start": load_start, "load_average_at_end": list(os.getloadavg()), "rows": [row]}
+    return {
+        "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "numba": numba.__version__,
+        "load_average_at_start": load_start,
+        "load_average_at_end": list(os.getloadavg()),
+        "rows": [row],
+    }
 
 
 def bench(args) -> dict:
@@ -192,9 +210,18 @@ def bench(args) -> dict:
                 rows.append(row)
                 fields[name] = fld
             ref = fields["numpy_inplace"]
-            agreement.append({"dtype": dtype, "nx": nx, "ny": ny, "steps": steps,
-                              "max_abs_field": float(np.abs(ref).max()),
-                              "max_abs_diff": {k: float(np.abs(v - ref).max()) for k, v in fields.items() if k != "numpy_inplace"}})
+            agreement.append(
+                {
+                    "dtype": dtype,
+                    "nx": nx,
+                    "ny": ny,
+                    "steps": steps,
+                    "max_abs_field": float(np.abs(ref).max()),
+                    "max_abs_diff": {
+                        k: float(np.abs(v - ref).max()) for k, v in fields.items() if k != "numpy_inplace"
+                    },
+                }
+            )
             finals[dtype] = fields["numba_serial"]
         if "float32" in finals and "float64" in finals:
             f32_64[f"{nx}x{ny}x{steps}"] = float(np.abs(finals["float32"] - finals["float64"]).max())
@@ -202,13 +229,26 @@ def bench(args) -> dict:
         layer = numba.threading_layer()
     except Exception:  # noqa: BLE001 (only known after a parallel run)
         layer = None
-    return {"date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "python": platform.python_version(),
-            "machine": platform.machine(), "processor": platform.processor(),
-            "numpy": np.__version__, "numba": numba.__version__, "numba_threading_layer": layer,
-            "cpu_count": os.cpu_count(), "threads_parallel": numba.get_num_threads(), "quick": args.quick,
-            "c2": C2, "repeats": REPEATS, "warmup_steps": WARMUP_STEPS,
-            "load_average_at_start": load_start, "load_average_at_end": list(os.getloadavg()),
-            "rows": rows, "agreement": agreement, "float32_vs_float64_max_abs_diff": f32_64}
+    return {
+        "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "python": platform.python_version(),
+        "machine": platform.machine(),
+        "processor": platform.processor(),
+        "numpy": np.__version__,
+        "numba": numba.__version__,
+        "numba_threading_layer": layer,
+        "cpu_count": os.cpu_count(),
+        "threads_parallel": numba.get_num_threads(),
+        "quick": args.quick,
+        "c2": C2,
+        "repeats": REPEATS,
+        "warmup_steps": WARMUP_STEPS,
+        "load_average_at_start": load_start,
+        "load_average_at_end": list(os.getloadavg()),
+        "rows": rows,
+        "agreement": agreement,
+        "float32_vs_float64_max_abs_diff": f32_64,
+    }
 
 
 def main():
@@ -217,8 +257,12 @@ def main():
     ap.add_argument("--quick", action="store_true", help="a tenth of the steps")
     ap.add_argument("--threads", type=int, default=2, help="threads of the numba parallel kernel (default 2)")
     ap.add_argument("--dtypes", default="float32,float64")
-    ap.add_argument("--kernel", choices=["numpy_inplace", "numba_serial", "numba_parallel"], default=None,
-                    help="run this kernel only, at --size (one case per process)")
+    ap.add_argument(
+        "--kernel",
+        choices=["numpy_inplace", "numba_serial", "numba_parallel"],
+        default=None,
+        help="run this kernel only, at --size (one case per process)",
+    )
     ap.add_argument("--size", default="840x630x1000", help="NXxNYxSTEPS of --kernel")
     ap.add_argument("--repeats", type=int, default=REPEATS, help="timed runs of --kernel (median)")
     args = ap.parse_args()

@@ -132,10 +132,22 @@ def main():
         final = fn(p, q, c2, centre, args.steps)[0]
         times.append(time.perf_counter() - t0)
     t = statistics.median(times)
-    out = {"kernel": args.kernel, "dtype": args.dtype, "n": n, "steps": args.steps, "time_s": t, "times_s": times,
-           "compile_s": compile_s, "mlups": n**3 * args.steps / t / 1e6, "threads": numba.get_num_threads(),
-           "numba": numba.__version__, "load_average_at_start": load0, "load_average_at_end": list(os.getloadavg()),
-           "checksum": float(np.sum(final, dtype=np.float64)), "max_abs_field": float(np.abs(final).max())}
+    out = {
+        "kernel": args.kernel,
+        "dtype": args.dtype,
+        "n": n,
+        "steps": args.steps,
+        "time_s": t,
+        "times_s": times,
+        "compile_s": compile_s,
+        "mlups": n**3 * args.steps / t / 1e6,
+        "threads": numba.get_num_threads(),
+        "numba": numba.__version__,
+        "load_average_at_start": load0,
+        "load_average_at_end": list(os.getloadavg()),
+        "checksum": float(np.sum(final, dtype=np.float64)),
+        "max_abs_field": float(np.abs(final).max()),
+    }
     log(json.dumps(out))
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)

@@ -58,12 +58,30 @@ def main() -> None:
         prof = os.path.join(out, "fit.prof")
         load = os.getloadavg()[0]
         t0 = time.perf_counter()
-        r = subprocess.run([sys.executable, "-m", "cProfile", "-o", prof, "-m", "difflattice.cli", "fit", args.config,
-                            "--out", out], capture_output=True, text=True, env=env)
+        r = subprocess.run(
+            [sys.executable, "-m", "cProfile", "-o", prof, "-m", "difflattice.cli", "fit", args.config, "--out", out],
+            capture_output=True,
+            text=True,
+            env=env,
+        )
         wall = time.perf_counter() - t0
-        line = next((ln for ln in r.stdout.splitlines() + r.stderr.splitlines() if "successful" in ln or "error" in ln), "")
-        print(json.dumps({"run": run, "cache": "cold" if run == 0 else "warm", "wall_s": round(wall, 2),
-                          "load_avg": round(load, 2), "rc": r.returncode, **phases(prof), "fit": line[-120:]}), flush=True)
+        line = next(
+            (ln for ln in r.stdout.splitlines() + r.stderr.splitlines() if "successful" in ln or "error" in ln), ""
+        )
+        print(
+            json.dumps(
+                {
+                    "run": run,
+                    "cache": "cold" if run == 0 else "warm",
+                    "wall_s": round(wall, 2),
+                    "load_avg": round(load, 2),
+                    "rc": r.returncode,
+                    **phases(prof),
+                    "fit": line[-120:],
+                }
+            ),
+            flush=True,
+        )
 
 
 if __name__ == "__main__":

@@ -1,6 +1,6 @@
 """Measure the core's headline accuracy figures and write docs/validation.md (+ JSON).
 
-    .venv/bin/python benchmarks/validation_figures.py   # ~1 minute on 2 cores
+.venv/bin/python benchmarks/validation_figures.py   # ~1 minute on 2 cores
 """
 
 from __future__ import annotations
@@ -16,14 +16,19 @@ import jax
 jax.config.update("jax_enable_x64", True)
 import numpy as np  # noqa: E402
 
-from difflattice.observe.analytic import continuum_rt, discrete_rt, lattice_wavenumber, line_array_pattern, mur_reflection  # noqa: E402
-from difflattice.observe.farfield import box_around, far_field  # noqa: E402
+from difflattice.apps.validation import edge_reflection_db, plane_wave_rt  # noqa: E402
 from difflattice.lattice.grid import make_grid  # noqa: E402
 from difflattice.lattice.medium import Medium  # noqa: E402
-from difflattice.solver.sensors import Sensors  # noqa: E402
+from difflattice.observe.analytic import (  # noqa: E402
+    continuum_rt,
+    discrete_rt,
+    line_array_pattern,
+    mur_reflection,
+)
+from difflattice.observe.farfield import box_around, far_field  # noqa: E402
 from difflattice.solver import simulate  # noqa: E402
+from difflattice.solver.sensors import Sensors  # noqa: E402
 from difflattice.solver.sources import ToneBurst, line_transducer  # noqa: E402
-from difflattice.apps.validation import edge_reflection_db, plane_wave_rt  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 CASES = {
@@ -48,8 +53,17 @@ def main() -> None:
             gg = make_grid(frequency_hz=50e3, cells_per_wavelength=20 * cmax / c1, c_max_m_s=cmax, shape=(3, 1))
             Rd, Td = discrete_rt(gg.omega, gg.speed_to_lattice(c1), gg.speed_to_lattice(c2), r1, r2, model)
             Rc, Tc = continuum_rt(r1 * c1, r2 * c2)
-            out["interfaces"].append({"case": name, "model": model, "R_meas": abs(R), "T_meas": abs(T),
-                                      "err_vs_discrete_theory": max(abs(R - Rd), abs(T - Td)), "R_eq14": Rc, "T_eq15": Tc})
+            out["interfaces"].append(
+                {
+                    "case": name,
+                    "model": model,
+                    "R_meas": abs(R),
+                    "T_meas": abs(T),
+                    "err_vs_discrete_theory": max(abs(R - Rd), abs(T - Td)),
+                    "R_eq14": Rc,
+                    "T_eq15": Tc,
+                }
+            )
     # Polaroid line: far-field lobe against the array factor
     n = 104
     grid = make_grid(frequency_hz=50e3, cells_per_wavelength=20, c_max_m_s=343.0, shape=(90, n + 50))
@@ -61,8 +75,13 @@ def main() -> None:
     lv = 20 * np.log10(p / p[0])
     ref = 20 * np.log10(line_array_pattern(n, grid.omega, grid.courant, np.radians(ang)))
     i, j = np.argmin(lv[:2000]), np.argmin(ref[:2000])
-    out["lobe"] = {"first_null_model_deg": ang[i], "first_null_analytic_deg": ang[j],
-                   "sidelobe_model_db": lv[i:i + 1000].max(), "sidelobe_analytic_db": ref[j:j + 1000].max(), "dtype": "float32"}
+    out["lobe"] = {
+        "first_null_model_deg": ang[i],
+        "first_null_analytic_deg": ang[j],
+        "sidelobe_model_db": lv[i : i + 1000].max(),
+        "sidelobe_analytic_db": ref[j : j + 1000].max(),
+        "dtype": "float32",
+    }
     out["seconds"] = time.perf_counter() - t0
     (ROOT / "docs" / "validation.json").write_text(json.dumps(out, indent=2, default=float))
     (ROOT / "docs" / "validation.md").write_text(markdown(out))
@@ -98,8 +117,10 @@ def markdown(o: dict) -> str:
         "|---|---|---|---|---|---|---|",
     ]
     for r in o["interfaces"]:
-        lines.append(f"| {r['case']} | {r['model']} | {r['R_meas']:.4f} | {abs(r['R_eq14']):.4f} | {r['T_meas']:.4f} | "
-                     f"{r['T_eq15']:.4f} | {r['err_vs_discrete_theory']:.1e} |")
+        lines.append(
+            f"| {r['case']} | {r['model']} | {r['R_meas']:.4f} | {abs(r['R_eq14']):.4f} | {r['T_meas']:.4f} | "
+            f"{r['T_eq15']:.4f} | {r['err_vs_discrete_theory']:.1e} |"
+        )
     lo = o["lobe"]
     lines += [
         "",

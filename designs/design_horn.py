@@ -25,12 +25,20 @@ def main(argv=None) -> int:
     ap.add_argument("--out", type=Path, default=Path("out/design/horn"))
     ap.add_argument("--cells-per-wavelength", type=float, default=8.0)
     ap.add_argument("--target-deg", type=float, default=8.0, help="target -6 dB full beam width at 1 m, deg")
-    ap.add_argument("--wall", default="soft", help="soft (the paper's speed-zero walls, default), rigid or a fluid material name")
+    ap.add_argument(
+        "--wall", default="soft", help="soft (the paper's speed-zero walls, default), rigid or a fluid material name"
+    )
     ap.add_argument("--steps", type=int, default=15)
     ap.add_argument("--no-gradient-check", action="store_true")
     a = ap.parse_args(argv)
-    s = design_horn(a.out, cells_per_wavelength=a.cells_per_wavelength, target_deg=a.target_deg, wall=a.wall, steps=a.steps,
-                    check_gradients=not a.no_gradient_check)
+    s = design_horn(
+        a.out,
+        cells_per_wavelength=a.cells_per_wavelength,
+        target_deg=a.target_deg,
+        wall=a.wall,
+        steps=a.steps,
+        check_gradients=not a.no_gradient_check,
+    )
     print(f"{one_line(s)}; wrote {a.out}/report.md")
     return 0
 

@@ -25,12 +25,19 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", type=Path, default=Path("out/design/reflector"))
     ap.add_argument("--cells-per-wavelength", type=float, default=8.0)
-    ap.add_argument("--wall", default="soft", help="soft (the paper's speed-zero walls, default), rigid or a fluid material name")
+    ap.add_argument(
+        "--wall", default="soft", help="soft (the paper's speed-zero walls, default), rigid or a fluid material name"
+    )
     ap.add_argument("--steps", type=int, default=15)
     ap.add_argument("--no-gradient-check", action="store_true")
     a = ap.parse_args(argv)
-    s = design_reflector(a.out, cells_per_wavelength=a.cells_per_wavelength, wall=a.wall, steps=a.steps,
-                         check_gradients=not a.no_gradient_check)
+    s = design_reflector(
+        a.out,
+        cells_per_wavelength=a.cells_per_wavelength,
+        wall=a.wall,
+        steps=a.steps,
+        check_gradients=not a.no_gradient_check,
+    )
     print(f"{one_line(s)}; wrote {a.out}/report.md")
     return 0
 

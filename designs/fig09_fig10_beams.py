@@ -25,18 +25,26 @@ import numpy as np  # noqa: E402
 
 from difflattice import plots  # noqa: E402
 from difflattice.design import HornLimits, ReflectorLimits, horn_design, pattern_metrics, reflector_design  # noqa: E402
-from difflattice.design.presets import FIG09_CONE, FIG10_PARABOLA, PAPER_FACE_M  # noqa: E402
 from difflattice.design.export import write_scene  # noqa: E402
+from difflattice.design.presets import FIG09_CONE, FIG10_PARABOLA, PAPER_FACE_M  # noqa: E402
 from difflattice.design.report import fields_plot, machine_info, resolution_note, write_json  # noqa: E402
 
 FACE_M = PAPER_FACE_M
 CONE = FIG09_CONE
 PARABOLA = FIG10_PARABOLA
 # limits just around the paper's shapes: the grid and contour fit them snugly
-CONE_LIMITS = HornLimits(throat_min_m=0.0365, throat_max_m=0.040, mouth_max_m=0.062, length_min_m=0.05, length_max_m=0.127,
-                         wall_min_m=0.002, wall_max_m=0.004)
-PARABOLA_LIMITS = ReflectorLimits(focal_min_m=0.045, focal_max_m=0.055, aperture_min_m=0.18, aperture_max_m=0.20,
-                                  wall_min_m=0.002, wall_max_m=0.004)
+CONE_LIMITS = HornLimits(
+    throat_min_m=0.0365,
+    throat_max_m=0.040,
+    mouth_max_m=0.062,
+    length_min_m=0.05,
+    length_max_m=0.127,
+    wall_min_m=0.002,
+    wall_max_m=0.004,
+)
+PARABOLA_LIMITS = ReflectorLimits(
+    focal_min_m=0.045, focal_max_m=0.055, aperture_min_m=0.18, aperture_max_m=0.20, wall_min_m=0.002, wall_max_m=0.004
+)
 RANGES_M = (0.2, 1.0)
 
 
@@ -48,8 +56,10 @@ def measure(problem, params):
     out, pats = {}, {}
     for r, b, d in zip(RANGES_M, bare, des):
         kw = dict(reference_on_axis=float(np.abs(b[i0])), field_of_view_deg=90.0, sector_deg=problem.sector_deg)
-        out[f"{r:g} m"] = {"bare": {k: float(v) for k, v in pattern_metrics(b, problem.angles_deg, **kw).items()},
-                           "with": {k: float(v) for k, v in pattern_metrics(d, problem.angles_deg, **kw).items()}}
+        out[f"{r:g} m"] = {
+            "bare": {k: float(v) for k, v in pattern_metrics(b, problem.angles_deg, **kw).items()},
+            "with": {k: float(v) for k, v in pattern_metrics(d, problem.angles_deg, **kw).items()},
+        }
         pats[r] = (np.asarray(b), np.asarray(d))
     return out, pats
 
@@ -92,12 +102,30 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     report = {"machine": machine_info(), "cells_per_wavelength": args.cells_per_wavelength, "fig09": {}, "fig10": {}}
-    cases = (("fig09", "Fig. 9 horn", "5-deg cone 125 mm",
-              lambda w: horn_design(limits=CONE_LIMITS, face_m=FACE_M, cells_per_wavelength=args.cells_per_wavelength,
-                                    wall=w, cycles=5.0), CONE),
-             ("fig10", "Fig. 10 reflector", "parabola f 50 mm, aperture 190 mm",
-              lambda w: reflector_design(limits=PARABOLA_LIMITS, face_m=FACE_M, cells_per_wavelength=args.cells_per_wavelength,
-                                         wall=w, cycles=10.0), PARABOLA))
+    cases = (
+        (
+            "fig09",
+            "Fig. 9 horn",
+            "5-deg cone 125 mm",
+            lambda w: horn_design(
+                limits=CONE_LIMITS, face_m=FACE_M, cells_per_wavelength=args.cells_per_wavelength, wall=w, cycles=5.0
+            ),
+            CONE,
+        ),
+        (
+            "fig10",
+            "Fig. 10 reflector",
+            "parabola f 50 mm, aperture 190 mm",
+            lambda w: reflector_design(
+                limits=PARABOLA_LIMITS,
+                face_m=FACE_M,
+                cells_per_wavelength=args.cells_per_wavelength,
+                wall=w,
+                cycles=10.0,
+            ),
+            PARABOLA,
+        ),
+    )
     md = ["# Paper Figs. 9-10 measured", ""]
     for key, title, label, build, params in cases:
         pats_by_wall = {}
@@ -108,17 +136,34 @@ def main(argv=None) -> int:
             report[key][wall] = {"metrics": m, "resolution": resolution_note(pb), "params": params.as_dict()}
             write_scene(pb, params, out / f"{key}_{wall}.toml", title=f"{title} ({wall} walls)")
             if not args.no_fields:
-                plots.save(fields_plot(pb, {"bare transducer": None, f"{label}, {wall}": params}), out / f"{key}_fields_{wall}.png")
-            print(f"{key} {wall}: " + "; ".join(f"{r}: width {v['bare']['beam_width_deg']:.2f} -> {v['with']['beam_width_deg']:.2f} deg, "
-                                               f"gain {v['with']['on_axis_db']:+.2f} dB" for r, v in m.items()), flush=True)
+                plots.save(
+                    fields_plot(pb, {"bare transducer": None, f"{label}, {wall}": params}),
+                    out / f"{key}_fields_{wall}.png",
+                )
+            print(
+                f"{key} {wall}: "
+                + "; ".join(
+                    f"{r}: width {v['bare']['beam_width_deg']:.2f} -> {v['with']['beam_width_deg']:.2f} deg, "
+                    f"gain {v['with']['on_axis_db']:+.2f} dB"
+                    for r, v in m.items()
+                ),
+                flush=True,
+            )
         plots.save(pattern_figure(pb, pats_by_wall, title, label), out / f"{key}_patterns.png")
-        md += [f"## {title}: {label}", "", f"Resolution: {report[key][args.walls[0]]['resolution']}.", "",
-               "| walls | range | -6 dB width bare (deg) | -6 dB width with (deg) | on-axis gain (dB) | side lobe with (dB) |",
-               "|---|---|---|---|---|---|"]
+        md += [
+            f"## {title}: {label}",
+            "",
+            f"Resolution: {report[key][args.walls[0]]['resolution']}.",
+            "",
+            "| walls | range | -6 dB width bare (deg) | -6 dB width with (deg) | on-axis gain (dB) | side lobe with (dB) |",
+            "|---|---|---|---|---|---|",
+        ]
         for wall in args.walls:
             for r, v in report[key][wall]["metrics"].items():
-                md.append(f"| {wall} | {r} | {v['bare']['beam_width_deg']:.2f} | {v['with']['beam_width_deg']:.2f} | "
-                          f"{v['with']['on_axis_db']:+.2f} | {v['with']['sidelobe_db']:.1f} |")
+                md.append(
+                    f"| {wall} | {r} | {v['bare']['beam_width_deg']:.2f} | {v['with']['beam_width_deg']:.2f} | "
+                    f"{v['with']['on_axis_db']:+.2f} | {v['with']['sidelobe_db']:.1f} |"
+                )
         md += ["", f"![{key} patterns]({key}_patterns.png)", ""]
         md += [f"![{key} fields, {w} walls]({key}_fields_{w}.png)" for w in args.walls if not args.no_fields] + [""]
     report["wall_s"] = time.perf_counter() - t0

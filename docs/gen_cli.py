@@ -51,8 +51,9 @@ def render() -> str:
     try:  # build_parser() silently drops `capture` and `rig` when this import fails
         import difflattice.capture.cli  # noqa: F401
     except ImportError as e:
-        raise SystemExit(f"gen_cli.py: cannot import difflattice.capture.cli ({e}); "
-                         "run it with the project's .venv (make venv)") from e
+        raise SystemExit(
+            f"gen_cli.py: cannot import difflattice.capture.cli ({e}); run it with the project's .venv (make venv)"
+        ) from e
 
     parser = build_parser()
     lines = [

@@ -28,8 +28,14 @@ def generated() -> str:
     from difflattice.lattice.medium import MATERIALS
     from difflattice.scene import schema_markdown
 
-    lines = [schema_markdown().rstrip(), "", "### Materials", "", "| name | kind | speed (m/s) | density (kg/m³) |",
-             "|---|---|---|---|"]
+    lines = [
+        schema_markdown().rstrip(),
+        "",
+        "### Materials",
+        "",
+        "| name | kind | speed (m/s) | density (kg/m³) |",
+        "|---|---|---|---|",
+    ]
     for name, m in MATERIALS.items():
         if m.kind == "fluid":
             lines.append(f"| `{name}` | {m.kind} | {m.speed_m_s:.0f} | {m.density_kg_m3:.4g} |")

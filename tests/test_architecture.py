@@ -12,13 +12,15 @@ PKG = Path(__file__).resolve().parents[1] / "src" / "difflattice"
 
 # bottom to top; a module may import from its own layer or any layer below it
 LAYERS = {
-    "air": 0, "config": 0,
+    "air": 0,
+    "config": 0,
     "lattice": 1,
     "solver": 2,
     "observe": 3,
     "scene": 4,
     "plots": 4.5,  # figures from arrays (matplotlib only); fit and design reports draw with it
-    "fit": 5, "design": 5,
+    "fit": 5,
+    "design": 5,
     "apps": 7,
     "cli": 8,
 }

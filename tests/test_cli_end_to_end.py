@@ -2,7 +2,6 @@
 
 import json
 import math
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -58,8 +57,11 @@ def test_simulate_writes_outputs(tmp_path):
     "patch, message",
     [
         (("n_cells = 20", "n_cells = 20\ncolour = 3"), "transducers[0].colour] unknown key; allowed:"),
-        (("cells_per_wavelength = 10.0", "cells_per_wavelength = 'ten'"), "grid.cells_per_wavelength] must be a number"),
-        (("material = \"rigid\"", "material = \"cheese\""), "objects[0].material] unknown material 'cheese'; known:"),
+        (
+            ("cells_per_wavelength = 10.0", "cells_per_wavelength = 'ten'"),
+            "grid.cells_per_wavelength] must be a number",
+        ),
+        (('material = "rigid"', 'material = "cheese"'), "objects[0].material] unknown material 'cheese'; known:"),
         (("shape = [120, 100]", "shape = [120, 100]\ncourant = 0.75"), "exceeds the 2-D stability limit"),
         (("centre_m = [0.02, 0.034]", "centre_m = [0.001, 0.034]"), "absorbing layer"),
     ],
@@ -90,8 +92,12 @@ def test_fit_config_is_reproducible(tmp_path):
 def test_demo_quick(tmp_path):
     """The main job on a coarse setting: emulator process, pseudo-terminal capture, fit, report."""
     out = tmp_path / "demo"
-    r = subprocess.run([sys.executable, "-m", "difflattice.cli", "demo", "--quick", "--out", str(out)],
-                       capture_output=True, text=True, timeout=600)
+    r = subprocess.run(
+        [sys.executable, "-m", "difflattice.cli", "demo", "--quick", "--out", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
     assert r.returncode == 0, r.stdout[-2000:] + r.stderr[-2000:]
     rep = json.loads((out / "report" / "report.json").read_text())
     assert rep["fit"]["converged"]

@@ -23,15 +23,29 @@ from difflattice.design import HornLimits, HornParams, horn_design, reflector_de
 from difflattice.design.shapes import ReflectorLimits
 
 CPW = 6.0
-HORN_LIMITS = HornLimits(throat_min_m=0.0105, throat_max_m=0.014, mouth_max_m=0.030, length_min_m=0.010,
-                         length_max_m=0.025, wall_min_m=0.0012, wall_max_m=0.0025)
+HORN_LIMITS = HornLimits(
+    throat_min_m=0.0105,
+    throat_max_m=0.014,
+    mouth_max_m=0.030,
+    length_min_m=0.010,
+    length_max_m=0.025,
+    wall_min_m=0.0012,
+    wall_max_m=0.0025,
+)
 START = HornParams(0.012, 0.022, 0.018, 0.0018, 0.7)  # an exponential-flared horn of revolution
 
 
 @pytest.fixture(scope="module")
 def horn():
-    return horn_design(limits=HORN_LIMITS, face_m=0.010, cells_per_wavelength=CPW, angle_step_deg=1.0, wall="rigid",
-                       lattice="rz", range_m=0.5)
+    return horn_design(
+        limits=HORN_LIMITS,
+        face_m=0.010,
+        cells_per_wavelength=CPW,
+        angle_step_deg=1.0,
+        wall="rigid",
+        lattice="rz",
+        range_m=0.5,
+    )
 
 
 def test_rz_bare_disc_beam_is_the_pistons(horn):
@@ -75,14 +89,26 @@ def test_rz_horn_metrics_finite_and_shape_gradient_matches_central_differences(h
 
 def test_rz_refusals():
     with pytest.raises(ValueError, match="lattice = '3d'"):
-        horn_design(limits=HORN_LIMITS, face_m=0.010, cells_per_wavelength=CPW, lattice="3d", wall="rigid", reference=False)
+        horn_design(
+            limits=HORN_LIMITS, face_m=0.010, cells_per_wavelength=CPW, lattice="3d", wall="rigid", reference=False
+        )
     with pytest.raises(ValueError, match="soft"):
         horn_design(limits=HORN_LIMITS, face_m=0.010, cells_per_wavelength=CPW, lattice="rz", reference=False)
     with pytest.raises(ValueError, match="narrower than the disc"):
-        horn_design(limits=HORN_LIMITS, face_m=0.011, cells_per_wavelength=CPW, lattice="rz", wall="rigid", reference=False)
-    rl = ReflectorLimits(focal_min_m=0.011, focal_max_m=0.013, aperture_min_m=0.036, aperture_max_m=0.042,
-                         wall_min_m=0.0012, wall_max_m=0.0016)
-    pb = reflector_design(limits=rl, face_m=0.010, cells_per_wavelength=CPW, lattice="rz", wall="rigid", reference=False)
+        horn_design(
+            limits=HORN_LIMITS, face_m=0.011, cells_per_wavelength=CPW, lattice="rz", wall="rigid", reference=False
+        )
+    rl = ReflectorLimits(
+        focal_min_m=0.011,
+        focal_max_m=0.013,
+        aperture_min_m=0.036,
+        aperture_max_m=0.042,
+        wall_min_m=0.0012,
+        wall_max_m=0.0016,
+    )
+    pb = reflector_design(
+        limits=rl, face_m=0.010, cells_per_wavelength=CPW, lattice="rz", wall="rigid", reference=False
+    )
     assert pb.grid.kind == "rz" and pb.anchor_m[1] == 0.0
 
 

@@ -12,18 +12,46 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from difflattice.design import (Goal, HornLimits, HornParams, ReflectorLimits, ReflectorParams, horn_design,
-                                pattern_metrics, reflector_design)
+from difflattice.design import (
+    Goal,
+    HornLimits,
+    HornParams,
+    ReflectorLimits,
+    ReflectorParams,
+    horn_design,
+    pattern_metrics,
+    reflector_design,
+)
 from difflattice.design.optimise import gradient_check, optimise
 
 CPW = 6.0
-HORN_LIMITS = HornLimits(throat_min_m=0.0105, throat_max_m=0.014, mouth_max_m=0.030, length_min_m=0.010,
-                         length_max_m=0.025, wall_min_m=0.0012, wall_max_m=0.0025)
-REFL_LIMITS = ReflectorLimits(focal_min_m=0.008, focal_max_m=0.016, aperture_min_m=0.020, aperture_max_m=0.040,
-                              wall_min_m=0.0012, wall_max_m=0.0025)
+HORN_LIMITS = HornLimits(
+    throat_min_m=0.0105,
+    throat_max_m=0.014,
+    mouth_max_m=0.030,
+    length_min_m=0.010,
+    length_max_m=0.025,
+    wall_min_m=0.0012,
+    wall_max_m=0.0025,
+)
+REFL_LIMITS = ReflectorLimits(
+    focal_min_m=0.008,
+    focal_max_m=0.016,
+    aperture_min_m=0.020,
+    aperture_max_m=0.040,
+    wall_min_m=0.0012,
+    wall_max_m=0.0025,
+)
 # every measure enters the checked loss, so each one's gradient is exercised
-ALL = Goal(gain_weight=1.0, width_target_deg=30.0, width_weight=0.1, width_scale_deg=5.0, sidelobe_weight=0.1,
-           directivity_weight=0.5, sector_weight=0.5)
+ALL = Goal(
+    gain_weight=1.0,
+    width_target_deg=30.0,
+    width_weight=0.1,
+    width_scale_deg=5.0,
+    sidelobe_weight=0.1,
+    directivity_weight=0.5,
+    sector_weight=0.5,
+)
 
 
 @pytest.fixture(scope="module")
@@ -55,21 +83,30 @@ def test_reflector_optimisation_improves_gain(reflector):
     """BFGS on (focal length, aperture) for on-axis gain over the bare transducer: from -1.74 dB by
     at least +6 dB in 8 steps (measured: +5.77 dB, i.e. +7.51 dB, at step 8; the first step only
     accepts the start point)."""
-    res = optimise(reflector, ReflectorParams(0.014, 0.024, 0.0018), Goal(gain_weight=1.0),
-                   free=("focal_m", "aperture_m"), max_steps=8, progress=False)
+    res = optimise(
+        reflector,
+        ReflectorParams(0.014, 0.024, 0.0018),
+        Goal(gain_weight=1.0),
+        free=("focal_m", "aperture_m"),
+        max_steps=8,
+        progress=False,
+    )
     assert res.metrics_start["on_axis_db"] == pytest.approx(-1.742, abs=0.01)
     assert res.metrics_best["on_axis_db"] > res.metrics_start["on_axis_db"] + 6.0
     REFL_LIMITS.check(res.best)
 
 
-@pytest.mark.parametrize("bad, match", [
-    (dict(mouth_m=0.011), "mouth_m .* narrower than throat_m"),
-    (dict(throat_m=0.009), "throat_m .* outside"),
-    (dict(wall_m=0.0005), "minimum wall thickness"),
-    (dict(length_m=0.05), "length_m .* outside"),
-    (dict(flare=9.0), "flare"),
-    (dict(length_m=float("nan")), "finite"),
-])
+@pytest.mark.parametrize(
+    "bad, match",
+    [
+        (dict(mouth_m=0.011), "mouth_m .* narrower than throat_m"),
+        (dict(throat_m=0.009), "throat_m .* outside"),
+        (dict(wall_m=0.0005), "minimum wall thickness"),
+        (dict(length_m=0.05), "length_m .* outside"),
+        (dict(flare=9.0), "flare"),
+        (dict(length_m=float("nan")), "finite"),
+    ],
+)
 def test_bad_horn_inputs_raise(bad, match):
     p = dict(throat_m=0.012, mouth_m=0.02, length_m=0.02, wall_m=0.002, flare=0.0) | bad
     with pytest.raises(ValueError, match=match):
@@ -78,15 +115,23 @@ def test_bad_horn_inputs_raise(bad, match):
 
 def test_bad_limits_and_problems_raise():
     with pytest.raises(ValueError, match="throat_min_m"):
-        HornLimits(throat_min_m=0.02, throat_max_m=0.01, mouth_max_m=0.03, length_min_m=0.01, length_max_m=0.02,
-                   wall_min_m=0.001, wall_max_m=0.002)
+        HornLimits(
+            throat_min_m=0.02,
+            throat_max_m=0.01,
+            mouth_max_m=0.03,
+            length_min_m=0.01,
+            length_max_m=0.02,
+            wall_min_m=0.001,
+            wall_max_m=0.002,
+        )
     with pytest.raises(ValueError, match="covers? source cells|narrower than the transducer"):
         horn_design(limits=HORN_LIMITS, face_m=0.020, cells_per_wavelength=CPW)
     with pytest.raises(ValueError, match="thinner than one cell"):
         horn_design(limits=HORN_LIMITS, face_m=0.010, cells_per_wavelength=3.0)
     with pytest.raises(ValueError, match="focal_min_m .* through|within a cell of the transducer"):
-        reflector_design(limits=ReflectorLimits(0.002, 0.01, 0.02, 0.04, 0.0012, 0.002), face_m=0.010,
-                         cells_per_wavelength=CPW)
+        reflector_design(
+            limits=ReflectorLimits(0.002, 0.01, 0.02, 0.04, 0.0012, 0.002), face_m=0.010, cells_per_wavelength=CPW
+        )
     with pytest.raises(ValueError, match="focal_m .* outside"):
         REFL_LIMITS.check(ReflectorParams(0.004, 0.03, 0.002))
     with pytest.raises(ValueError, match="unknown material"):
@@ -110,7 +155,7 @@ def test_beam_measures_on_a_gaussian_beam():
     the dB curve (a parabola) on a 0.5 deg grid errs by at most step^2 / (8 theta) per side."""
     a = -180 + 0.5 * np.arange(720)
     s = 4.0
-    p = np.exp(-a**2 / (2 * s**2)) + 1e-3 * (np.abs(a) > 30)  # a -60 dB floor beyond 30 deg
+    p = np.exp(-(a**2) / (2 * s**2)) + 1e-3 * (np.abs(a) > 30)  # a -60 dB floor beyond 30 deg
     m = pattern_metrics(jnp.asarray(p), a, sector_deg=10.0)
     w = 2 * s * np.sqrt(0.6 * np.log(10))
     assert float(m["beam_width_deg"]) == pytest.approx(w, abs=2 * 0.5**2 / (8 * w / 2))
@@ -148,7 +193,9 @@ def test_material_walls_keep_the_air_resolution():
     pine (courant 0.707 at 3500 m/s); the wall's speed and density are blended by occupancy."""
     from difflattice.lattice.medium import MATERIALS, air
 
-    pb = horn_design(limits=HORN_LIMITS, face_m=0.010, cells_per_wavelength=CPW, wall="pine", angle_step_deg=1.0, reference=False)
+    pb = horn_design(
+        limits=HORN_LIMITS, face_m=0.010, cells_per_wavelength=CPW, wall="pine", angle_step_deg=1.0, reference=False
+    )
     c_air, pine = air(20.0).speed_m_s, MATERIALS["pine"]
     assert pb.grid.dx_m == pytest.approx(c_air / (50e3 * CPW), rel=1e-12)
     assert pb.grid.c_max_m_s == pine.speed_m_s

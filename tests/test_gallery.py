@@ -28,9 +28,18 @@ from difflattice.scene import load_scene  # noqa: E402
 SCALE = 0.25  # 5 cells per wavelength: a coarse look, about 4 s per scene on 2 cores
 
 EXPECTED = {
-    "fig02_polaroid", "fig03_nearfield", "fig04a_wall_speed_zero", "fig04b_wall_rigid", "fig05_gap",
-    "fig06_concave_corner", "fig07a_convex_edge_sharp", "fig07b_convex_edge_rounded",
-    "fig08_stepped_wall", "fig09_cone_horn", "fig09_no_horn", "fig10_parabolic_reflector",
+    "fig02_polaroid",
+    "fig03_nearfield",
+    "fig04a_wall_speed_zero",
+    "fig04b_wall_rigid",
+    "fig05_gap",
+    "fig06_concave_corner",
+    "fig07a_convex_edge_sharp",
+    "fig07b_convex_edge_rounded",
+    "fig08_stepped_wall",
+    "fig09_cone_horn",
+    "fig09_no_horn",
+    "fig10_parabolic_reflector",
 }
 
 

@@ -11,11 +11,11 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 from difflattice import plots  # noqa: E402
+from difflattice.apps.scene_run import run_scene, write_outputs  # noqa: E402
 from difflattice.cli import main  # noqa: E402
 from difflattice.lattice.medium import ResolutionWarning  # noqa: E402
-from difflattice.apps.scene_run import run_scene, write_outputs  # noqa: E402
 from difflattice.scene import SceneError, parse_scene, render_stride  # noqa: E402
-from difflattice.solver import Stepper, run  # noqa: E402
+from difflattice.solver import run  # noqa: E402
 
 
 def _scene(cpw=20.0, **output):
@@ -77,7 +77,9 @@ def test_moments_are_fields_at_exactly_those_steps(tmp_path):
     assert sr.snapshot_steps == [25, 50, 75, 90]
     # the kept field is the field after exactly that many steps
     ref = run(sr.stepper, 37)
-    np.testing.assert_allclose(sr.moments[37], np.asarray(ref.final.pressure), rtol=0, atol=1e-6 * float(np.abs(sr.moments[37]).max()))
+    np.testing.assert_allclose(
+        sr.moments[37], np.asarray(ref.final.pressure), rtol=0, atol=1e-6 * float(np.abs(sr.moments[37]).max())
+    )
     assert float(np.abs(sr.moments[37]).max()) > 0
     files = write_outputs(sr, tmp_path / "o", animation="none")
     names = sorted(os.path.basename(f) for f in files["moments"])
@@ -110,12 +112,26 @@ def test_no_frames_switch(tmp_path):
 def test_cli_no_frames(tmp_path):
     scene = tmp_path / "s.toml"
     scene.write_text(
-        '[grid]\nfrequency_hz = 50000.0\ncells_per_wavelength = 10.0\nsize_m = [0.024, 0.018]\n'
-        '[edges]\nthickness_cells = 5\n[[transducers]]\ncentre_m = [0.006, 0.009]\nn_cells = 4\n'
-        '[sensors]\nsnapshot_every_steps = 20\n[run]\nn_steps = 40\n'
+        "[grid]\nfrequency_hz = 50000.0\ncells_per_wavelength = 10.0\nsize_m = [0.024, 0.018]\n"
+        "[edges]\nthickness_cells = 5\n[[transducers]]\ncentre_m = [0.006, 0.009]\nn_cells = 4\n"
+        "[sensors]\nsnapshot_every_steps = 20\n[run]\nn_steps = 40\n"
     )
-    assert main(["simulate", str(scene), "--out", str(tmp_path / "o"), "--quiet", "--no-frames", "--no-animation",
-                 "--render-every", "2"]) == 0
+    assert (
+        main(
+            [
+                "simulate",
+                str(scene),
+                "--out",
+                str(tmp_path / "o"),
+                "--quiet",
+                "--no-frames",
+                "--no-animation",
+                "--render-every",
+                "2",
+            ]
+        )
+        == 0
+    )
     assert not (tmp_path / "o" / "frames").exists() and (tmp_path / "o" / "field.png").is_file()
     import json
 
@@ -136,13 +152,16 @@ def test_time_series_legend_is_capped():
 
 
 def _pine_scene(model="conservative", material="pine"):
-    return parse_scene({
-        "grid": {"frequency_hz": 50e3, "cells_per_wavelength": 20.0, "size_m": [0.2, 0.1]},
-        "medium": {"boundary_model": model},
-        "transducers": [{"centre_m": [0.05, 0.05], "n_cells": 4}],
-        "objects": [{"shape": "box", "material": material, "lo_m": [0.1, 0.02], "hi_m": [0.12, 0.08]}],
-        "run": {"n_steps": 10},
-    }, "<pine>")
+    return parse_scene(
+        {
+            "grid": {"frequency_hz": 50e3, "cells_per_wavelength": 20.0, "size_m": [0.2, 0.1]},
+            "medium": {"boundary_model": model},
+            "transducers": [{"centre_m": [0.05, 0.05], "n_cells": 4}],
+            "objects": [{"shape": "box", "material": material, "lo_m": [0.1, 0.02], "hi_m": [0.12, 0.08]}],
+            "run": {"n_steps": 10},
+        },
+        "<pine>",
+    )
 
 
 def test_pine_in_air_warns_that_air_is_under_resolved():

@@ -20,16 +20,24 @@ def _simulate(args) -> int:
     if args.render_every is not None:
         scene.output["render_every_cells"] = args.render_every
     sr = run_scene(scene, progress=not args.quiet)
-    files = write_outputs(sr, args.out, frames=False if args.no_frames else None,
-                          animation="none" if args.no_animation else args.animation)
+    files = write_outputs(
+        sr,
+        args.out,
+        frames=False if args.no_frames else None,
+        animation="none" if args.no_animation else args.animation,
+    )
     s = sr.summary
-    print(f"{scene.path}: {s['run']['n_steps']} steps on {s['grid']['shape'][0]} x {s['grid']['shape'][1]} cells "
-          f"in {s['run']['wall_time_s']:.2f} s ({s['run']['mlups']:.0f} MLUPS); "
-          f"expected phase error {s['accuracy']['expected_phase_error_periods']:.3f} periods")
+    print(
+        f"{scene.path}: {s['run']['n_steps']} steps on {s['grid']['shape'][0]} x {s['grid']['shape'][1]} cells "
+        f"in {s['run']['wall_time_s']:.2f} s ({s['run']['mlups']:.0f} MLUPS); "
+        f"expected phase error {s['accuracy']['expected_phase_error_periods']:.3f} periods"
+    )
     if "farfield" in s:
         f = s["farfield"]
-        print(f"lobe at {_num(f['range_m'], 'g')} m: -6 dB width {_num(f['width_6db_deg'], '.2f')} deg, "
-              f"first null {_num(f.get('first_null_deg'), '.2f')} deg, first side lobe {_num(f.get('first_sidelobe_db'), '.1f')} dB")
+        print(
+            f"lobe at {_num(f['range_m'], 'g')} m: -6 dB width {_num(f['width_6db_deg'], '.2f')} deg, "
+            f"first null {_num(f.get('first_null_deg'), '.2f')} deg, first side lobe {_num(f.get('first_sidelobe_db'), '.1f')} dB"
+        )
     print(f"wrote {files['summary']}")
     return 0
 
@@ -63,7 +71,9 @@ def _accuracy(args) -> int:
 
     cpw = tuple(args.cells_per_wavelength) if args.cells_per_wavelength else None
     if cpw is not None and min(cpw) < 4:
-        print(f"error: --cells-per-wavelength {min(cpw):g}: give resolutions >= 4 cells per wavelength", file=sys.stderr)
+        print(
+            f"error: --cells-per-wavelength {min(cpw):g}: give resolutions >= 4 cells per wavelength", file=sys.stderr
+        )
         return 2
     if min(args.thickness_cells) < 1 or args.repeats < 0:
         print("error: --thickness-cells must be >= 1 cell and --repeats >= 0", file=sys.stderr)
@@ -90,8 +100,13 @@ def _accuracy(args) -> int:
 def _design(args) -> int:
     from .design import presets
 
-    kw = dict(cells_per_wavelength=args.cells_per_wavelength, wall=args.wall, steps=args.steps,
-              check_gradients=not args.no_gradient_check, progress=not args.quiet)
+    kw = dict(
+        cells_per_wavelength=args.cells_per_wavelength,
+        wall=args.wall,
+        steps=args.steps,
+        check_gradients=not args.no_gradient_check,
+        progress=not args.quiet,
+    )
     if args.what == "horn":
         s = presets.design_horn(args.out, target_deg=args.target_deg, **kw)
     else:
@@ -128,12 +143,21 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--out", type=Path, required=True, help="output directory")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.add_argument("--no-animation", action="store_true", help="do not write an animation (same as --animation none)")
-    s.add_argument("--animation", choices=["gif", "mp4", "none"], default=None,
-                   help="animation of the snapshots (default: the scene's [output] animation, gif); mp4 needs ffmpeg, else gif")
+    s.add_argument(
+        "--animation",
+        choices=["gif", "mp4", "none"],
+        default=None,
+        help="animation of the snapshots (default: the scene's [output] animation, gif); mp4 needs ffmpeg, else gif",
+    )
     s.add_argument("--no-frames", action="store_true", help="do not write a PNG per snapshot (frames/)")
-    s.add_argument("--render-every", type=int, default=None, metavar="CELLS",
-                   help="render every CELLS-th cell in field images (default: 3 at 20 cells per wavelength, "
-                        "at least 6.7 pixels per wavelength)")
+    s.add_argument(
+        "--render-every",
+        type=int,
+        default=None,
+        metavar="CELLS",
+        help="render every CELLS-th cell in field images (default: 3 at 20 cells per wavelength, "
+        "at least 6.7 pixels per wavelength)",
+    )
     s.set_defaults(func=_simulate)
 
     g = sub.add_parser("gallery", help="render the paper's figures (data/scenes/*.toml)")
@@ -144,45 +168,82 @@ def build_parser() -> argparse.ArgumentParser:
     g.set_defaults(func=_gallery)
 
     d = sub.add_parser("demo", help="main job: emulated rig -> capture -> fit -> report")
-    d.add_argument("--out", type=Path, default=Path("out/demo"), help="output directory (its data/ folder is emptied first)")
+    d.add_argument(
+        "--out", type=Path, default=Path("out/demo"), help="output directory (its data/ folder is emptied first)"
+    )
     d.add_argument("--quick", action="store_true", help="smaller scans (for tests)")
-    d.add_argument("--model", choices=("disc", "line"), default="disc",
-                   help="the emulated transducer and the model fitted: disc (a circular transducer, the disc model on the "
-                        "axisymmetric lattice) or line (the paper's Polaroid-like line, the line model) (default: disc)")
+    d.add_argument(
+        "--model",
+        choices=("disc", "line"),
+        default="disc",
+        help="the emulated transducer and the model fitted: disc (a circular transducer, the disc model on the "
+        "axisymmetric lattice) or line (the paper's Polaroid-like line, the line model) (default: disc)",
+    )
     d.set_defaults(func=_demo)
 
     from .config import keys_help
     from .fit.config import SECTIONS as FIT_SECTIONS
 
-    f = sub.add_parser("fit", help="fit a transducer model to captured data (config file)",
-                       description="Fit a transducer model to captured data, as a TOML config file says. A config "
-                                   "that cannot be used exits with code 2 and one line naming the key; a fit that "
-                                   "did not converge exits with code 3.",
-                       epilog="config keys (every unit, allowed range and meaning in docs/fitting.md):\n"
-                              + keys_help(FIT_SECTIONS, width=96))
+    f = sub.add_parser(
+        "fit",
+        help="fit a transducer model to captured data (config file)",
+        description="Fit a transducer model to captured data, as a TOML config file says. A config "
+        "that cannot be used exits with code 2 and one line naming the key; a fit that "
+        "did not converge exits with code 3.",
+        epilog="config keys (every unit, allowed range and meaning in docs/fitting.md):\n"
+        + keys_help(FIT_SECTIONS, width=96),
+    )
     f.add_argument("config", type=Path, help="fit config (TOML, see docs/fitting.md)")
     f.add_argument("--out", type=Path, default=None, help="report directory (default: from the config)")
     f.add_argument("--quick", action="store_true", help="coarse settings (for tests)")
     f.set_defaults(func=_fit)
 
-    a = sub.add_parser("accuracy", help="error against run time over a resolution sweep (built-in cases, analytic references)")
-    a.add_argument("--case", choices=["polaroid", "piston", "wall", "edges"], default="polaroid",
-                   help="polaroid: the Polaroid line's lobe and wavefront vs the continuous line; piston: a baffled "
-                        "38.4 mm disc on the axisymmetric lattice (on-axis field, lobe, the z = 16.5 mm line) vs "
-                        "the exact on-axis formula, 2 J1(x)/x and a Rayleigh-integral quadrature; wall: a point "
-                        "source's echo from a rigid and a soft wall vs the image-source solution; edges: the "
-                        "reflection of pml/sponge/mur edges vs a window too large to reach")
-    a.add_argument("--cells-per-wavelength", type=float, nargs="+", default=None,
-                   help="resolutions (default: polaroid and piston 6 8 10 14 20 28 40; wall 6 8 10 14 20 30; edges 10 20)")
-    a.add_argument("--thickness-cells", type=int, nargs="+", default=[5, 10, 20, 40],
-                   help="edges case: pml and sponge thicknesses, cells")
-    a.add_argument("--dtype", nargs="+", default=["float32", "float64"], choices=["float32", "float64"],
-                   help="precisions (the edges case uses the first)")
-    a.add_argument("--repeats", type=int, default=3, help="timed repeats after a compiling run (polaroid: their median; wall, edges: the fastest)")
+    a = sub.add_parser(
+        "accuracy", help="error against run time over a resolution sweep (built-in cases, analytic references)"
+    )
+    a.add_argument(
+        "--case",
+        choices=["polaroid", "piston", "wall", "edges"],
+        default="polaroid",
+        help="polaroid: the Polaroid line's lobe and wavefront vs the continuous line; piston: a baffled "
+        "38.4 mm disc on the axisymmetric lattice (on-axis field, lobe, the z = 16.5 mm line) vs "
+        "the exact on-axis formula, 2 J1(x)/x and a Rayleigh-integral quadrature; wall: a point "
+        "source's echo from a rigid and a soft wall vs the image-source solution; edges: the "
+        "reflection of pml/sponge/mur edges vs a window too large to reach",
+    )
+    a.add_argument(
+        "--cells-per-wavelength",
+        type=float,
+        nargs="+",
+        default=None,
+        help="resolutions (default: polaroid and piston 6 8 10 14 20 28 40; wall 6 8 10 14 20 30; edges 10 20)",
+    )
+    a.add_argument(
+        "--thickness-cells",
+        type=int,
+        nargs="+",
+        default=[5, 10, 20, 40],
+        help="edges case: pml and sponge thicknesses, cells",
+    )
+    a.add_argument(
+        "--dtype",
+        nargs="+",
+        default=["float32", "float64"],
+        choices=["float32", "float64"],
+        help="precisions (the edges case uses the first)",
+    )
+    a.add_argument(
+        "--repeats",
+        type=int,
+        default=3,
+        help="timed repeats after a compiling run (polaroid: their median; wall, edges: the fastest)",
+    )
     a.add_argument("--out", type=Path, default=Path("out/accuracy"), help="output directory")
     a.set_defaults(func=_accuracy)
 
-    z = sub.add_parser("design", help="optimise a horn (target beam width) or a reflector (on-axis gain) from the paper's shapes")
+    z = sub.add_parser(
+        "design", help="optimise a horn (target beam width) or a reflector (on-axis gain) from the paper's shapes"
+    )
     z.add_argument("what", choices=["horn", "reflector"], help="what to design")
     z.add_argument("--out", type=Path, required=True, help="report directory")
     z.add_argument("--cells-per-wavelength", type=float, default=8.0, help="lattice resolution of the design runs")
@@ -193,13 +254,22 @@ def build_parser() -> argparse.ArgumentParser:
     z.add_argument("--quiet", action="store_true", help="no progress bar")
     z.set_defaults(func=_design)
 
-    b = sub.add_parser("bench", help="forward speed (MLUPS) of the time loop: native, JAX and, with --reference, numba/NumPy")
-    b.add_argument("--reference", action="store_true",
-                   help="also run the numba (1 thread, all cores) and NumPy loops of benchmarks/reference_kernels.py "
-                        "(a source checkout; their own venv .venv-bench), interleaved, and print the ratios")
+    b = sub.add_parser(
+        "bench", help="forward speed (MLUPS) of the time loop: native, JAX and, with --reference, numba/NumPy"
+    )
+    b.add_argument(
+        "--reference",
+        action="store_true",
+        help="also run the numba (1 thread, all cores) and NumPy loops of benchmarks/reference_kernels.py "
+        "(a source checkout; their own venv .venv-bench), interleaved, and print the ratios",
+    )
     b.add_argument("--rounds", type=int, default=2, help="interleaved rounds (each case in its own process per round)")
-    b.add_argument("--force", action="store_true", help="run on a busy machine (1-min load > 1): results marked provisional")
-    b.add_argument("--out", type=Path, default=None, help="also write bench.json and bench.md here (default: print only)")
+    b.add_argument(
+        "--force", action="store_true", help="run on a busy machine (1-min load > 1): results marked provisional"
+    )
+    b.add_argument(
+        "--out", type=Path, default=None, help="also write bench.json and bench.md here (default: print only)"
+    )
     b.add_argument("--quick", action="store_true", help="a tenth of the steps (checks that it runs; not a measurement)")
     b.set_defaults(func=_bench)
 

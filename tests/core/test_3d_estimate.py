@@ -43,8 +43,12 @@ def test_refusal_names_estimate_and_fix():
     nbytes, s = estimate_run((1024,) * 3, 10, "float64", RunFeatures(mlups=50.0))
     with pytest.raises(RunTooLargeError, match=r"1024 x 1024 x 1024.*Fix: fewer cells"):
         check_fits((1024,) * 3, 10, nbytes, available=8 * 2**30, seconds=s)
-    check_fits((64,) * 3, 10, estimate_run((64,) * 3, 10, "float32", RunFeatures(mlups=50.0))[0],
-               available=RUNTIME_OVERHEAD_BYTES + 2**30)
+    check_fits(
+        (64,) * 3,
+        10,
+        estimate_run((64,) * 3, 10, "float32", RunFeatures(mlups=50.0))[0],
+        available=RUNTIME_OVERHEAD_BYTES + 2**30,
+    )
     assert available_memory_bytes() > 0
     assert issubclass(RunTooLargeError, ValueError)
 

@@ -20,8 +20,7 @@ from difflattice.observe.farfield3d import BoxSurface, box_around_3d, directions
 
 def _grid(k):
     # the transform needs omega (rad/step), the courant number and metre -> cell conversion
-    return SimpleNamespace(hz_to_lattice_omega=lambda f: 0.5 * k, frequency_hz=1.0, courant=0.5,
-                           m_to_cells=lambda r: r)
+    return SimpleNamespace(hz_to_lattice_omega=lambda f: 0.5 * k, frequency_hz=1.0, courant=0.5, m_to_cells=lambda r: r)
 
 
 def _errors(ppw):
@@ -30,8 +29,12 @@ def _errors(ppw):
     src = np.array([12.3, 10.2, 9.7])
     r = np.linalg.norm(box.cells - src, axis=1)
     ph = jnp.asarray(np.exp(1j * k * r) / (4 * math.pi * r))
-    dirs = np.concatenate([directions_in_plane([1, 0, 0], [0, 1, 0], np.linspace(-180, 180, 25)),
-                           directions_in_plane([0, 0, 1], [1, 1, 0], np.linspace(-90, 90, 13))])
+    dirs = np.concatenate(
+        [
+            directions_in_plane([1, 0, 0], [0, 1, 0], np.linspace(-180, 180, 25)),
+            directions_in_plane([0, 0, 1], [1, 1, 0], np.linspace(-90, 90, 13)),
+        ]
+    )
     g = _grid(k)
     near = np.asarray(far_field(ph, box, g, dirs, 400.0, centre_cells=src, dispersion="continuum"))
     exact = np.exp(1j * k * 400) / (4 * math.pi * 400)
@@ -73,8 +76,10 @@ def test_baffled_box_uses_the_image():
     assert box.n_samples == len(box.samples()[0]) == 2 * (21 * 25 + 21 * 23 + 25 * 23) - 25 * 23
     src = np.array([1.3, 11.6, 10.2])
     img = src * [-1, 1, 1] + [-1.0, 0, 0]
-    field = lambda x: sum(np.exp(1j * k * np.linalg.norm(x - s, axis=-1)) / (4 * math.pi * np.linalg.norm(x - s, axis=-1))
-                          for s in (src, img))
+    field = lambda x: sum(
+        np.exp(1j * k * np.linalg.norm(x - s, axis=-1)) / (4 * math.pi * np.linalg.norm(x - s, axis=-1))
+        for s in (src, img)
+    )
     ph = jnp.asarray(field(box.cells.astype(float)))
     dirs = directions_in_plane([1, 0, 0], [0, 1, 1], np.linspace(-85, 85, 18))
     g = _grid(k)

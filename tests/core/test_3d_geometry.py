@@ -94,6 +94,7 @@ def test_smooth_occupancy_gradient_is_the_surface_area():
     r = 10.2 * H
     dv = float(jax.grad(vol)(jnp.asarray(r)))
     assert dv == pytest.approx(4 * math.pi * r**2, rel=1e-2)
+
     # through the orientation angles of a box: rotating a box in place keeps its volume
     def vbox(a):
         return jnp.sum(rasterise3d(OrientedBox(c, jnp.array([20.0, 14.0, 10.0]) * H, a), g)) * H**3
@@ -105,7 +106,9 @@ def test_smooth_occupancy_gradient_is_the_surface_area():
 
 def test_bad_inputs_name_the_fix():
     with pytest.raises(ValueError, match="3-D grid"):
-        rasterise3d(Sphere(jnp.zeros(3), jnp.asarray(1.0)), SimpleNamespace(shape=(4, 4), dx_m=1.0, jnp_dtype=jnp.float32))
+        rasterise3d(
+            Sphere(jnp.zeros(3), jnp.asarray(1.0)), SimpleNamespace(shape=(4, 4), dx_m=1.0, jnp_dtype=jnp.float32)
+        )
     with pytest.raises(ValueError, match="mode"):
         rasterise3d(Sphere(jnp.zeros(3), jnp.asarray(1.0)), _grid(4), "fuzzy")
     with pytest.raises(ValueError, match="ramp_cells"):

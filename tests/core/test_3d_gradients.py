@@ -18,7 +18,9 @@ from difflattice.lattice.geometry3d import Sphere, rasterise3d
 from difflattice.lattice.grid import make_grid
 from difflattice.solver import PointSources, Sensors, ToneBurst, simulate
 
-G = make_grid(frequency_hz=40e3, cells_per_wavelength=8, c_max_m_s=343.0, shape=(14, 12, 10), kind="3d", dtype="float64")
+G = make_grid(
+    frequency_hz=40e3, cells_per_wavelength=8, c_max_m_s=343.0, shape=(14, 12, 10), kind="3d", dtype="float64"
+)
 CELLS = np.array([[3, 6, 5], [3, 7, 5]])
 PROBES = np.array([[10, 5, 5], [8, 8, 3]])
 
@@ -27,8 +29,16 @@ def _loss(params, adjoint):
     w, lags, radius = params
     occ = rasterise3d(Sphere(jnp.array([7.5, 6.3, 5.2]) * G.dx_m, radius), G)
     src = PointSources(cells=CELLS, signal=ToneBurst(40e3, 2), weights=w, lags_s=lags)
-    r = simulate(G, Medium(343.0, 1.2, rigid=occ), src, Sensors(probes=PROBES), n_steps=40,
-                 edges=Edges.all("rigid"), adjoint=adjoint, checkpoint=8 if adjoint == "autodiff" else None)
+    r = simulate(
+        G,
+        Medium(343.0, 1.2, rigid=occ),
+        src,
+        Sensors(probes=PROBES),
+        n_steps=40,
+        edges=Edges.all("rigid"),
+        adjoint=adjoint,
+        checkpoint=8 if adjoint == "autodiff" else None,
+    )
     return jnp.sum(r.probes**2)
 
 
@@ -48,6 +58,7 @@ def test_reverse_adjoint_forward_and_finite_differences_agree():
     assert float(jv) == pytest.approx(float(np.dot(a, flat(v))), rel=1e-9)
     # central differences: one weight, one lag, the radius
     for i, j, h in ((0, 1, 1e-6), (1, 1, 1e-12), (2, None, 1e-6 * G.dx_m)):
+
         def shifted(s, i=i, j=j):
             p = list(params)
             p[i] = p[i] + s if j is None else p[i].at[j].add(s)

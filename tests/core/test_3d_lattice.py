@@ -33,8 +33,15 @@ from difflattice.solver import PointSources, Sensors, Stepper, ToneBurst, check_
 
 
 def _grid(shape, courant=None, ppw=20.0, dtype="float64"):
-    return make_grid(frequency_hz=40e3, cells_per_wavelength=ppw, c_max_m_s=343.0, shape=shape, kind="3d",
-                     courant=courant, dtype=dtype)
+    return make_grid(
+        frequency_hz=40e3,
+        cells_per_wavelength=ppw,
+        c_max_m_s=343.0,
+        shape=shape,
+        kind="3d",
+        courant=courant,
+        dtype=dtype,
+    )
 
 
 def energy(stepper, p_new, p_old) -> float:
@@ -65,8 +72,9 @@ def test_plane_wave_follows_the_3d_dispersion_relation(direction):
     errs = {}
     for name, k in (("lattice", float(lattice_wavenumber_3d(omega, c, u))), ("continuum", omega / c)):
         st = Stepper.build(g, Medium(343.0, 1.2), edges=Edges.all("rigid"))
-        s0 = eqx.tree_at(lambda s: (s.p, s.p_prev), st.init(),
-                         (jnp.asarray(np.cos(k * x)), jnp.asarray(np.cos(k * x + omega))))
+        s0 = eqx.tree_at(
+            lambda s: (s.p, s.p_prev), st.init(), (jnp.asarray(np.cos(k * x)), jnp.asarray(np.cos(k * x + omega)))
+        )
         res = run(st, N_STEPS, state=s0)
         exact = np.cos(k * x - omega * N_STEPS)
         errs[name] = np.abs(np.asarray(res.final.p) - exact)[inner].max()
@@ -82,8 +90,11 @@ def test_closed_box_conserves_energy_at_the_limit():
     g = _grid((n, n, n), courant=MAX_COURANT_3D, ppw=10.0)
     x = np.stack(np.meshgrid(*(np.arange(n),) * 3, indexing="ij"), 0)
     slow = x[0] > n // 2
-    med = Medium(jnp.asarray(np.where(slow, 200.0, 343.0)), jnp.asarray(np.where(slow, 5.0, 1.2)),
-                 rigid=rasterise3d(Sphere(jnp.array([3.3, 8.2, 6.1]) * g.dx_m, jnp.asarray(2.4 * g.dx_m)), g))
+    med = Medium(
+        jnp.asarray(np.where(slow, 200.0, 343.0)),
+        jnp.asarray(np.where(slow, 5.0, 1.2)),
+        rigid=rasterise3d(Sphere(jnp.array([3.3, 8.2, 6.1]) * g.dx_m, jnp.asarray(2.4 * g.dx_m)), g),
+    )
     st = Stepper.build(g, med, edges=Edges.all("rigid"))
     assert float(jnp.sum((med.rigid > 0.05) & (med.rigid < 0.95))) > 10  # really cut cells
     p0 = jnp.asarray(np.exp(-((x[0] - 4) ** 2 + (x[1] - 3) ** 2 + (x[2] - 7) ** 2) / 3.0))
@@ -111,8 +122,9 @@ def test_stability_limit_refused_and_instability_detected():
     f(jnp.float32(343.0)).block_until_ready()
     with pytest.raises((eqx.EquinoxRuntimeError, ValueError), match="1/sqrt\\(3\\)"):
         f(jnp.float32(400.0)).block_until_ready()
-    src = PointSources(cells=[(5, 5, 5)], signal=ToneBurst(40e3, 2), weights=jnp.ones(1, jnp.float32),
-                       lags_s=jnp.zeros(1, jnp.float32))
+    src = PointSources(
+        cells=[(5, 5, 5)], signal=ToneBurst(40e3, 2), weights=jnp.ones(1, jnp.float32), lags_s=jnp.zeros(1, jnp.float32)
+    )
     st = Stepper.build(g, Medium(343.0, 1.2), src, edges=Edges.all("rigid"))
     bad = eqx.tree_at(lambda s: s.lattice.K, st, jnp.asarray(0.4, jnp.float32))  # c = 0.63 > 0.577
     res = run(bad, 2000)
@@ -136,8 +148,13 @@ def test_point_source_falls_as_one_over_r():
     cells = np.concatenate(list(rays.values()))
     centre = np.full(3, -0.5)
     direct = np.linalg.norm(cells - centre, axis=1)
-    echo = np.min([np.linalg.norm(cells - mirror_points(centre, np.eye(3)[i] * (shape[i] - 0.5), np.eye(3)[i]), axis=1)
-                   for i in range(3)], axis=0)
+    echo = np.min(
+        [
+            np.linalg.norm(cells - mirror_points(centre, np.eye(3)[i] * (shape[i] - 0.5), np.eye(3)[i]), axis=1)
+            for i in range(3)
+        ],
+        axis=0,
+    )
     end = np.floor(echo / c).astype(int)
     assert np.all(end > direct / c + 2 * g.steps_per_period + 8)  # the burst ends inside each window
     n_steps = int(end.max())

@@ -30,21 +30,36 @@ A_CELLS = 30.0  # 1.5 wavelengths: first null at 24 deg, first side lobe (-17.6 
 def _lobe_3d(angles_deg, azimuth_deg):
     pml, gap = 12, 4
     ny = int(2 * (A_CELLS + gap + 1) + 2 * pml + 2)
-    g = make_grid(frequency_hz=40e3, cells_per_wavelength=PPW, c_max_m_s=343.0, shape=(gap + 3 + pml + 2, ny, ny),
-                  kind="3d", dtype="float64")
+    g = make_grid(
+        frequency_hz=40e3,
+        cells_per_wavelength=PPW,
+        c_max_m_s=343.0,
+        shape=(gap + 3 + pml + 2, ny, ny),
+        kind="3d",
+        dtype="float64",
+    )
     cy = (ny - 1) / 2
-    src = disc_transducer_3d(g, (0.0, cy * g.dx_m, cy * g.dx_m), (1, 0, 0), diameter_m=2 * A_CELLS * g.dx_m,
-                             signal=ToneBurst(40e3, 4))
+    src = disc_transducer_3d(
+        g, (0.0, cy * g.dx_m, cy * g.dx_m), (1, 0, 0), diameter_m=2 * A_CELLS * g.dx_m, signal=ToneBurst(40e3, 4)
+    )
     box = box_around_3d(src.cells_array, gap, baffle="x_lo")
     box.check_inside(g.shape, margin=pml)
     n_steps = int((2 * A_CELLS + 20) / g.courant + 4 * g.steps_per_period)
-    r = simulate(g, Medium(343.0, 1.2), src, Sensors(phasor_cells=box.cells), n_steps=n_steps,
-                 edges=Edges(x_lo="rigid", thickness_cells=pml))
+    r = simulate(
+        g,
+        Medium(343.0, 1.2),
+        src,
+        Sensors(phasor_cells=box.cells),
+        n_steps=n_steps,
+        edges=Edges(x_lo="rigid", thickness_cells=pml),
+    )
     out = {}
     for az in azimuth_deg:
         across = [0.0, math.cos(math.radians(az)), math.sin(math.radians(az))]
         d = directions_in_plane([1, 0, 0], across, angles_deg)
-        F = np.abs(np.asarray(far_field(r.phasors, box, g, d, None, centre_cells=[-0.5, cy, cy], dispersion="continuum")))
+        F = np.abs(
+            np.asarray(far_field(r.phasors, box, g, d, None, centre_cells=[-0.5, cy, cy], dispersion="continuum"))
+        )
         out[az] = 20 * np.log10(F / F[0])
     return out
 
@@ -83,27 +98,60 @@ def _baffled_velocity_piston(kind):
     ang = np.linspace(0, 60, 241)
     n_steps = int((2 * A_CELLS + 20) / 0.57 + 4 * 34.6)
     if kind == "rz":
-        g = make_grid(frequency_hz=40e3, cells_per_wavelength=PPW, c_max_m_s=343.0, kind="rz", dtype="float64",
-                      shape=(gap + 3 + pml + 2, int(A_CELLS) + gap + 3 + pml), courant=0.577)
+        g = make_grid(
+            frequency_hz=40e3,
+            cells_per_wavelength=PPW,
+            c_max_m_s=343.0,
+            kind="rz",
+            dtype="float64",
+            shape=(gap + 3 + pml + 2, int(A_CELLS) + gap + 3 + pml),
+            courant=0.577,
+        )
         src = disc_transducer(g, radius_m=A_CELLS * g.dx_m, signal=ToneBurst(40e3, 4))
         surf = cylinder_around(src.cells_array, gap, baffled=True)
-        r = simulate(g, Medium(343.0, 1.2), src, Sensors(phasor_cells=surf.cells), n_steps=n_steps,
-                     edges=Edges.axisymmetric(z_lo="rigid", thickness_cells=pml))
+        r = simulate(
+            g,
+            Medium(343.0, 1.2),
+            src,
+            Sensors(phasor_cells=surf.cells),
+            n_steps=n_steps,
+            edges=Edges.axisymmetric(z_lo="rigid", thickness_cells=pml),
+        )
         F = np.abs(np.asarray(far_field_rz(r.phasors, surf, g, ang)))
         return ang, {0.0: 20 * np.log10(F / F[0])}
     ny = int(2 * (A_CELLS + gap + 1) + 2 * pml + 2)
-    g = make_grid(frequency_hz=40e3, cells_per_wavelength=PPW, c_max_m_s=343.0, shape=(gap + 3 + pml + 2, ny, ny),
-                  kind="3d", dtype="float64")
+    g = make_grid(
+        frequency_hz=40e3,
+        cells_per_wavelength=PPW,
+        c_max_m_s=343.0,
+        shape=(gap + 3 + pml + 2, ny, ny),
+        kind="3d",
+        dtype="float64",
+    )
     cy = (ny - 1) / 2
-    src = disc_transducer_3d(g, (0.0, cy * g.dx_m, cy * g.dx_m), (1, 0, 0), diameter_m=2 * A_CELLS * g.dx_m,
-                             signal=ToneBurst(40e3, 4), injection="velocity")
+    src = disc_transducer_3d(
+        g,
+        (0.0, cy * g.dx_m, cy * g.dx_m),
+        (1, 0, 0),
+        diameter_m=2 * A_CELLS * g.dx_m,
+        signal=ToneBurst(40e3, 4),
+        injection="velocity",
+    )
     box = box_around_3d(src.cells_array, gap, baffle="x_lo")
-    r = simulate(g, Medium(343.0, 1.2), src, Sensors(phasor_cells=box.cells), n_steps=n_steps,
-                 edges=Edges(x_lo="rigid", thickness_cells=pml))
+    r = simulate(
+        g,
+        Medium(343.0, 1.2),
+        src,
+        Sensors(phasor_cells=box.cells),
+        n_steps=n_steps,
+        edges=Edges(x_lo="rigid", thickness_cells=pml),
+    )
     out = {}
     for az in (0.0, 45.0):
         d = directions_in_plane([1, 0, 0], [0.0, math.cos(math.radians(az)), math.sin(math.radians(az))], ang)
-        F = np.abs(np.asarray(far_field(r.phasors, box, g, d, None, centre_cells=[-0.5, cy, cy], dispersion="continuum")))
+        F = np.abs(
+            np.asarray(far_field(r.phasors, box, g, d, None, centre_cells=[-0.5, cy, cy], dispersion="continuum"))
+        )
         out[az] = 20 * np.log10(F / F[0])
     return ang, out
 

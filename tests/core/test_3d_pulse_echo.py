@@ -42,8 +42,16 @@ def _lattice_metrics(scene, a_scan):
     gate = n >= scene.gate_start_step
     E = np.sum(a_scan[gate] * np.exp(1j * g.omega * n[gate]))
     v_hat = np.sum(np.asarray(src.signal(n * g.dt_s)) * np.exp(1j * g.omega * n))
-    R = v_hat * image_source_echo_phasor(src.cells_array, np.asarray(src.weights), 0.0, scene.meta["wall_point_cells"],
-                                         scene.meta["wall_normal"], g.omega, g.courant, lattice=True)
+    R = v_hat * image_source_echo_phasor(
+        src.cells_array,
+        np.asarray(src.weights),
+        0.0,
+        scene.meta["wall_point_cells"],
+        scene.meta["wall_normal"],
+        g.omega,
+        g.courant,
+        lattice=True,
+    )
     return np.angle(E / R) / (2 * math.pi), 20 * math.log10(abs(E / R))
 
 

@@ -38,8 +38,9 @@ def test_disc_cells_hold_the_disc_area():
 
 def test_rings_from_a_fit_report_dict():
     edges = [[0.0, 4 * H], [4 * H, 8 * H]]
-    cells, w, lags, area = disc_cells_3d(G, C, (0, 0, 1), rings={"ring_edges_m": edges, "weights": [1.0, 0.5],
-                                                               "lags_s": [0.0, 2e-6]})
+    cells, w, lags, area = disc_cells_3d(
+        G, C, (0, 0, 1), rings={"ring_edges_m": edges, "weights": [1.0, 0.5], "lags_s": [0.0, 2e-6]}
+    )
     assert w.sum() == pytest.approx(math.pi * (16 + 0.5 * 48), rel=3e-3)
     r = np.hypot(cells[:, 0] - 30, cells[:, 1] - 25)
     assert np.allclose(lags[r < 3], 0.0) and np.allclose(lags[(r > 5) & (r < 7)], 2e-6)
@@ -47,7 +48,9 @@ def test_rings_from_a_fit_report_dict():
     # ring centres instead of edges: edges half-way, the outer one at the diameter
     c2, w2, _, _ = disc_cells_3d(G, C, (0, 0, 1), 16 * H, rings={"radii_m": [2 * H, 6 * H], "weights": [1.0, 0.5]})
     assert w2.sum() == pytest.approx(w.sum(), rel=1e-9)
-    src = disc_transducer_3d(G, C, (1, 0, 0), diameter_m=16 * H, rings={"radii_m": [2 * H, 6 * H], "weights": [1.0, 0.5]})
+    src = disc_transducer_3d(
+        G, C, (1, 0, 0), diameter_m=16 * H, rings={"radii_m": [2 * H, 6 * H], "weights": [1.0, 0.5]}
+    )
     assert src.cells.shape[1] == 3 and float(jnp.sum(src.weights)) == pytest.approx(w.sum(), rel=1e-6)
 
 
@@ -55,7 +58,12 @@ def test_bad_discs_are_refused():
     with pytest.raises(ValueError, match="does not fit"):
         disc_cells_3d(G, (2 * H, 25 * H, 25 * H), (0, 0, 1), 20 * H)
     with pytest.raises(ValueError, match="3-D grid"):
-        disc_cells_3d(make_grid(frequency_hz=40e3, cells_per_wavelength=20, c_max_m_s=343.0, shape=(40, 40)), C[:2], (1, 0, 0), 5 * H)
+        disc_cells_3d(
+            make_grid(frequency_hz=40e3, cells_per_wavelength=20, c_max_m_s=343.0, shape=(40, 40)),
+            C[:2],
+            (1, 0, 0),
+            5 * H,
+        )
     with pytest.raises(ValueError, match="axis"):
         disc_cells_3d(G, C, (0, 0, 0), 5 * H)
     with pytest.raises(ValueError, match="ring_edges_m"):
@@ -75,15 +83,22 @@ def test_snapshots_are_slices_unless_asked():
     sens = Sensors(snapshot_every=10, snapshot_slices=((2, 8),))
     r2 = simulate(g, Medium(343.0, 1.2), src, sens, n_steps=25, edges=Edges.all("rigid"))
     assert np.array_equal(np.asarray(r2.snapshots[0]), np.asarray(r.snapshots[2]))
-    rv = simulate(g, Medium(343.0, 1.2), src, Sensors(snapshot_every=10, snapshot_slices="volume"), n_steps=25,
-                  edges=Edges.all("rigid"))
+    rv = simulate(
+        g,
+        Medium(343.0, 1.2),
+        src,
+        Sensors(snapshot_every=10, snapshot_slices="volume"),
+        n_steps=25,
+        edges=Edges.all("rigid"),
+    )
     assert rv.snapshots.shape == (3, 20, 18, 16)
     assert np.array_equal(np.asarray(rv.snapshots[-1][:, :, 8]), np.asarray(r.snapshots[2][-1]))
     with pytest.raises(ValueError, match="outside the grid"):
         simulate(g, Medium(343.0, 1.2), src, Sensors(snapshot_every=10, snapshot_slices=((0, 40),)), n_steps=5)
     with pytest.raises(ValueError, match="3-D grids only"):
-        Sensors(snapshot_slices=((0, 1),)).check_inside(make_grid(frequency_hz=40e3, cells_per_wavelength=10,
-                                                                   c_max_m_s=343.0, shape=(20, 18)))
+        Sensors(snapshot_slices=((0, 1),)).check_inside(
+            make_grid(frequency_hz=40e3, cells_per_wavelength=10, c_max_m_s=343.0, shape=(20, 18))
+        )
     with pytest.raises(ValueError, match="needs 3"):
         simulate(g, Medium(343.0, 1.2), src, Sensors(probes=[(1, 2)]), n_steps=5)
 
@@ -99,9 +114,15 @@ def test_rings_from_a_disc_fit_report(tmp_path):
 
     from difflattice.solver.sources import rings_from_fit_report
 
-    report = {"parameters": {"diameter_m": 14 * H, "weights": [1.0, 0.8, 0.3], "ring_fraction": [1.0, 1.0, 0.5],
-                             "lags_s": [0.0, 1e-6, 2e-6]},
-              "model": {"dx_m": 3 * H, "n_cells": 3}}
+    report = {
+        "parameters": {
+            "diameter_m": 14 * H,
+            "weights": [1.0, 0.8, 0.3],
+            "ring_fraction": [1.0, 1.0, 0.5],
+            "lags_s": [0.0, 1e-6, 2e-6],
+        },
+        "model": {"dx_m": 3 * H, "n_cells": 3},
+    }
     f = tmp_path / "fit_report.json"
     f.write_text(json.dumps(report))
     rings = rings_from_fit_report(f)

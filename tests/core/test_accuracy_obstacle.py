@@ -24,7 +24,9 @@ def test_wall_echo_matches_image_source_within_dispersion(wall):
     #    relation's delay along the image path; a burst's cross-correlation arrival lies between
     #    the phase delay (carrier) and the group delay (envelope) predicted for that path
     assert r["predicted_echo_delay_periods"] > 0
-    assert r["predicted_echo_delay_periods"] <= r["echo_arrival_error_periods"] <= r["predicted_echo_group_delay_periods"]
+    assert (
+        r["predicted_echo_delay_periods"] <= r["echo_arrival_error_periods"] <= r["predicted_echo_group_delay_periods"]
+    )
     # 2. the echo's size is right (R = +1 / -1 at the face): the two signals' sampled peaks can
     #    differ by the sampling of a peak, cos(pi / steps per period), and no more
     spp = 10.0 / 0.707
@@ -96,8 +98,26 @@ def test_cli_accuracy_cases_write_json_table_plot(tmp_path):
     from difflattice.cli import main
 
     out = tmp_path / "acc"
-    assert main(["accuracy", "--case", "edges", "--cells-per-wavelength", "6", "--thickness-cells", "4",
-                 "--dtype", "float32", "--repeats", "0", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "accuracy",
+                "--case",
+                "edges",
+                "--cells-per-wavelength",
+                "6",
+                "--thickness-cells",
+                "4",
+                "--dtype",
+                "float32",
+                "--repeats",
+                "0",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     rows = json.loads((out / "accuracy_edges.json").read_text())["rows"]
     assert {r["edge"] for r in rows} == {"pml", "sponge", "mur", "rigid", "reference (large window)"}
     assert (out / "accuracy_edges_table.md").is_file() and (out / "accuracy_edges.png").is_file()

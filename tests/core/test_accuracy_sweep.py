@@ -1,7 +1,5 @@
 """Work-precision sweep: errors against the analytic continuous line fall with resolution."""
 
-import numpy as np
-
 from difflattice.apps.accuracy import sweep
 
 

@@ -22,7 +22,9 @@ from difflattice.solver.sources import PointSources, ToneBurst, disc_housing, di
 
 jax.config.update("jax_enable_x64", True)
 
-GRID = make_grid(frequency_hz=50e3, cells_per_wavelength=10, c_max_m_s=343.0, shape=(44, 30), dtype="float64", kind="rz")
+GRID = make_grid(
+    frequency_hz=50e3, cells_per_wavelength=10, c_max_m_s=343.0, shape=(44, 30), dtype="float64", kind="rz"
+)
 DX = GRID.dx_m
 EDGES = Edges.axisymmetric("rigid", "pml", "pml", thickness_cells=8)
 SENS = Sensors(probes=[(25, 0), (30, 12), (20, 18)], phasor_cells=[(28, 3), (33, 9)])
@@ -36,8 +38,16 @@ def _loss(result):
 
 
 def _run(weights, lags, radius, checkpoint=None, edges=EDGES, medium=None, adjoint="autodiff", z_m=0.0, baffle="rigid"):
-    src = disc_transducer(GRID, radius_m=radius, z_m=z_m, n_rings=N_RINGS, weights=weights, lags_s=lags,
-                          signal=ToneBurst(50e3, 2), baffle=baffle)
+    src = disc_transducer(
+        GRID,
+        radius_m=radius,
+        z_m=z_m,
+        n_rings=N_RINGS,
+        weights=weights,
+        lags_s=lags,
+        signal=ToneBurst(50e3, 2),
+        baffle=baffle,
+    )
     med = Medium(343.0, 1.2) if medium is None else medium
     return simulate(GRID, med, src, SENS, n_steps=N_STEPS, edges=edges, checkpoint=checkpoint, adjoint=adjoint)
 
@@ -92,10 +102,17 @@ def test_lattice_adjoint_equals_autodiff():
         def f(w, lag_us, radius_mm, c_scale):
             # the can follows the disc's radius (cut cells move with it); the layer's speed and
             # density follow c_scale: every coefficient (K, both face conductances) is differentiated
-            can = disc_housing(GRID, radius_m=radius_mm * 1e-3, z_m=6 * DX, baffle="can", depth_m=3.5 * DX, wall_m=0.7 * DX)
-            med = Medium(343.0 * (1 - 0.02 * c_scale) * (1 - 0.2 * layer * c_scale), 1.2 + 2.0 * layer * c_scale, rigid=can)
-            res = _run(w, lag_us * 1e-6, radius_mm * 1e-3, edges=edges, medium=med, adjoint=adjoint, z_m=6 * DX, baffle="can")
+            can = disc_housing(
+                GRID, radius_m=radius_mm * 1e-3, z_m=6 * DX, baffle="can", depth_m=3.5 * DX, wall_m=0.7 * DX
+            )
+            med = Medium(
+                343.0 * (1 - 0.02 * c_scale) * (1 - 0.2 * layer * c_scale), 1.2 + 2.0 * layer * c_scale, rigid=can
+            )
+            res = _run(
+                w, lag_us * 1e-6, radius_mm * 1e-3, edges=edges, medium=med, adjoint=adjoint, z_m=6 * DX, baffle="can"
+            )
             return _loss(res) + jnp.sum(res.final.pressure * jnp.sin(jnp.asarray(z) / 5.0)) * 0.1
+
         return f
 
     args = (W0, L0, jnp.asarray(RADIUS * 1e3), jnp.asarray(1.0))
@@ -111,9 +128,11 @@ def test_lattice_adjoint_equals_autodiff():
 def test_point_source_gradient_on_the_axis():
     """A soft point source in the axis cell: forward = reverse (the axis ring's metric factor 0
     on its inner face must not produce NaNs in either mode)."""
+
     def f(w):
         src = PointSources(cells=[(20, 0)], signal=ToneBurst(50e3, 2), weights=w, lags_s=jnp.zeros(1))
         return _loss(simulate(GRID, Medium(343.0, 1.2), src, SENS, n_steps=N_STEPS, edges=EDGES))
+
     g = jax.grad(f)(jnp.ones(1))
     _, jv = jax.jvp(f, (jnp.ones(1),), (jnp.ones(1),))
     assert np.isfinite(float(g[0])) and abs(float(jv - g[0])) <= 1e-9 * abs(float(g[0]))

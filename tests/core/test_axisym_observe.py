@@ -16,7 +16,9 @@ from difflattice.solver.sources import disc_housing, disc_transducer, ring_fract
 
 
 def _grid(ppw=20, shape=(200, 120)):
-    return make_grid(frequency_hz=50e3, cells_per_wavelength=ppw, c_max_m_s=343.0, shape=shape, dtype="float64", kind="rz")
+    return make_grid(
+        frequency_hz=50e3, cells_per_wavelength=ppw, c_max_m_s=343.0, shape=shape, dtype="float64", kind="rz"
+    )
 
 
 def test_rayleigh_quadrature_is_converged_and_exact_on_axis():
@@ -36,8 +38,13 @@ def test_rayleigh_quadrature_is_converged_and_exact_on_axis():
     far = an.rayleigh_piston(np.stack([30.0 * np.sin(th), 30.0 * np.cos(th)], 1), a, k)
     lobe = np.abs(far) / np.abs(far[0])
     assert np.abs(lobe - np.abs(an.piston_directivity(th, k * a))).max() < 1e-3  # range 30 m: (k a^2 / 2R) ~ 0.6e-3
-    assert abs(an.PISTON_FIRST_SIDELOBE_DB - 20 * math.log10(abs(an.piston_directivity(
-        math.asin(an.PISTON_FIRST_SIDELOBE_KA_SIN / 10.0), 10.0)))) < 1e-6
+    assert (
+        abs(
+            an.PISTON_FIRST_SIDELOBE_DB
+            - 20 * math.log10(abs(an.piston_directivity(math.asin(an.PISTON_FIRST_SIDELOBE_KA_SIN / 10.0), 10.0)))
+        )
+        < 1e-6
+    )
 
 
 def _monopole(cells, zs, k, baffled):
@@ -107,15 +114,21 @@ def test_disc_geometry():
     g = _grid(20, (60, 40))
     src = disc_transducer(g, radius_m=5.3 * g.dx_m)
     assert src.n_cells == 6 and src.injection == "velocity" and (np.asarray(src.cells)[:, 0] == 0).all()
-    d = jax.grad(lambda r: jnp.sum(disc_transducer(g, radius_m=r, n_rings=8).weights * (2 * jnp.arange(8) + 1)))(5.3 * g.dx_m)
+    d = jax.grad(lambda r: jnp.sum(disc_transducer(g, radius_m=r, n_rings=8).weights * (2 * jnp.arange(8) + 1)))(
+        5.3 * g.dx_m
+    )
     assert abs(float(d) - 2 * 5.3 / g.dx_m) < 1e-9 * 2 * 5.3 / g.dx_m  # d(a^2)/da, a in cells per metre
     with pytest.raises(ValueError, match="give n_rings"):
         jax.jit(lambda r: disc_transducer(g, radius_m=r).weights)(0.001)
     with pytest.raises(ValueError, match="rigid z_lo window face"):
         disc_transducer(g, radius_m=0.002, z_m=0.003)
     with pytest.raises(ValueError, match="axisymmetric grid"):
-        disc_transducer(make_grid(frequency_hz=50e3, cells_per_wavelength=20, c_max_m_s=343.0, shape=(20, 20)), radius_m=0.001)
-    can = np.asarray(disc_housing(g, radius_m=5.3 * g.dx_m, z_m=10 * g.dx_m, baffle="can", depth_m=4.5 * g.dx_m, wall_m=g.dx_m))
+        disc_transducer(
+            make_grid(frequency_hz=50e3, cells_per_wavelength=20, c_max_m_s=343.0, shape=(20, 20)), radius_m=0.001
+        )
+    can = np.asarray(
+        disc_housing(g, radius_m=5.3 * g.dx_m, z_m=10 * g.dx_m, baffle="can", depth_m=4.5 * g.dx_m, wall_m=g.dx_m)
+    )
     assert can[9, 0] == 1 and can[10, 0] == 0 and abs(can[5, 0] - 0.5) < 1e-12  # 4.5 cells deep behind z = 10
     j = np.arange(40)
     assert abs(np.sum(can[9] * (2 * j + 1)) - 6.3**2) < 1e-9  # the can's outer radius 5.3 + 1 cells

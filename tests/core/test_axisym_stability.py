@@ -22,8 +22,15 @@ CLOSED = Edges.axisymmetric("rigid", "rigid", "rigid")
 
 
 def _grid(shape, courant=LIMIT, dtype="float64", ppw=10):
-    return make_grid(frequency_hz=40e3, cells_per_wavelength=ppw, c_max_m_s=343.0, shape=shape, courant=courant,
-                     dtype=dtype, kind="rz")
+    return make_grid(
+        frequency_hz=40e3,
+        cells_per_wavelength=ppw,
+        c_max_m_s=343.0,
+        shape=shape,
+        courant=courant,
+        dtype=dtype,
+        kind="rz",
+    )
 
 
 def _operator_matrix(lat, shape):
@@ -39,8 +46,11 @@ def _medium(shape, dtype=jnp.float64):
     z, r = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
     block = (z > shape[0] // 2) & (r > 2) & (r < 6)
     rigid = np.clip(3.5 - np.hypot(z - 3.0, r + 0.5), 0, 1) * (r < 4)  # a rounded body on the axis
-    return Medium(jnp.asarray(np.where(block, 250.0, 343.0), dtype), jnp.asarray(np.where(block, 4.0, 1.2), dtype),
-                  rigid=jnp.asarray(rigid, dtype))
+    return Medium(
+        jnp.asarray(np.where(block, 250.0, 343.0), dtype),
+        jnp.asarray(np.where(block, 4.0, 1.2), dtype),
+        rigid=jnp.asarray(rigid, dtype),
+    )
 
 
 @pytest.mark.parametrize("edges", [CLOSED, Edges.axisymmetric("soft", "soft", "soft")], ids=["rigid", "soft"])
@@ -114,8 +124,11 @@ def test_edges_and_models_refused_on_the_wrong_grid():
     with pytest.raises(ValueError, match="y_lo side is the axis.*Edges.axisymmetric"):
         build_lattice(g, Medium(343.0, 1.2), Edges())  # a PML on the axis
     with pytest.raises(ValueError, match="only for rz grids"):
-        build_lattice(make_grid(frequency_hz=40e3, cells_per_wavelength=10, c_max_m_s=343.0, shape=(8, 8)),
-                      Medium(343.0, 1.2), CLOSED)
+        build_lattice(
+            make_grid(frequency_hz=40e3, cells_per_wavelength=10, c_max_m_s=343.0, shape=(8, 8)),
+            Medium(343.0, 1.2),
+            CLOSED,
+        )
     with pytest.raises(ValueError, match="axis r = 0 of an rz grid is its y_lo side"):
         Edges(x_lo="axis")
     with pytest.raises(ValueError, match="'paper' is not available on an rz grid"):
@@ -151,7 +164,9 @@ def test_point_source_on_the_axis_is_a_3d_point_source():
     src = PointSources(cells=[(zs, 0)], signal=sig, weights=jnp.ones(1), lags_s=jnp.zeros(1))
     R = np.array([25.0, 50.0, 75.0])
     probes = [(zs + int(r), 0) for r in R] + [(zs + 35, 35)]  # on axis, and 45 deg (R = 49.5)
-    res = simulate(g, Medium(343.0, 1.2), src, Sensors(probes=probes), n_steps=320, edges=Edges.axisymmetric(thickness_cells=L))
+    res = simulate(
+        g, Medium(343.0, 1.2), src, Sensors(probes=probes), n_steps=320, edges=Edges.axisymmetric(thickness_cells=L)
+    )
     p = np.asarray(res.probes)
     assert np.all(np.isfinite(p)) and np.abs(p).max() < 1.0
     c = g.courant
@@ -163,8 +178,14 @@ def test_point_source_on_the_axis_is_a_3d_point_source():
         ref = np.asarray(sig((steps + 1 - dist[k] / c) * g.dt_s)) / (4 * c**2 * dist[k])
         assert abs(np.abs(p[:, k]).max() / np.abs(ref).max() - 1) < 0.03, (k, np.abs(p[:, k]).max(), np.abs(ref).max())
     # after the burst has passed every probe the field is gone (no ringing axis cell)
-    late = simulate(g, Medium(343.0, 1.2), src, Sensors(probes=[(zs, 0), (zs + 5, 0)]), n_steps=600,
-                    edges=Edges.axisymmetric(thickness_cells=L))
+    late = simulate(
+        g,
+        Medium(343.0, 1.2),
+        src,
+        Sensors(probes=[(zs, 0), (zs + 5, 0)]),
+        n_steps=600,
+        edges=Edges.axisymmetric(thickness_cells=L),
+    )
     assert np.abs(np.asarray(late.probes)[-50:]).max() < 1e-3 * np.abs(np.asarray(late.probes)).max()
 
 
@@ -180,11 +201,23 @@ def test_radial_pml_absorbs_oblique_waves():
     n_steps = int(3.0 * W / 0.7)
 
     def probe(nr, radial=True):
-        g = make_grid(frequency_hz=50e3, cells_per_wavelength=ppw, c_max_m_s=343.0, shape=(nz, nr), courant=0.7,
-                      dtype="float64", kind="rz")
+        g = make_grid(
+            frequency_hz=50e3,
+            cells_per_wavelength=ppw,
+            c_max_m_s=343.0,
+            shape=(nz, nr),
+            courant=0.7,
+            dtype="float64",
+            kind="rz",
+        )
         src = PointSources(cells=[(zs, 0)], signal=ToneBurst(50e3, 3.0), weights=jnp.ones(1), lags_s=jnp.zeros(1))
-        st = Stepper.build(g, Medium(343.0, 1.2), src, Sensors(probes=[(zs + W, 0)]),
-                           Edges.axisymmetric("rigid", "rigid", "pml", thickness_cells=L))
+        st = Stepper.build(
+            g,
+            Medium(343.0, 1.2),
+            src,
+            Sensors(probes=[(zs + W, 0)]),
+            Edges.axisymmetric("rigid", "rigid", "pml", thickness_cells=L),
+        )
         if not radial:
             st = eqx.tree_at(lambda s: s.lattice.pml.radial, st, None, is_leaf=lambda x: x is None)
         return np.asarray(run(st, n_steps).probes)[:, 0]

@@ -12,17 +12,19 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from difflattice.observe.analytic import lattice_wavenumber, phase_velocity_error
-from difflattice.lattice.grid import make_grid
 from difflattice.lattice import Edges
+from difflattice.lattice.grid import make_grid
 from difflattice.lattice.medium import Medium
+from difflattice.observe.analytic import lattice_wavenumber, phase_velocity_error
 from difflattice.solver import Stepper, run
 
 N_STEPS = 60
 
 
 def _evolve(c_lat, ppw, theta, omega_of_k):
-    grid = make_grid(frequency_hz=1.0, cells_per_wavelength=ppw, c_max_m_s=c_lat, shape=(160, 160), courant=c_lat, dtype="float64")
+    grid = make_grid(
+        frequency_hz=1.0, cells_per_wavelength=ppw, c_max_m_s=c_lat, shape=(160, 160), courant=c_lat, dtype="float64"
+    )
     k = 2 * math.pi / ppw
     kx, ky = k * math.cos(theta), k * math.sin(theta)
     w = omega_of_k(kx, ky)

@@ -11,18 +11,14 @@
 
 """
 
-import math
-
-import jax.numpy as jnp
 import numpy as np
-import pytest
 
-from difflattice.observe.analytic import line_array_pattern
-from difflattice.observe.farfield import box_around, far_field, field_at, level_db
 from difflattice.lattice.grid import make_grid
 from difflattice.lattice.medium import Medium
-from difflattice.solver.sensors import Sensors, arc_cells
+from difflattice.observe.analytic import line_array_pattern
+from difflattice.observe.farfield import box_around, far_field, field_at, level_db
 from difflattice.solver import simulate
+from difflattice.solver.sensors import Sensors, arc_cells
 from difflattice.solver.sources import ToneBurst, line_transducer
 
 
@@ -58,8 +54,8 @@ def test_polaroid_line_lobe_against_array_factor():
     model_db = 20 * np.log10(model / model[0])
     theta = np.radians(ang)
     ref_db = 20 * np.log10(line_array_pattern(n, g.omega, g.courant, theta))
-    i_null = np.argmin(model_db[: 2000])
-    j_null = np.argmin(ref_db[: 2000])
+    i_null = np.argmin(model_db[:2000])
+    j_null = np.argmin(ref_db[:2000])
     assert abs(ang[i_null] - ang[j_null]) < 0.05
     # first side lobe: the maximum between the first and second nulls
     sl_model = model_db[i_null : i_null + 1000].max()

@@ -1,20 +1,17 @@
 """Differentiability: forward mode = reverse mode = finite differences (Taylor test, float64),
 checkpointed reverse mode = plain reverse mode, and jit/vmap."""
 
-import math
-
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from difflattice.lattice import Edges
 from difflattice.lattice.geometry import Circle, rasterise
 from difflattice.lattice.grid import make_grid
-from difflattice.lattice import Edges
 from difflattice.lattice.medium import Medium
-from difflattice.solver.sensors import Sensors
 from difflattice.solver import simulate
+from difflattice.solver.sensors import Sensors
 from difflattice.solver.sources import ToneBurst, line_transducer
 
 GRID = make_grid(frequency_hz=50e3, cells_per_wavelength=10, c_max_m_s=343.0, shape=(60, 50), dtype="float64")
@@ -24,7 +21,9 @@ EDGES = Edges(thickness_cells=10)
 
 
 def _src(weights, lags):
-    return line_transducer(GRID, (15 * GRID.dx_m, 25 * GRID.dx_m), n_cells=6, signal=ToneBurst(50e3, 2), weights=weights, lags_s=lags)
+    return line_transducer(
+        GRID, (15 * GRID.dx_m, 25 * GRID.dx_m), n_cells=6, signal=ToneBurst(50e3, 2), weights=weights, lags_s=lags
+    )
 
 
 def _loss(result):
@@ -32,11 +31,17 @@ def _loss(result):
 
 
 def loss_weights(w, checkpoint=None):
-    return _loss(simulate(GRID, Medium(343.0, 1.2), _src(w, jnp.zeros(6)), SENS, n_steps=N_STEPS, edges=EDGES, checkpoint=checkpoint))
+    return _loss(
+        simulate(
+            GRID, Medium(343.0, 1.2), _src(w, jnp.zeros(6)), SENS, n_steps=N_STEPS, edges=EDGES, checkpoint=checkpoint
+        )
+    )
 
 
 def loss_lags(lags_us):
-    return _loss(simulate(GRID, Medium(343.0, 1.2), _src(jnp.ones(6), lags_us * 1e-6), SENS, n_steps=N_STEPS, edges=EDGES))
+    return _loss(
+        simulate(GRID, Medium(343.0, 1.2), _src(jnp.ones(6), lags_us * 1e-6), SENS, n_steps=N_STEPS, edges=EDGES)
+    )
 
 
 def loss_speed(scale):
@@ -48,7 +53,9 @@ def loss_speed(scale):
 def loss_shape(radius_mm, checkpoint=None):
     occ = rasterise(Circle(jnp.array([30 * GRID.dx_m, 27 * GRID.dx_m]), radius_mm * 1e-3), GRID, "smooth")
     med = Medium(343.0, 1.2, rigid=occ)
-    return _loss(simulate(GRID, med, _src(jnp.ones(6), jnp.zeros(6)), SENS, n_steps=N_STEPS, edges=EDGES, checkpoint=checkpoint))
+    return _loss(
+        simulate(GRID, med, _src(jnp.ones(6), jnp.zeros(6)), SENS, n_steps=N_STEPS, edges=EDGES, checkpoint=checkpoint)
+    )
 
 
 CASES = {

@@ -1,7 +1,5 @@
 """Scales of eqs. 11-12 and the stability limit."""
 
-import math
-
 import pytest
 
 from difflattice.lattice.grid import MAX_COURANT, make_grid

@@ -12,9 +12,9 @@ import math
 import numpy as np
 import pytest
 
-from difflattice.observe.analytic import continuum_rt, discrete_rt, lattice_wavenumber
-from difflattice.lattice.grid import make_grid
 from difflattice.apps.validation import edge_reflection_db, plane_wave_rt
+from difflattice.lattice.grid import make_grid
+from difflattice.observe.analytic import continuum_rt, discrete_rt, lattice_wavenumber
 
 CASES = {
     "equal speeds, rho x3": (343.0, 343.0, 1.2, 3.6),

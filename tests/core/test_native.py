@@ -31,8 +31,13 @@ pytestmark = pytest.mark.skipif(isinstance(_LIB, str), reason=f"native kernels u
 N = 97  # steps: not a multiple of the chunk (exercises the remainder chunk)
 SHAPE = (48, 40)
 X = jnp.arange(48.0)[:, None] * jnp.ones((1, 40))
-SENS = Sensors(probes=[(30, 20), (36, 12)], phasor_cells=[(28, 25), (33, 18), (40, 30), (33, 18)],
-               p_max=True, p_rms=True, arrival_threshold_pa=1e-3)
+SENS = Sensors(
+    probes=[(30, 20), (36, 12)],
+    phasor_cells=[(28, 25), (33, 18), (40, 30), (33, 18)],
+    p_max=True,
+    p_rms=True,
+    arrival_threshold_pa=1e-3,
+)
 
 
 def _grid(dtype, courant=None, kind=None):
@@ -54,13 +59,25 @@ def _scene(kind, dtype):
     if kind == "homogeneous":
         return g, Medium(343.0, 1.2), src, sens, Edges.all("rigid")
     if kind == "conservative":  # density map, rigid and soft obstacles, rigid and soft window sides
-        return g, Medium(343.0, rho, rigid=rigid, soft=soft), src, sens, Edges(x_lo="soft", x_hi="rigid", y_lo="rigid", y_hi="soft")
+        return (
+            g,
+            Medium(343.0, rho, rigid=rigid, soft=soft),
+            src,
+            sens,
+            Edges(x_lo="soft", x_hi="rigid", y_lo="rigid", y_hi="soft"),
+        )
     if kind == "conservative+pml":
         return g, Medium(343.0, rho, rigid=rigid, soft=soft), (src, hard), sens, Edges(thickness_cells=6)
     if kind == "homogeneous+pml":
         return g, Medium(343.0, 1.2), hard, sens, Edges(x_lo="rigid", thickness_cells=6)
     if kind == "speed_zero+sponge":
-        return g, Medium(343.0, 1.2, rigid=rigid, boundary_model="speed_zero"), hard, sens, Edges.all("sponge", thickness_cells=6)
+        return (
+            g,
+            Medium(343.0, 1.2, rigid=rigid, boundary_model="speed_zero"),
+            hard,
+            sens,
+            Edges.all("sponge", thickness_cells=6),
+        )
     if kind == "absorbing":
         return g, Medium(343.0, rho, absorption_db_per_m=3.0), src, sens, Edges.all("rigid")
     if kind == "absorbing+pml":
@@ -76,8 +93,17 @@ def _scene(kind, dtype):
     raise AssertionError(kind)
 
 
-KINDS = ["homogeneous", "conservative", "conservative+pml", "homogeneous+pml", "speed_zero+sponge", "absorbing",
-         "absorbing+pml", "snapshots", "late_phasors"]
+KINDS = [
+    "homogeneous",
+    "conservative",
+    "conservative+pml",
+    "homogeneous+pml",
+    "speed_zero+sponge",
+    "absorbing",
+    "absorbing+pml",
+    "snapshots",
+    "late_phasors",
+]
 
 
 def _compare(ref, got, dtype, n_steps=N):
@@ -85,9 +111,14 @@ def _compare(ref, got, dtype, n_steps=N):
     peak = float(jnp.max(ref.peak_history))
     assert np.isfinite(peak) and peak > 1e-3
     tol = n_steps * 16 * eps * peak
-    pairs = [("pressure", ref.final.pressure, got.final.pressure), ("probes", ref.probes, got.probes),
-             ("peak history", ref.peak_history, got.peak_history), ("snapshots", ref.snapshots, got.snapshots),
-             ("p_max", ref.p_max, got.p_max), ("p_rms", ref.p_rms, got.p_rms)]
+    pairs = [
+        ("pressure", ref.final.pressure, got.final.pressure),
+        ("probes", ref.probes, got.probes),
+        ("peak history", ref.peak_history, got.peak_history),
+        ("snapshots", ref.snapshots, got.snapshots),
+        ("p_max", ref.p_max, got.p_max),
+        ("p_rms", ref.p_rms, got.p_rms),
+    ]
     for name, a, b in pairs:
         assert (a is None) == (b is None), name
         if a is not None:
@@ -116,11 +147,19 @@ def test_axisymmetric_lattice_runs_natively():
         g = _grid("float32", kind="rz")
     except TypeError:
         pytest.skip("this version has no axisymmetric grids")
-    src = PointSources(cells=[(10, j) for j in range(6)], signal=ToneBurst(50e3, 2), weights=jnp.ones(6),
-                       lags_s=jnp.zeros(6), injection="velocity")
+    src = PointSources(
+        cells=[(10, j) for j in range(6)],
+        signal=ToneBurst(50e3, 2),
+        weights=jnp.ones(6),
+        lags_s=jnp.zeros(6),
+        injection="velocity",
+    )
     sens = Sensors(probes=[(30, 0), (36, 12)], phasor_cells=[(28, 25), (33, 18)])
     medium = Medium(343.0, jnp.where(X > 30, 2.0, 1.2), rigid=(X > 42).astype(jnp.float64))
-    for edges in (Edges.axisymmetric("rigid", "rigid", "rigid"), Edges.axisymmetric("rigid", "pml", "pml", thickness_cells=6)):
+    for edges in (
+        Edges.axisymmetric("rigid", "rigid", "rigid"),
+        Edges.axisymmetric("rigid", "pml", "pml", thickness_cells=6),
+    ):
         assert native.why_not(Stepper.build(g, medium, src, sens, edges)) is None
         ref = simulate(g, medium, src, sens, n_steps=N, edges=edges, backend="jax")
         got = simulate(g, medium, src, sens, n_steps=N, edges=edges, backend="native")
@@ -132,8 +171,14 @@ def test_threads_and_blocking_do_not_change_results(kind, monkeypatch):
     g, medium, src, sens, edges = _scene(kind, "float32")
     st = Stepper.build(g, medium, src, sens, edges)
     out = []
-    for threads, levels, schedule in ((1, 1, "pipeline"), (3, 5, "pipeline"), (2, 64, "pipeline"), (7, 2, "pipeline"),
-                                      (2, 8, "bands"), (5, 8, "bands")):
+    for threads, levels, schedule in (
+        (1, 1, "pipeline"),
+        (3, 5, "pipeline"),
+        (2, 64, "pipeline"),
+        (7, 2, "pipeline"),
+        (2, 8, "bands"),
+        (5, 8, "bands"),
+    ):
         monkeypatch.setenv("DIFFLATTICE_NATIVE_THREADS", str(threads))
         monkeypatch.setenv("DIFFLATTICE_NATIVE_LEVELS", str(levels))
         monkeypatch.setenv("DIFFLATTICE_NATIVE_SCHEDULE", schedule)
@@ -172,8 +217,9 @@ def test_auto_runs_native_where_supported_and_falls_back_elsewhere():
 def test_paper_model_falls_back():
     g = _grid("float32")
     src = line_transducer(g, (14 * g.dx_m, 20 * g.dx_m), n_cells=5, signal=ToneBurst(50e3, 2))
-    st = Stepper.build(g, Medium(343.0, 1.2, rigid=(X > 40).astype(jnp.float32), boundary_model="paper"), src, SENS,
-                       Edges.all("rigid"))
+    st = Stepper.build(
+        g, Medium(343.0, 1.2, rigid=(X > 40).astype(jnp.float32), boundary_model="paper"), src, SENS, Edges.all("rigid")
+    )
     assert "paper" in native.why_not(st)
     assert not _uses_native(lambda s: run(s, 20).final.pressure, st)
 
@@ -184,10 +230,22 @@ def test_gradients_through_native_runs_equal_jax_autodiff():
     sens = Sensors(probes=[(30, 20), (36, 12)], phasor_cells=[(28, 25), (33, 18), (40, 30)])
 
     def loss(w, lag, c, backend):
-        src = line_transducer(g, (14 * g.dx_m, 20 * g.dx_m), n_cells=5, signal=ToneBurst(50e3, 2), weights=w, lags_s=lag)
-        r = simulate(g, Medium(c, jnp.where(X > 30, 2.0, 1.2)), src, sens, n_steps=60, edges=Edges(thickness_cells=6),
-                     backend=backend, checkpoint=10)
-        return jnp.sum(r.probes ** 2) + jnp.sum(jnp.abs(r.phasors) ** 2) * 1e-3 + jnp.sum(r.final.pressure * jnp.sin(X / 5))
+        src = line_transducer(
+            g, (14 * g.dx_m, 20 * g.dx_m), n_cells=5, signal=ToneBurst(50e3, 2), weights=w, lags_s=lag
+        )
+        r = simulate(
+            g,
+            Medium(c, jnp.where(X > 30, 2.0, 1.2)),
+            src,
+            sens,
+            n_steps=60,
+            edges=Edges(thickness_cells=6),
+            backend=backend,
+            checkpoint=10,
+        )
+        return (
+            jnp.sum(r.probes**2) + jnp.sum(jnp.abs(r.phasors) ** 2) * 1e-3 + jnp.sum(r.final.pressure * jnp.sin(X / 5))
+        )
 
     w, lag = jnp.linspace(0.8, 1.2, 5), jnp.linspace(0.0, 3e-6, 5)
     c = 343.0 - 20.0 * jnp.exp(-((X - 26) ** 2 + (jnp.arange(40.0)[None] - 20) ** 2) / 30)
@@ -215,7 +273,9 @@ def test_cells_outside_the_grid_raise_at_run_time():
     def f(ix):
         cells = jnp.stack([ix, jnp.asarray(20)])[None]
         src = PointSources(cells=cells, signal=ToneBurst(50e3, 2), weights=jnp.ones(1), lags_s=jnp.zeros(1))
-        return run(Stepper.build(g, Medium(343.0, 1.2), src, Sensors(), Edges.all("rigid")), 10, backend="native").final.pressure
+        return run(
+            Stepper.build(g, Medium(343.0, 1.2), src, Sensors(), Edges.all("rigid")), 10, backend="native"
+        ).final.pressure
 
     assert np.isfinite(np.asarray(f(jnp.asarray(10)))).all()
     with pytest.raises(Exception, match="outside the grid"):
@@ -246,8 +306,13 @@ def test_adjoint_step_mode_is_the_transposed_operator():
     from difflattice.lattice.operators import _face_coefficients, stencil
 
     g = _grid("float64")
-    st = Stepper.build(g, Medium(343.0, jnp.where(X > 30, 2.0, 1.2), rigid=(X > 42).astype(jnp.float64)), (),
-                       Sensors(), Edges(x_lo="rigid", y_hi="rigid", x_hi="soft", y_lo="soft"))
+    st = Stepper.build(
+        g,
+        Medium(343.0, jnp.where(X > 30, 2.0, 1.2), rigid=(X > 42).astype(jnp.float64)),
+        (),
+        Sensors(),
+        Edges(x_lo="rigid", y_hi="rigid", x_hi="soft", y_lo="soft"),
+    )
     lat = st.lattice
     rng = np.random.default_rng(1)
     a = jnp.asarray(rng.standard_normal(SHAPE))
@@ -255,14 +320,48 @@ def test_adjoint_step_mode_is_the_transposed_operator():
     bx, by = _face_coefficients(lat, SHAPE, jnp.float64)
     e = jnp.zeros((0,), jnp.float64)
     cells = jnp.zeros((0, 2), jnp.int32)
-    args = [a, h, jnp.asarray(lat.K), bx, by, e, e, e, e, e, cells, jnp.zeros((0,), jnp.int32),
-            jnp.zeros((1, 0)), cells, cells, cells, jnp.zeros(1), jnp.zeros(1), e, e, e, e,
-            jnp.zeros((0,), jnp.int32), jnp.asarray(0, jnp.int32)]
-    shapes = [jax.ShapeDtypeStruct(SHAPE, jnp.float64)] * 2 + [jax.ShapeDtypeStruct((1, 0), jnp.float64)] + \
-        [jax.ShapeDtypeStruct((0,), jnp.float64)] * 4 + [jax.ShapeDtypeStruct((0,), jnp.int32)]
-    out = jax.ffi.ffi_call("difflattice_leapfrog", shapes)(*args, n_steps=np.int64(1), threads=np.int64(2),
-                                                           levels=np.int64(1), bands=np.int64(0),
-                                                           combine=np.int64(2), eta=0.0, threshold=0.0)
+    args = [
+        a,
+        h,
+        jnp.asarray(lat.K),
+        bx,
+        by,
+        e,
+        e,
+        e,
+        e,
+        e,
+        cells,
+        jnp.zeros((0,), jnp.int32),
+        jnp.zeros((1, 0)),
+        cells,
+        cells,
+        cells,
+        jnp.zeros(1),
+        jnp.zeros(1),
+        e,
+        e,
+        e,
+        e,
+        jnp.zeros((0,), jnp.int32),
+        jnp.asarray(0, jnp.int32),
+    ]
+    shapes = (
+        [jax.ShapeDtypeStruct(SHAPE, jnp.float64)] * 2
+        + [jax.ShapeDtypeStruct((1, 0), jnp.float64)]
+        + [jax.ShapeDtypeStruct((0,), jnp.float64)] * 4
+        + [jax.ShapeDtypeStruct((0,), jnp.int32)]
+    )
+    out = jax.ffi.ffi_call("difflattice_leapfrog", shapes)(
+        *args,
+        n_steps=np.int64(1),
+        threads=np.int64(2),
+        levels=np.int64(1),
+        bands=np.int64(0),
+        combine=np.int64(2),
+        eta=0.0,
+        threshold=0.0,
+    )
     new, prev = out[0], out[1]
     ref = 2 * a + stencil(lat, lat.K * a) - h
     np.testing.assert_allclose(np.asarray(new), np.asarray(ref), rtol=0, atol=1e-12 * float(jnp.abs(ref).max()))
@@ -277,9 +376,11 @@ def test_bench_refuses_a_busy_machine_and_computes_ratios(monkeypatch):
     monkeypatch.setattr(os, "getloadavg", lambda: (3.0, 2.0, 1.0))
     with pytest.raises(RuntimeError, match="load average 3.00"):
         bench.bench()
-    rows = [{"case": "homogeneous", "grid": "840x630", "impl": "native", "mlups": 6000.0},
-            {"case": "homogeneous", "grid": "840x630", "impl": "numba-1thread", "mlups": 4000.0},
-            {"case": "full", "grid": "840x630", "impl": "native", "mlups": 1800.0}]
+    rows = [
+        {"case": "homogeneous", "grid": "840x630", "impl": "native", "mlups": 6000.0},
+        {"case": "homogeneous", "grid": "840x630", "impl": "numba-1thread", "mlups": 4000.0},
+        {"case": "full", "grid": "840x630", "impl": "native", "mlups": 1800.0},
+    ]
     ratios = {r["ratio"]: r["value"] for r in bench._ratios(rows)}
     assert ratios["native/numba-1thread"] == 1.5
     assert ratios["full/homogeneous (native)"] == 0.3

@@ -5,11 +5,11 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-from difflattice.lattice.grid import make_grid
 from difflattice.lattice import Edges
+from difflattice.lattice.grid import make_grid
 from difflattice.lattice.medium import Medium
-from difflattice.solver.sensors import Sensors
 from difflattice.solver import Stepper, run
+from difflattice.solver.sensors import Sensors
 from difflattice.solver.sources import PointSources, ToneBurst
 
 G = make_grid(frequency_hz=50e3, cells_per_wavelength=10, c_max_m_s=343.0, shape=(120, 100))
@@ -24,8 +24,9 @@ def test_moving_source_and_probe_does_not_recompile_and_translates():
         return run(stepper, 60).probes
 
     def scene(dx):
-        src = PointSources(cells=[(40 + dx, 50), (40 + dx, 51)], signal=ToneBurst(50e3, 2),
-                           weights=jnp.ones(2), lags_s=jnp.zeros(2))
+        src = PointSources(
+            cells=[(40 + dx, 50), (40 + dx, 51)], signal=ToneBurst(50e3, 2), weights=jnp.ones(2), lags_s=jnp.zeros(2)
+        )
         sens = Sensors(probes=[(47 + dx, 50), (40 + dx, 56)])
         return Stepper.build(G, Medium(343.0, 1.2), src, sens, Edges.all("rigid"))
 

@@ -8,12 +8,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from difflattice.observe.analytic import lattice_wavenumber
-from difflattice.lattice.grid import make_grid
 from difflattice.lattice import Edges
+from difflattice.lattice.grid import make_grid
 from difflattice.lattice.medium import Medium
-from difflattice.solver.sensors import Sensors
 from difflattice.solver import Stepper, simulate
+from difflattice.solver.sensors import Sensors
 from difflattice.solver.sources import PointSources, ToneBurst, line_transducer
 
 G = make_grid(frequency_hz=50e3, cells_per_wavelength=12, c_max_m_s=343.0, shape=(80, 70), dtype="float64")
@@ -21,8 +20,9 @@ E = Edges(thickness_cells=12)
 
 
 def _src(y, w=1.0, injection="soft"):
-    return line_transducer(G, (25 * G.dx_m, y * G.dx_m), n_cells=8, signal=ToneBurst(50e3, 3), injection=injection,
-                           weights=jnp.full(8, w))
+    return line_transducer(
+        G, (25 * G.dx_m, y * G.dx_m), n_cells=8, signal=ToneBurst(50e3, 3), injection=injection, weights=jnp.full(8, w)
+    )
 
 
 def test_soft_sources_superpose():
@@ -92,9 +92,18 @@ def test_step_contains_only_what_the_scene_uses():
     assert lat.q_scale is None and lat.bx is None and lat.keep is None and lat.sponge is None and lat.pml is None
     assert jnp.ndim(lat.K) == 0 and lat.eta == 0.0
     x = jnp.arange(80.0)[:, None] * jnp.ones((1, 70))
-    full = Stepper.build(G, Medium(jnp.where(x > 50, 300.0, 343.0), jnp.where(x > 50, 2.0, 1.2),
-                                   rigid=(x > 70).astype(jnp.float64), absorption_db_per_m=1.0),
-                         src, Sensors(p_max=True, p_rms=True, phasor_cells=[(60, 30)]), E)
+    full = Stepper.build(
+        G,
+        Medium(
+            jnp.where(x > 50, 300.0, 343.0),
+            jnp.where(x > 50, 2.0, 1.2),
+            rigid=(x > 70).astype(jnp.float64),
+            absorption_db_per_m=1.0,
+        ),
+        src,
+        Sensors(p_max=True, p_rms=True, phasor_cells=[(60, 30)]),
+        E,
+    )
     # the plain scene's step reads no coefficient map at all and has far fewer operations
     assert _grid_sized_inputs(plain) == 0
     assert _grid_sized_inputs(full) >= 4  # K, two face conductances, c (and the phasor state)

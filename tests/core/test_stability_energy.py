@@ -1,25 +1,25 @@
 """Energy conservation in a closed box, stability at the Courant limit and of every edge type,
 and detection of instability."""
 
-import math
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from difflattice.lattice.grid import MAX_COURANT, make_grid
-from difflattice.lattice import Edges
-from difflattice.lattice.medium import Medium
-from difflattice.solver.sensors import Sensors
-from difflattice.solver import INSTABILITY_MESSAGE, Stepper, check_result, run, simulate
-from difflattice.solver.sources import PointSources, ToneBurst
 from difflattice.apps.validation import discrete_energy
+from difflattice.lattice import Edges
+from difflattice.lattice.grid import MAX_COURANT, make_grid
+from difflattice.lattice.medium import Medium
+from difflattice.solver import Stepper, check_result, run, simulate
+from difflattice.solver.sensors import Sensors
+from difflattice.solver.sources import PointSources, ToneBurst
 
 
 def _box(dtype, courant=MAX_COURANT, n=64):
-    grid = make_grid(frequency_hz=50e3, cells_per_wavelength=12, c_max_m_s=343.0, shape=(n, n), courant=courant, dtype=dtype)
+    grid = make_grid(
+        frequency_hz=50e3, cells_per_wavelength=12, c_max_m_s=343.0, shape=(n, n), courant=courant, dtype=dtype
+    )
     x, y = np.meshgrid(np.arange(n), np.arange(n), indexing="ij")
     # two fluids: a dense slow block (conservative form)
     block = (x > n // 2) & (y > n // 3)
@@ -48,7 +48,14 @@ def test_energy_conserved_closed_box(dtype, tol):
 
 def test_long_run_at_the_courant_limit_is_bounded():
     """Exactly at 1/sqrt(2) (homogeneous box), 1e5 steps: bounded (energy conserved)."""
-    grid = make_grid(frequency_hz=50e3, cells_per_wavelength=12, c_max_m_s=343.0, shape=(32, 32), courant=MAX_COURANT, dtype="float64")
+    grid = make_grid(
+        frequency_hz=50e3,
+        cells_per_wavelength=12,
+        c_max_m_s=343.0,
+        shape=(32, 32),
+        courant=MAX_COURANT,
+        dtype="float64",
+    )
     stepper = Stepper.build(grid, Medium(343.0, 1.2), edges=Edges.all("rigid"))
     x, y = np.meshgrid(np.arange(32), np.arange(32), indexing="ij")
     p0 = jnp.asarray(np.exp(-((x - 10) ** 2 + (y - 12) ** 2) / 6.0))
@@ -64,7 +71,9 @@ def test_long_run_at_the_courant_limit_is_bounded():
 @pytest.mark.parametrize("kind", ["pml", "mur", "sponge", "rigid", "soft"])
 def test_every_edge_type_stable_20000_steps(kind):
     grid = make_grid(frequency_hz=50e3, cells_per_wavelength=10, c_max_m_s=343.0, shape=(60, 50))
-    src = PointSources(cells=[(30, 25)], signal=ToneBurst(50e3, 3), weights=jnp.ones(1, jnp.float32), lags_s=jnp.zeros(1, jnp.float32))
+    src = PointSources(
+        cells=[(30, 25)], signal=ToneBurst(50e3, 3), weights=jnp.ones(1, jnp.float32), lags_s=jnp.zeros(1, jnp.float32)
+    )
     res = simulate(grid, Medium(343.0, 1.2), src, Sensors(), n_steps=20_000, edges=Edges.all(kind, thickness_cells=10))
     peaks = np.asarray(res.peak_history)
     assert np.all(np.isfinite(peaks))
@@ -80,7 +89,9 @@ def test_every_edge_type_stable_20000_steps(kind):
 
 def test_instability_is_detected_and_explained():
     grid = make_grid(frequency_hz=50e3, cells_per_wavelength=10, c_max_m_s=343.0, shape=(30, 30))
-    src = PointSources(cells=[(15, 15)], signal=ToneBurst(50e3, 2), weights=jnp.ones(1, jnp.float32), lags_s=jnp.zeros(1, jnp.float32))
+    src = PointSources(
+        cells=[(15, 15)], signal=ToneBurst(50e3, 2), weights=jnp.ones(1, jnp.float32), lags_s=jnp.zeros(1, jnp.float32)
+    )
     stepper = Stepper.build(grid, Medium(343.0, 1.2), src, edges=Edges.all("rigid"))
     bad = eqx.tree_at(lambda s: s.lattice.K, stepper, jnp.asarray(0.6, jnp.float32))  # c = 0.77 > 0.707
     res = run(bad, 3000)
@@ -114,15 +125,29 @@ def test_smoothly_rasterised_obstacles_stay_bounded_at_the_courant_limit(model, 
     from difflattice.lattice.geometry import Circle, rasterise
     from difflattice.solver.sources import line_transducer
 
-    g = make_grid(frequency_hz=50e3, cells_per_wavelength=10, c_max_m_s=343.0, shape=(64, 64),
-                  courant=MAX_COURANT, dtype="float64")
+    g = make_grid(
+        frequency_hz=50e3,
+        cells_per_wavelength=10,
+        c_max_m_s=343.0,
+        shape=(64, 64),
+        courant=MAX_COURANT,
+        dtype="float64",
+    )
     peaks = []
     for r_cells in (5.3, 6.65):
         occ = rasterise(Circle(jnp.array([40 * g.dx_m, 32.3 * g.dx_m]), jnp.asarray(r_cells * g.dx_m)), g, "smooth")
         assert float(jnp.sum((occ > 0.05) & (occ < 0.95))) > 10  # really partly filled cells
         src = line_transducer(g, (16 * g.dx_m, 32 * g.dx_m), n_cells=5, signal=ToneBurst(50e3, 2))
-        r = simulate(g, Medium(343.0, 1.2, boundary_model=model, **{kind: occ}), src, Sensors(), n_steps=4000,
-                     edges=Edges.all("rigid"), throw=False, checkpoint=100)
+        r = simulate(
+            g,
+            Medium(343.0, 1.2, boundary_model=model, **{kind: occ}),
+            src,
+            Sensors(),
+            n_steps=4000,
+            edges=Edges.all("rigid"),
+            throw=False,
+            checkpoint=100,
+        )
         ph = np.asarray(r.peak_history)
         assert np.all(np.isfinite(ph))
         peaks.append(ph[-10:].max() / ph[:3].max())
@@ -144,7 +169,14 @@ def test_smooth_rigid_obstacle_does_not_trap_energy():
     late = {}
     for mode in ("hard", "smooth"):
         occ = rasterise(disc, g, mode)
-        r = simulate(g, Medium(343.0, 1.2, rigid=occ), src, Sensors(), n_steps=3000,
-                     edges=Edges(thickness_cells=16), checkpoint=100)
+        r = simulate(
+            g,
+            Medium(343.0, 1.2, rigid=occ),
+            src,
+            Sensors(),
+            n_steps=3000,
+            edges=Edges(thickness_cells=16),
+            checkpoint=100,
+        )
         late[mode] = float(np.asarray(r.peak_history)[-1])
     assert late["smooth"] < 3 * late["hard"], late

@@ -13,12 +13,12 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
-from difflattice.observe.farfield import box_around, field_at
 from difflattice.fit.transfer import _source_spectrum, free_field_transfer
 from difflattice.lattice.grid import make_grid
 from difflattice.lattice.medium import Medium
-from difflattice.solver.sensors import Sensors
+from difflattice.observe.farfield import box_around, field_at
 from difflattice.solver import simulate
+from difflattice.solver.sensors import Sensors
 from difflattice.solver.sources import PointSources, ToneBurst
 
 
@@ -28,8 +28,17 @@ def test_fast_path_equals_direct_line_simulation():
     lateral = np.arange(-16, 17, 4)
     zc = 25
     ang = np.linspace(-80, 80, 33)
-    T = free_field_transfer(frequency_hz=f, c_m_s=c, n_cells=n, cells_per_wavelength=ppw, lobe_angle_deg=ang,
-                            lobe_range_m=1.0, wave_x_m=(lateral + 0.5) * dx, wave_z_m=zc * dx, dispersion="lattice")
+    T = free_field_transfer(
+        frequency_hz=f,
+        c_m_s=c,
+        n_cells=n,
+        cells_per_wavelength=ppw,
+        lobe_angle_deg=ang,
+        lobe_range_m=1.0,
+        wave_x_m=(lateral + 0.5) * dx,
+        wave_z_m=zc * dx,
+        dispersion="lattice",
+    )
     rng = np.random.default_rng(0)
     w = rng.uniform(0.5, 1.5, n)
     lags = rng.uniform(0, 5e-6, n)

@@ -58,19 +58,44 @@ class RowPrinter:
         print("  ".join(cells), flush=True)
 
 
-_POLAROID_COLUMNS = [("cells_per_wavelength", "cells/λ", "g"), ("dtype", "dtype", "s"), ("farfield_dispersion", "far-field k", "s"),
-                     ("n_cells", "cells", "d"), ("wall_time_s", "time (s)", ".3f"), ("lobe_db_max_error", "lobe err (dB)", ".3f"),
-                     ("first_null_error_deg", "null err (deg)", ".3f"), ("arrival_error_periods", "arrival err (periods)", ".4f")]
-_WALL_COLUMNS = [("case", "case", "s"), ("cells_per_wavelength", "cells/λ", "g"), ("dtype", "dtype", "s"),
-                 ("wall_time_s", "time (s)", ".3f"), ("field_rel_l2_error", "field err (rel L2)", ".4f"),
-                 ("pattern_db_max_error", "pattern err (dB)", ".3f"), ("echo_arrival_error_periods", "echo arrival (periods)", ".4f"),
-                 ("echo_amplitude_db_error", "echo level (dB)", ".3f")]
-_EDGE_COLUMNS = [("cells_per_wavelength", "cells/λ", "g"), ("dtype", "dtype", "s"), ("edge", "edge", "s"),
-                 ("thickness_cells", "cells", "d"), ("wall_time_s", "time (s)", ".3f"),
-                 ("reflection_db_axis", "axis (dB)", ".1f"), ("reflection_db_corner", "corner (dB)", ".1f")]
-_FIT_COLUMNS = [("cells_per_wavelength", "cells/λ", "g"), ("wall_time_s", "time (s)", ".1f"), ("converged", "converged", ""),
-                ("chi2_reduced", "chi2_red", ".3g"), ("diameter_mm", "D (mm)", ".3f"), ("diameter_stderr_mm", "± (mm)", ".3f"),
-                ("edge_lag_us", "edge lag (µs)", ".3f")]
+_POLAROID_COLUMNS = [
+    ("cells_per_wavelength", "cells/λ", "g"),
+    ("dtype", "dtype", "s"),
+    ("farfield_dispersion", "far-field k", "s"),
+    ("n_cells", "cells", "d"),
+    ("wall_time_s", "time (s)", ".3f"),
+    ("lobe_db_max_error", "lobe err (dB)", ".3f"),
+    ("first_null_error_deg", "null err (deg)", ".3f"),
+    ("arrival_error_periods", "arrival err (periods)", ".4f"),
+]
+_WALL_COLUMNS = [
+    ("case", "case", "s"),
+    ("cells_per_wavelength", "cells/λ", "g"),
+    ("dtype", "dtype", "s"),
+    ("wall_time_s", "time (s)", ".3f"),
+    ("field_rel_l2_error", "field err (rel L2)", ".4f"),
+    ("pattern_db_max_error", "pattern err (dB)", ".3f"),
+    ("echo_arrival_error_periods", "echo arrival (periods)", ".4f"),
+    ("echo_amplitude_db_error", "echo level (dB)", ".3f"),
+]
+_EDGE_COLUMNS = [
+    ("cells_per_wavelength", "cells/λ", "g"),
+    ("dtype", "dtype", "s"),
+    ("edge", "edge", "s"),
+    ("thickness_cells", "cells", "d"),
+    ("wall_time_s", "time (s)", ".3f"),
+    ("reflection_db_axis", "axis (dB)", ".1f"),
+    ("reflection_db_corner", "corner (dB)", ".1f"),
+]
+_FIT_COLUMNS = [
+    ("cells_per_wavelength", "cells/λ", "g"),
+    ("wall_time_s", "time (s)", ".1f"),
+    ("converged", "converged", ""),
+    ("chi2_reduced", "chi2_red", ".3g"),
+    ("diameter_mm", "D (mm)", ".3f"),
+    ("diameter_stderr_mm", "± (mm)", ".3f"),
+    ("edge_lag_us", "edge lag (µs)", ".3f"),
+]
 
 
 def reference(angles_deg, x_m, *, length_m: float = FACE_M, range_m: float = 1.0, n_quad: int = 4000):
@@ -102,9 +127,11 @@ def _metrics(angles, x_m, lobe, wave, ref_lobe, ref_wave) -> dict:
     c = len(x_m) // 2
     inner = np.abs(x_m) <= 0.010
     arr = ((ph - ph[c]) - (rph - rph[c]))[inner] / (2 * math.pi)
-    return {"lobe_db_max_error": float(np.abs(ld - rd)[main].max()),
-            "first_null_error_deg": float(abs(m["first_null_deg"] - r["first_null_deg"])),
-            "arrival_error_periods": float(np.abs(arr).max())}
+    return {
+        "lobe_db_max_error": float(np.abs(ld - rd)[main].max()),
+        "first_null_error_deg": float(abs(m["first_null_deg"] - r["first_null_deg"])),
+        "arrival_error_periods": float(np.abs(arr).max()),
+    }
 
 
 def sweep(cells_per_wavelength=(6, 8, 10, 14, 20, 28, 40), dtypes=("float32", "float64"), *, repeats: int = 1) -> dict:
@@ -131,45 +158,71 @@ def sweep(cells_per_wavelength=(6, 8, 10, 14, 20, 28, 40), dtypes=("float32", "f
                 times = []
                 for _ in range(repeats + 1):  # the first run compiles
                     t0 = time.perf_counter()
-                    T = free_field_transfer(frequency_hz=F_HZ, c_m_s=C_M_S, n_cells=n, cells_per_wavelength=ppw, lobe_angle_deg=angles,
-                                            lobe_range_m=1.0, wave_x_m=x_m, wave_z_m=Z_M, dtype=dtype, dispersion=disp)
+                    T = free_field_transfer(
+                        frequency_hz=F_HZ,
+                        c_m_s=C_M_S,
+                        n_cells=n,
+                        cells_per_wavelength=ppw,
+                        lobe_angle_deg=angles,
+                        lobe_range_m=1.0,
+                        wave_x_m=x_m,
+                        wave_z_m=Z_M,
+                        dtype=dtype,
+                        dispersion=disp,
+                    )
                     times.append(time.perf_counter() - t0)
                 a = np.ones(n)
-                row = {"cells_per_wavelength": ppw, "dtype": dtype, "farfield_dispersion": disp, "n_cells": n,
-                       "wall_time_s": float(np.median(times[1:])), "simulation_s": T.info["simulation_s"],
-                       **_metrics(angles, x_m, T.lobe @ a, T.wave @ a, ref_lobe, ref_wave)}
+                row = {
+                    "cells_per_wavelength": ppw,
+                    "dtype": dtype,
+                    "farfield_dispersion": disp,
+                    "n_cells": n,
+                    "wall_time_s": float(np.median(times[1:])),
+                    "simulation_s": T.info["simulation_s"],
+                    **_metrics(angles, x_m, T.lobe @ a, T.wave @ a, ref_lobe, ref_wave),
+                }
                 rows.append(row)
                 show(row)
     return {"case": "polaroid uniform line, 35.7 mm, 50 kHz", "rows": rows}
 
 
 def write(results: dict, out_dir: str | Path) -> None:
-    from .. import plots  # noqa: F401  (sets the backend)
     import matplotlib.pyplot as plt
+
+    from .. import plots  # noqa: F401  (sets the backend)
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "accuracy.json").write_text(json.dumps(results, indent=2))
     fig, axes = plt.subplots(1, 3, figsize=(14, 4))
-    keys = [("lobe_db_max_error", "lobe error (dB)"), ("first_null_error_deg", "first-null error (deg)"),
-            ("arrival_error_periods", "arrival error (periods)")]
+    keys = [
+        ("lobe_db_max_error", "lobe error (dB)"),
+        ("first_null_error_deg", "first-null error (deg)"),
+        ("arrival_error_periods", "arrival error (periods)"),
+    ]
     for ax, (k, lab) in zip(axes, keys):
         for dtype in ("float32", "float64"):
             for disp, style in (("continuum", "-o"), ("lattice", "--s")):
                 rs = [r for r in results["rows"] if r["dtype"] == dtype and r["farfield_dispersion"] == disp]
                 if rs:
-                    ax.loglog([r["wall_time_s"] for r in rs], [max(r[k], 1e-6) for r in rs], style, label=f"{dtype}, {disp}")
+                    ax.loglog(
+                        [r["wall_time_s"] for r in rs], [max(r[k], 1e-6) for r in rs], style, label=f"{dtype}, {disp}"
+                    )
         ax.set_xlabel("wall time (s)")
         ax.set_ylabel(lab)
         ax.grid(True, which="both", alpha=0.3)
     axes[0].legend(fontsize=7)
     fig.tight_layout()
     plots.save(fig, out / "accuracy.png")
-    lines = ["| cells/λ | dtype | far-field k | cells | time (s) | lobe err (dB) | null err (deg) | arrival err (periods) |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "| cells/λ | dtype | far-field k | cells | time (s) | lobe err (dB) | null err (deg) | arrival err (periods) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for r in results["rows"]:
-        lines.append(f"| {r['cells_per_wavelength']} | {r['dtype']} | {r['farfield_dispersion']} | {r['n_cells']} | {r['wall_time_s']:.2f} | "
-                     f"{r['lobe_db_max_error']:.3f} | {r['first_null_error_deg']:.3f} | {r['arrival_error_periods']:.4f} |")
+        lines.append(
+            f"| {r['cells_per_wavelength']} | {r['dtype']} | {r['farfield_dispersion']} | {r['n_cells']} | {r['wall_time_s']:.2f} | "
+            f"{r['lobe_db_max_error']:.3f} | {r['first_null_error_deg']:.3f} | {r['arrival_error_periods']:.4f} |"
+        )
     (out / "accuracy_table.md").write_text("\n".join(lines) + "\n")
 
 
@@ -184,19 +237,36 @@ def fit_sweep(config_path, cells_per_wavelength=(8, 10, 14, 20, 28, 40)) -> dict
     rows = []
     show = RowPrinter(_FIT_COLUMNS)
     for ppw in cells_per_wavelength:
-        cfg = replace(base, model=replace(base.model, cells_per_wavelength=float(ppw)),
-                      output=replace(base.output, field_image=False))
+        cfg = replace(
+            base,
+            model=replace(base.model, cells_per_wavelength=float(ppw)),
+            output=replace(base.output, field_image=False),
+        )
         t0 = time.perf_counter()
         rep = run_fit(cfg, out=Path("out") / "fit_sweep" / f"ppw{ppw}", verbose=False)
         f = rep["fit"]
-        rows.append({"cells_per_wavelength": ppw, "wall_time_s": time.perf_counter() - t0,
-                     "transfer_s": rep["provenance"]["timing_s"]["transfer_simulation"], "converged": f["converged"],
-                     "chi2_reduced": f["chi2_reduced"], "rms": f["rms"], "diameter_m": f["parameters"]["diameter_m"],
-                     "diameter_stderr_m": f["parameters"]["diameter_stderr_m"],
-                     "edge_lag_s": max(f["parameters"]["lags_s"], key=abs)})
+        rows.append(
+            {
+                "cells_per_wavelength": ppw,
+                "wall_time_s": time.perf_counter() - t0,
+                "transfer_s": rep["provenance"]["timing_s"]["transfer_simulation"],
+                "converged": f["converged"],
+                "chi2_reduced": f["chi2_reduced"],
+                "rms": f["rms"],
+                "diameter_m": f["parameters"]["diameter_m"],
+                "diameter_stderr_m": f["parameters"]["diameter_stderr_m"],
+                "edge_lag_s": max(f["parameters"]["lags_s"], key=abs),
+            }
+        )
         r = rows[-1]
-        show({**r, "diameter_mm": r["diameter_m"] * 1e3, "diameter_stderr_mm": r["diameter_stderr_m"] * 1e3,
-              "edge_lag_us": r["edge_lag_s"] * 1e6})
+        show(
+            {
+                **r,
+                "diameter_mm": r["diameter_m"] * 1e3,
+                "diameter_stderr_mm": r["diameter_stderr_m"] * 1e3,
+                "edge_lag_us": r["edge_lag_s"] * 1e6,
+            }
+        )
     return {"config": str(config_path), "rows": rows}
 
 
@@ -258,8 +328,6 @@ def reference_time_series(v, c, r_direct, r_image, reflection: float, n_steps: i
     return p[:n_steps]
 
 
-
-
 def wall_layout(cells_per_wavelength: float, *, pml_cells: int | None = None) -> dict:
     """Cell layout of the wall case at a resolution (lattice units: positions in cells).
 
@@ -284,8 +352,16 @@ def wall_layout(cells_per_wavelength: float, *, pml_cells: int | None = None) ->
     hl = int(round(LINE_HALF_LENGTH_WAVELENGTHS * ppw))
     line = np.stack([np.full(2 * hl + 1, line_i), np.arange(j_s - hl, j_s + hl + 1)], 1)
     probe = np.array([[i_s, j_s + int(round(PROBE_OFFSET_WAVELENGTHS * ppw))]])
-    return {"shape": (nx, ny), "pml_cells": L, "source": (i_s, j_s), "wall_cell": wall_cell, "face_x_cells": face_x,
-            "image": (2 * face_x - i_s, j_s), "line": line, "probe": probe}
+    return {
+        "shape": (nx, ny),
+        "pml_cells": L,
+        "source": (i_s, j_s),
+        "wall_cell": wall_cell,
+        "face_x_cells": face_x,
+        "image": (2 * face_x - i_s, j_s),
+        "line": line,
+        "probe": probe,
+    }
 
 
 def _distances(cells, src, img):
@@ -293,20 +369,27 @@ def _distances(cells, src, img):
     return np.hypot(c[:, 0] - src[0], c[:, 1] - src[1]), np.hypot(c[:, 0] - img[0], c[:, 1] - img[1])
 
 
-def run_wall(cells_per_wavelength: float, dtype: str = "float32", *, wall: str = "rigid", repeats: int = 1,
-             extra_periods: float = 4.0, pml_cells: int | None = None) -> dict:
+def run_wall(
+    cells_per_wavelength: float,
+    dtype: str = "float32",
+    *,
+    wall: str = "rigid",
+    repeats: int = 1,
+    extra_periods: float = 4.0,
+    pml_cells: int | None = None,
+) -> dict:
     """Simulate the wall case once (after a compiling run, `repeats` timed runs) and compare it
     with the image-source reference. Returns a row of errors and times (see `wall_sweep`)."""
     import jax
     import jax.numpy as jnp
 
-    from ..lattice.grid import make_grid
     from ..lattice.coefficients import Edges
+    from ..lattice.grid import make_grid
     from ..lattice.medium import Medium
-    from ..solver.sensors import Sensors
-    from ..solver.stepper import Stepper
     from ..solver.loop import run
+    from ..solver.sensors import Sensors
     from ..solver.sources import PointSources, ToneBurst
+    from ..solver.stepper import Stepper
 
     if wall not in ("rigid", "soft"):
         raise ValueError(f"wall = {wall!r}; allowed: 'rigid' (R = +1), 'soft' (R = -1)")
@@ -314,13 +397,16 @@ def run_wall(cells_per_wavelength: float, dtype: str = "float32", *, wall: str =
         jax.config.update("jax_enable_x64", True)
     lay = wall_layout(cells_per_wavelength, pml_cells=pml_cells)
     nx, ny = lay["shape"]
-    grid = make_grid(frequency_hz=F_HZ, cells_per_wavelength=cells_per_wavelength, c_max_m_s=C_M_S, shape=(nx, ny), dtype=dtype)
+    grid = make_grid(
+        frequency_hz=F_HZ, cells_per_wavelength=cells_per_wavelength, c_max_m_s=C_M_S, shape=(nx, ny), dtype=dtype
+    )
     c = grid.courant
     occ = np.zeros((nx, ny))
-    occ[lay["wall_cell"]:, :] = 1.0
+    occ[lay["wall_cell"] :, :] = 1.0
     dt = grid.jnp_dtype
-    medium = Medium(sound_speed_m_s=C_M_S, density_kg_m3=1.2, boundary_model="conservative",
-                    **{wall: jnp.asarray(occ, dt)})
+    medium = Medium(
+        sound_speed_m_s=C_M_S, density_kg_m3=1.2, boundary_model="conservative", **{wall: jnp.asarray(occ, dt)}
+    )
     edges = Edges(x_lo="pml", x_hi="rigid", y_lo="pml", y_hi="pml", thickness_cells=lay["pml_cells"])
     sig = ToneBurst(F_HZ, BURST_CYCLES, "hann", 1.0)
     src = PointSources(cells=[lay["source"]], signal=sig, weights=jnp.ones(1, dt), lags_s=jnp.zeros(1, dt))
@@ -349,8 +435,15 @@ def run_wall(cells_per_wavelength: float, dtype: str = "float32", *, wall: str =
     rel_l2 = float(np.linalg.norm(sim - ref) / np.linalg.norm(ref))
     # the same reference with the lattice's own wavenumber along each path (dispersion relation):
     # what is left is the error that dispersion does not explain
-    ref_k = V * np.exp(-1j * omega) / c**2 * (
-        _green_2d(_path_k(omega, c, line, lay["source"]), rd) + R * _green_2d(_path_k(omega, c, line, lay["image"]), ri))
+    ref_k = (
+        V
+        * np.exp(-1j * omega)
+        / c**2
+        * (
+            _green_2d(_path_k(omega, c, line, lay["source"]), rd)
+            + R * _green_2d(_path_k(omega, c, line, lay["image"]), ri)
+        )
+    )
     rel_l2_k = float(np.linalg.norm(sim - ref_k) / np.linalg.norm(ref))
     predicted_l2 = float(np.linalg.norm(ref_k - ref) / np.linalg.norm(ref))
     ref_db = 20 * np.log10(np.abs(ref) / np.abs(ref).max())
@@ -368,10 +461,14 @@ def run_wall(cells_per_wavelength: float, dtype: str = "float32", *, wall: str =
     w0 = max(w0, int(pd[0] / c + BURST_CYCLES * spp) + 1)  # after the direct pulse has passed
     w1 = min(w1, n_steps - 1)
     shift = _delay_steps(p_sim[w0:w1], p_ref[w0:w1])
-    direct_shift = _delay_steps(p_sim[: w0], p_ref[: w0])
+    direct_shift = _delay_steps(p_sim[:w0], p_ref[:w0])
     return {
-        "case": f"{wall} wall", "cells_per_wavelength": cells_per_wavelength, "dtype": dtype,
-        "grid_shape": [nx, ny], "n_steps": n_steps, "wall_time_s": float(np.min(times[1:] or times)),
+        "case": f"{wall} wall",
+        "cells_per_wavelength": cells_per_wavelength,
+        "dtype": dtype,
+        "grid_shape": [nx, ny],
+        "n_steps": n_steps,
+        "wall_time_s": float(np.min(times[1:] or times)),
         "compile_and_run_s": times[0],
         "echo_path_wavelengths": float(pi[0] / lam),
         "field_rel_l2_error": rel_l2,
@@ -384,7 +481,8 @@ def run_wall(cells_per_wavelength: float, dtype: str = "float32", *, wall: str =
         "echo_arrival_error_us": float(shift * grid.dt_s * 1e6),
         "direct_arrival_error_periods": float(direct_shift / spp),
         "echo_amplitude_db_error": float(20 * np.log10(np.abs(p_sim[w0:w1]).max() / np.abs(p_ref[w0:w1]).max())),
-        "predicted_echo_phase_error_periods": phase_error_rad(cells_per_wavelength, c, float(pi[0] / lam)) / (2 * math.pi),
+        "predicted_echo_phase_error_periods": phase_error_rad(cells_per_wavelength, c, float(pi[0] / lam))
+        / (2 * math.pi),
         "predicted_echo_delay_periods": echo_delay_periods(omega, c, probe[0], lay["image"]),
         "predicted_echo_group_delay_periods": echo_delay_periods(omega, c, probe[0], lay["image"], group=True),
     }
@@ -446,10 +544,10 @@ def _edge_run(ppw: float, half_cells: int, edges, dtype: str, probes_rel, n_step
 
     from ..lattice.grid import make_grid
     from ..lattice.medium import Medium
-    from ..solver.sensors import Sensors
-    from ..solver.stepper import Stepper
     from ..solver.loop import run
+    from ..solver.sensors import Sensors
     from ..solver.sources import PointSources, ToneBurst
+    from ..solver.stepper import Stepper
 
     L = edges.thickness_cells if edges.kinds() & {"pml", "sponge"} else 0
     n = 2 * (half_cells + L) + 1
@@ -470,8 +568,14 @@ def _edge_run(ppw: float, half_cells: int, edges, dtype: str, probes_rel, n_step
     return np.asarray(res.probes, dtype=float), float(np.min(times[1:] or times)), n
 
 
-def edge_sweep(cells_per_wavelength=(10, 20), thicknesses_cells=(5, 10, 20, 40), dtype: str = "float32", *,
-               repeats: int = 1, kinds=("pml", "sponge", "mur", "rigid")) -> dict:
+def edge_sweep(
+    cells_per_wavelength=(10, 20),
+    thicknesses_cells=(5, 10, 20, 40),
+    dtype: str = "float32",
+    *,
+    repeats: int = 1,
+    kinds=("pml", "sponge", "mur", "rigid"),
+) -> dict:
     """Spurious reflection of each absorbing edge kind (and thickness) against a window so large
     that its edges are not reached in the record (same lattice, same source: the difference is
     the edge's reflection alone). A point source (4-cycle Hann burst) sits 4 wavelengths from the
@@ -500,20 +604,44 @@ def edge_sweep(cells_per_wavelength=(10, 20), thicknesses_cells=(5, 10, 20, 40),
                 edges = Edges.all(kind, thickness_cells=max(L, 1))
                 p, t, n = _edge_run(ppw, half, edges, dtype, probes_rel, n_steps, repeats)
                 err = np.abs(p - p_ref).max(0) / scale
-                row = {"cells_per_wavelength": ppw, "dtype": dtype, "edge": kind, "thickness_cells": L,
-                       "thickness_wavelengths": L / ppw, "grid_cells": n * n, "n_steps": n_steps, "wall_time_s": t,
-                       "reflection_db_axis": float(20 * np.log10(max(err[0], 1e-12))),
-                       "reflection_db_corner": float(20 * np.log10(max(err[1], 1e-12)))}
+                row = {
+                    "cells_per_wavelength": ppw,
+                    "dtype": dtype,
+                    "edge": kind,
+                    "thickness_cells": L,
+                    "thickness_wavelengths": L / ppw,
+                    "grid_cells": n * n,
+                    "n_steps": n_steps,
+                    "wall_time_s": t,
+                    "reflection_db_axis": float(20 * np.log10(max(err[0], 1e-12))),
+                    "reflection_db_corner": float(20 * np.log10(max(err[1], 1e-12))),
+                }
                 rows.append(row)
                 show(row)
-        rows.append({"cells_per_wavelength": ppw, "dtype": dtype, "edge": "reference (large window)", "thickness_cells": 0,
-                     "thickness_wavelengths": 0.0, "grid_cells": n_ref * n_ref, "n_steps": n_steps, "wall_time_s": t_ref,
-                     "reflection_db_axis": None, "reflection_db_corner": None})
+        rows.append(
+            {
+                "cells_per_wavelength": ppw,
+                "dtype": dtype,
+                "edge": "reference (large window)",
+                "thickness_cells": 0,
+                "thickness_wavelengths": 0.0,
+                "grid_cells": n_ref * n_ref,
+                "n_steps": n_steps,
+                "wall_time_s": t_ref,
+                "reflection_db_axis": None,
+                "reflection_db_corner": None,
+            }
+        )
     return {"case": "edges: point source, 4-cycle burst, edges 4 wavelengths away", "rows": rows}
 
 
-def wall_sweep(cells_per_wavelength=(6, 8, 10, 14, 20, 30), dtypes=("float32", "float64"), walls=("rigid", "soft"), *,
-               repeats: int = 3) -> dict:
+def wall_sweep(
+    cells_per_wavelength=(6, 8, 10, 14, 20, 30),
+    dtypes=("float32", "float64"),
+    walls=("rigid", "soft"),
+    *,
+    repeats: int = 3,
+) -> dict:
     """The wall case (`run_wall`) over a sweep of resolutions, precisions and wall kinds."""
     rows = []
     show = RowPrinter(_WALL_COLUMNS)
@@ -523,60 +651,88 @@ def wall_sweep(cells_per_wavelength=(6, 8, 10, 14, 20, 30), dtypes=("float32", "
                 row = run_wall(float(ppw), dtype, wall=wall, repeats=repeats)
                 rows.append(row)
                 show(row)
-    return {"case": "point source 4 wavelengths in front of an infinite flat wall, 50 kHz, 4-cycle Hann burst; "
-                    "reference: free field + image source (continuum 2-D Green's function)", "rows": rows}
+    return {
+        "case": "point source 4 wavelengths in front of an infinite flat wall, 50 kHz, 4-cycle Hann burst; "
+        "reference: free field + image source (continuum 2-D Green's function)",
+        "rows": rows,
+    }
 
 
 def write_wall(results: dict, out_dir: str | Path) -> None:
     """accuracy_wall.json, accuracy_wall_table.md and accuracy_wall.png (errors against wall time)."""
-    from .. import plots
     import matplotlib.pyplot as plt
+
+    from .. import plots
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "accuracy_wall.json").write_text(json.dumps(results, indent=2))
-    keys = [("echo_arrival_error_periods", "echo arrival error (periods)"),
-            ("field_rel_l2_error", "field error (relative L2)"),
-            ("pattern_db_max_error", "interference pattern error (dB)")]
+    keys = [
+        ("echo_arrival_error_periods", "echo arrival error (periods)"),
+        ("field_rel_l2_error", "field error (relative L2)"),
+        ("pattern_db_max_error", "interference pattern error (dB)"),
+    ]
     fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
     for ax, (k, lab) in zip(axes, keys):
         for dtype, marker in (("float32", "o"), ("float64", "s")):
             for wall, style in (("rigid", "-"), ("soft", "--")):
                 rs = [r for r in results["rows"] if r["dtype"] == dtype and r["case"] == f"{wall} wall"]
                 if rs:
-                    ax.loglog([r["wall_time_s"] for r in rs], [max(abs(r[k]), 1e-6) for r in rs], style + marker,
-                              label=f"{wall}, {dtype}", ms=4)
+                    ax.loglog(
+                        [r["wall_time_s"] for r in rs],
+                        [max(abs(r[k]), 1e-6) for r in rs],
+                        style + marker,
+                        label=f"{wall}, {dtype}",
+                        ms=4,
+                    )
                     if dtype == "float32" and wall == "rigid":
                         for r in rs:
-                            ax.annotate(f"{r['cells_per_wavelength']:g}", (r["wall_time_s"], max(abs(r[k]), 1e-6)),
-                                        textcoords="offset points", xytext=(4, 4), fontsize=7)
+                            ax.annotate(
+                                f"{r['cells_per_wavelength']:g}",
+                                (r["wall_time_s"], max(abs(r[k]), 1e-6)),
+                                textcoords="offset points",
+                                xytext=(4, 4),
+                                fontsize=7,
+                            )
         if k == "echo_arrival_error_periods":
             rs = [r for r in results["rows"] if r["dtype"] == "float32" and r["case"] == "rigid wall"]
-            ax.loglog([r["wall_time_s"] for r in rs], [r["predicted_echo_phase_error_periods"] for r in rs], ":",
-                      color="gray", label="dispersion relation (worst direction)")
+            ax.loglog(
+                [r["wall_time_s"] for r in rs],
+                [r["predicted_echo_phase_error_periods"] for r in rs],
+                ":",
+                color="gray",
+                label="dispersion relation (worst direction)",
+            )
         ax.set_xlabel("wall time (s)")
         ax.set_ylabel(lab)
         ax.grid(True, which="both", alpha=0.3)
     axes[0].legend(fontsize=7)
-    fig.suptitle("wall case: point source 4 λ from a flat wall vs image-source solution (labels: cells per wavelength)",
-                 fontsize=10)
+    fig.suptitle(
+        "wall case: point source 4 λ from a flat wall vs image-source solution (labels: cells per wavelength)",
+        fontsize=10,
+    )
     fig.tight_layout()
     plots.save(fig, out / "accuracy_wall.png")
-    lines = ["| wall | dtype | cells/λ | grid | steps | time (s) | echo arrival err (periods) | (µs) | predicted (periods) "
-             "| field rel. L2 err | pattern err (dB) | level err (dB) |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "| wall | dtype | cells/λ | grid | steps | time (s) | echo arrival err (periods) | (µs) | predicted (periods) "
+        "| field rel. L2 err | pattern err (dB) | level err (dB) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in results["rows"]:
-        lines.append(f"| {r['case'].split()[0]} | {r['dtype']} | {r['cells_per_wavelength']:g} | {r['grid_shape'][0]} x {r['grid_shape'][1]} "
-                     f"| {r['n_steps']} | {r['wall_time_s']:.3f} | {r['echo_arrival_error_periods']:.4f} | {r['echo_arrival_error_us']:.3f} "
-                     f"| {r['predicted_echo_phase_error_periods']:.4f} | {r['field_rel_l2_error']:.4f} | {r['pattern_db_max_error']:.3f} "
-                     f"| {r['level_db_error']:+.3f} |")
+        lines.append(
+            f"| {r['case'].split()[0]} | {r['dtype']} | {r['cells_per_wavelength']:g} | {r['grid_shape'][0]} x {r['grid_shape'][1]} "
+            f"| {r['n_steps']} | {r['wall_time_s']:.3f} | {r['echo_arrival_error_periods']:.4f} | {r['echo_arrival_error_us']:.3f} "
+            f"| {r['predicted_echo_phase_error_periods']:.4f} | {r['field_rel_l2_error']:.4f} | {r['pattern_db_max_error']:.3f} "
+            f"| {r['level_db_error']:+.3f} |"
+        )
     (out / "accuracy_wall_table.md").write_text("\n".join(lines) + "\n")
 
 
 def write_edges(results: dict, out_dir: str | Path) -> None:
     """accuracy_edges.json, accuracy_edges_table.md and accuracy_edges.png."""
-    from .. import plots
     import matplotlib.pyplot as plt
+
+    from .. import plots
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -586,15 +742,29 @@ def write_edges(results: dict, out_dir: str | Path) -> None:
     for ppw, marker in zip(sorted({r["cells_per_wavelength"] for r in rows}), "os^v"):
         for kind, color in (("pml", "tab:blue"), ("sponge", "tab:orange")):
             rs = [r for r in rows if r["edge"] == kind and r["cells_per_wavelength"] == ppw]
-            axes[0].plot([r["thickness_wavelengths"] for r in rs], [r["reflection_db_corner"] for r in rs], "-" + marker,
-                         color=color, label=f"{kind}, {ppw:g} cells/λ")
-            axes[1].semilogx([r["wall_time_s"] for r in rs], [r["reflection_db_corner"] for r in rs], "-" + marker,
-                             color=color, label=f"{kind}, {ppw:g} cells/λ")
+            axes[0].plot(
+                [r["thickness_wavelengths"] for r in rs],
+                [r["reflection_db_corner"] for r in rs],
+                "-" + marker,
+                color=color,
+                label=f"{kind}, {ppw:g} cells/λ",
+            )
+            axes[1].semilogx(
+                [r["wall_time_s"] for r in rs],
+                [r["reflection_db_corner"] for r in rs],
+                "-" + marker,
+                color=color,
+                label=f"{kind}, {ppw:g} cells/λ",
+            )
         for kind, color in (("mur", "tab:green"), ("rigid", "tab:red")):
             rs = [r for r in rows if r["edge"] == kind and r["cells_per_wavelength"] == ppw]
             for r in rs:
-                axes[0].axhline(r["reflection_db_corner"], color=color, ls=":" if marker == "o" else "--",
-                                label=f"{kind}, {ppw:g} cells/λ")
+                axes[0].axhline(
+                    r["reflection_db_corner"],
+                    color=color,
+                    ls=":" if marker == "o" else "--",
+                    label=f"{kind}, {ppw:g} cells/λ",
+                )
                 axes[1].semilogx([r["wall_time_s"]], [r["reflection_db_corner"]], marker, color=color)
     axes[0].set_xlabel("layer thickness (wavelengths)")
     axes[1].set_xlabel("wall time (s)")
@@ -605,13 +775,17 @@ def write_edges(results: dict, out_dir: str | Path) -> None:
     fig.suptitle("window edges: spurious reflection against a window too large to reach", fontsize=10)
     fig.tight_layout()
     plots.save(fig, out / "accuracy_edges.png")
-    lines = ["| cells/λ | edge | thickness (cells) | (λ) | grid cells | time (s) | reflection on axis (dB) | at the corner (dB) |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "| cells/λ | edge | thickness (cells) | (λ) | grid cells | time (s) | reflection on axis (dB) | at the corner (dB) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for r in results["rows"]:
         ax_db = "—" if r["reflection_db_axis"] is None else f"{r['reflection_db_axis']:.1f}"
         co_db = "—" if r["reflection_db_corner"] is None else f"{r['reflection_db_corner']:.1f}"
-        lines.append(f"| {r['cells_per_wavelength']:g} | {r['edge']} | {r['thickness_cells']} | {r['thickness_wavelengths']:.2f} "
-                     f"| {r['grid_cells']} | {r['wall_time_s']:.3f} | {ax_db} | {co_db} |")
+        lines.append(
+            f"| {r['cells_per_wavelength']:g} | {r['edge']} | {r['thickness_cells']} | {r['thickness_wavelengths']:.2f} "
+            f"| {r['grid_cells']} | {r['wall_time_s']:.3f} | {ax_db} | {co_db} |"
+        )
     (out / "accuracy_edges_table.md").write_text("\n".join(lines) + "\n")
 
 
@@ -634,10 +808,17 @@ PISTON_R_MARGIN_WAVELENGTHS = 4.0
 PISTON_SETTLE_PERIODS = 20
 PISTON_RECORD_PERIODS = 10
 
-_PISTON_COLUMNS = [("cells_per_wavelength", "cells/λ", "g"), ("frequency_khz", "kHz", "g"), ("wall_time_s", "time (s)", ".2f"),
-                   ("axis_rms_error", "axis RMS", ".4f"), ("axis_extrema_error_cells", "extrema (cells)", ".2f"),
-                   ("null_error_deg", "null (deg)", ".4f"), ("sidelobe_error_db", "side lobe (dB)", ".3f"),
-                   ("line_phase_rms_deg", "line phase (deg)", ".2f"), ("line_amp_rms_db", "line amp (dB)", ".3f")]
+_PISTON_COLUMNS = [
+    ("cells_per_wavelength", "cells/λ", "g"),
+    ("frequency_khz", "kHz", "g"),
+    ("wall_time_s", "time (s)", ".2f"),
+    ("axis_rms_error", "axis RMS", ".4f"),
+    ("axis_extrema_error_cells", "extrema (cells)", ".2f"),
+    ("null_error_deg", "null (deg)", ".4f"),
+    ("sidelobe_error_db", "side lobe (dB)", ".3f"),
+    ("line_phase_rms_deg", "line phase (deg)", ".2f"),
+    ("line_amp_rms_db", "line amp (dB)", ".3f"),
+]
 
 
 def piston_courant(cells_per_wavelength: float) -> float:
@@ -646,9 +827,19 @@ def piston_courant(cells_per_wavelength: float) -> float:
     return cells_per_wavelength / math.ceil(cells_per_wavelength * math.sqrt(2.0) - 1e-9)
 
 
-def run_piston(cells_per_wavelength: float, *, frequency_hz: float = F_HZ, radius_m: float = PISTON_RADIUS_M,
-               c_m_s: float = C_M_S, on_axis: bool = True, line_z_m: float = PISTON_LINE_Z_M,
-               line_x_m=PISTON_LINE_X_M, dtype: str = "float64", pml_cells: int = 20, repeats: int = 1) -> dict:
+def run_piston(
+    cells_per_wavelength: float,
+    *,
+    frequency_hz: float = F_HZ,
+    radius_m: float = PISTON_RADIUS_M,
+    c_m_s: float = C_M_S,
+    on_axis: bool = True,
+    line_z_m: float = PISTON_LINE_Z_M,
+    line_x_m=PISTON_LINE_X_M,
+    dtype: str = "float64",
+    pml_cells: int = 20,
+    repeats: int = 1,
+) -> dict:
     """One continuous-wave run of a baffled piston (face at z = 0 on the rigid z_lo window face,
     PML on the outer radius and z_hi) until steady, then phasors over whole periods. Returns the
     complex amplitudes (per rho c u0: the drive's amplitude is rho c u0 = 1 Pa) on the axis (row
@@ -677,8 +868,15 @@ def run_piston(cells_per_wavelength: float, *, frequency_hz: float = F_HZ, radiu
     z_far = 5 * radius_m**2 / lam if on_axis else line_z_m
     nz = math.ceil(max(z_far, line_z_m, (gap + 2) * dx) / dx + 2 * ppw) + pml_cells
     nr = math.ceil(max(a_cells, np.abs(line_x_m).max() / dx) + PISTON_R_MARGIN_WAVELENGTHS * ppw) + pml_cells
-    grid = make_grid(frequency_hz=frequency_hz, cells_per_wavelength=ppw, c_max_m_s=c_m_s, shape=(nz, nr),
-                     courant=courant, dtype=dtype, kind="rz")
+    grid = make_grid(
+        frequency_hz=frequency_hz,
+        cells_per_wavelength=ppw,
+        c_max_m_s=c_m_s,
+        shape=(nz, nr),
+        courant=courant,
+        dtype=dtype,
+        kind="rz",
+    )
     src = disc_transducer(grid, radius_m=radius_m, signal=ContinuousWave(frequency_hz, 3.0, 1.0))
     surface = CylinderSurface(0, gap, math.ceil(a_cells) + gap, baffled=True)
     surface.check_inside(grid, margin=pml_cells)
@@ -694,8 +892,13 @@ def run_piston(cells_per_wavelength: float, *, frequency_hz: float = F_HZ, radiu
     n_settle = math.ceil((math.hypot(nz, nr) / courant + PISTON_SETTLE_PERIODS * spp) / spp) * spp
     n_steps = n_settle + PISTON_RECORD_PERIODS * spp
     sensors = Sensors(phasor_cells=cells, phasor_from_step=n_settle)
-    stepper = Stepper.build(grid, Medium(c_m_s, PISTON_RHO_KG_M3), src, sensors,
-                            Edges.axisymmetric("rigid", "pml", "pml", thickness_cells=pml_cells))
+    stepper = Stepper.build(
+        grid,
+        Medium(c_m_s, PISTON_RHO_KG_M3),
+        src,
+        sensors,
+        Edges.axisymmetric("rigid", "pml", "pml", thickness_cells=pml_cells),
+    )
     f = jax.jit(lambda s: run(s, n_steps))
     times = []
     for _ in range(repeats + 1):  # the first run compiles
@@ -706,12 +909,24 @@ def run_piston(cells_per_wavelength: float, *, frequency_hz: float = F_HZ, radiu
     amp = np.asarray(res.phasors) * 2 / (n_steps - n_settle)  # complex amplitude, p = Re(A exp(-i omega t))
     parts, start = {}, 0
     for name, c in groups:
-        parts[name] = amp[start:start + len(c)]
+        parts[name] = amp[start : start + len(c)]
         start += len(c)
-    out = {"cells_per_wavelength": ppw, "frequency_hz": frequency_hz, "radius_m": radius_m, "c_m_s": c_m_s,
-           "dx_m": dx, "courant": courant, "steps_per_period": spp, "grid_shape": [nz, nr], "n_steps": n_steps,
-           "wall_time_s": float(np.median(times[1:] or times)), "compile_and_run_s": times[0],
-           "line_x_m": np.asarray(line_x_m, float), "line_z_m": line_z_m, "line": np.asarray(line(parts["line"]))}
+    out = {
+        "cells_per_wavelength": ppw,
+        "frequency_hz": frequency_hz,
+        "radius_m": radius_m,
+        "c_m_s": c_m_s,
+        "dx_m": dx,
+        "courant": courant,
+        "steps_per_period": spp,
+        "grid_shape": [nz, nr],
+        "n_steps": n_steps,
+        "wall_time_s": float(np.median(times[1:] or times)),
+        "compile_and_run_s": times[0],
+        "line_x_m": np.asarray(line_x_m, float),
+        "line_z_m": line_z_m,
+        "line": np.asarray(line(parts["line"])),
+    }
     angles = np.arange(0.0, min(89.0, math.degrees(math.asin(min(1.0, 7.0 / (2 * math.pi / lam * radius_m))))), 0.005)
     out["angles_deg"] = angles
     for disp in ("continuum", "lattice"):
@@ -760,9 +975,14 @@ def piston_errors(raw: dict, *, line_half_m: float = PISTON_LINE_HALF_M) -> dict
     a = raw["radius_m"]
     lam = 2 * math.pi / k
     dx = raw["dx_m"]
-    row = {"cells_per_wavelength": raw["cells_per_wavelength"], "frequency_khz": raw["frequency_hz"] / 1e3,
-           "grid_shape": raw["grid_shape"], "n_steps": raw["n_steps"], "wall_time_s": raw["wall_time_s"],
-           "mlups": raw["grid_shape"][0] * raw["grid_shape"][1] * raw["n_steps"] / raw["wall_time_s"] / 1e6}
+    row = {
+        "cells_per_wavelength": raw["cells_per_wavelength"],
+        "frequency_khz": raw["frequency_hz"] / 1e3,
+        "grid_shape": raw["grid_shape"],
+        "n_steps": raw["n_steps"],
+        "wall_time_s": raw["wall_time_s"],
+        "mlups": raw["grid_shape"][0] * raw["grid_shape"][1] * raw["n_steps"] / raw["wall_time_s"] / 1e6,
+    }
     if "axis" in raw:
         z, p = raw["axis_z_m"], raw["axis"]
         lo, hi = a * a / (4 * lam), 5 * a * a / lam
@@ -775,15 +995,19 @@ def piston_errors(raw: dict, *, line_half_m: float = PISTON_LINE_HALF_M) -> dict
         row["axis_rms_error_lattice_k"] = float(np.sqrt(np.mean(((np.abs(p) - lk)[sel] / 2) ** 2)))
         zf = np.linspace(lo, hi, 400_001)
         sim = _extrema(z, np.abs(p), lo, hi)
-        for key, ref_curve in (("", np.abs(an.piston_on_axis(zf, a, k))),
-                               ("_lattice_k", np.abs(an.piston_on_axis_lattice(zf, a, omega, raw["courant"], dx)))):
+        for key, ref_curve in (
+            ("", np.abs(an.piston_on_axis(zf, a, k))),
+            ("_lattice_k", np.abs(an.piston_on_axis_lattice(zf, a, omega, raw["courant"], dx))),
+        ):
             ref = _extrema(zf, ref_curve, lo, hi)
             errs = []
             for zr, kind in ref:
                 cand = [zs for zs, ks in sim if ks == kind]
                 errs.append(min((abs(zs - zr) for zs in cand), default=float("inf")) / dx)
             row["axis_extrema_error_cells" + key] = float(max(errs)) if errs else None
-            row["axis_extrema" + key] = [{"z_mm": zr * 1e3, "kind": kind, "error_cells": e} for (zr, kind), e in zip(ref, errs)]
+            row["axis_extrema" + key] = [
+                {"z_mm": zr * 1e3, "kind": kind, "error_cells": e} for (zr, kind), e in zip(ref, errs)
+            ]
     ang = raw["angles_deg"]
     ka = k * a
     th_null = math.degrees(math.asin(an.PISTON_FIRST_NULL_KA_SIN / ka))
@@ -810,16 +1034,21 @@ def piston_errors(raw: dict, *, line_half_m: float = PISTON_LINE_HALF_M) -> dict
     dph_c = np.angle(np.exp(1j * (dph - np.angle(np.mean(np.exp(1j * dph))))))
     amp = 20 * np.log10(np.abs(raw["line"][s]) / np.abs(ref[s]))
     loud = 20 * np.log10(np.abs(ref[s]) / np.abs(ref[s]).max()) > -10
-    row["line_phase_rms_deg"] = float(np.degrees(np.sqrt(np.mean(dph ** 2))))
-    row["line_phase_rms_deg_centred"] = float(np.degrees(np.sqrt(np.mean(dph_c ** 2))))
+    row["line_phase_rms_deg"] = float(np.degrees(np.sqrt(np.mean(dph**2))))
+    row["line_phase_rms_deg_centred"] = float(np.degrees(np.sqrt(np.mean(dph_c**2))))
     row["line_amp_rms_db"] = float(np.sqrt(np.mean(amp[loud] ** 2)))
-    row["line_amp_rms_db_all"] = float(np.sqrt(np.mean(amp ** 2)))
+    row["line_amp_rms_db_all"] = float(np.sqrt(np.mean(amp**2)))
     row["line_complex_error"] = float(np.abs(raw["line"][s] - ref[s]).max() / np.abs(ref[s]).max())
     return row
 
 
-def piston_sweep(cells_per_wavelength=(6, 8, 10, 14, 20, 28, 40), frequencies_hz=(50e3, 40e3), *,
-                 dtype: str = "float64", repeats: int = 1) -> dict:
+def piston_sweep(
+    cells_per_wavelength=(6, 8, 10, 14, 20, 28, 40),
+    frequencies_hz=(50e3, 40e3),
+    *,
+    dtype: str = "float64",
+    repeats: int = 1,
+) -> dict:
     """The piston case over a sweep of resolutions: the on-axis field at the first frequency, the
     lobe and the scan line at each."""
     rows = []
@@ -831,8 +1060,11 @@ def piston_sweep(cells_per_wavelength=(6, 8, 10, 14, 20, 28, 40), frequencies_hz
             row["dtype"] = dtype
             rows.append(row)
             show(row)
-    return {"case": f"baffled circular piston, {2e3 * PISTON_RADIUS_M:.1f} mm, continuous wave, rz lattice; references: "
-                    "exact on-axis field, 2 J1(x)/x, Rayleigh integral at z = 16.5 mm", "rows": rows}
+    return {
+        "case": f"baffled circular piston, {2e3 * PISTON_RADIUS_M:.1f} mm, continuous wave, rz lattice; references: "
+        "exact on-axis field, 2 J1(x)/x, Rayleigh integral at z = 16.5 mm",
+        "rows": rows,
+    }
 
 
 def write_piston(results: dict, out_dir: str | Path) -> None:
@@ -844,17 +1076,28 @@ def write_piston(results: dict, out_dir: str | Path) -> None:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "accuracy_piston.json").write_text(json.dumps(results, indent=2))
-    keys = [("axis_rms_error", "on-axis RMS error (re 2ρcU)"), ("null_error_deg", "|first-null error| (deg)"),
-            ("sidelobe_error_db", "|side-lobe error| (dB)"), ("line_phase_rms_deg", "line phase RMS (deg)")]
+    keys = [
+        ("axis_rms_error", "on-axis RMS error (re 2ρcU)"),
+        ("null_error_deg", "|first-null error| (deg)"),
+        ("sidelobe_error_db", "|side-lobe error| (dB)"),
+        ("line_phase_rms_deg", "line phase RMS (deg)"),
+    ]
     fig, axes = plt.subplots(1, 4, figsize=(18, 4.2))
     for ax, (k, lab) in zip(axes, keys):
         for f, style in ((50.0, "-o"), (40.0, "--s")):
             rs = [r for r in results["rows"] if r["frequency_khz"] == f and r.get(k) is not None]
             if rs:
-                ax.loglog([r["wall_time_s"] for r in rs], [max(abs(r[k]), 1e-6) for r in rs], style, label=f"{f:g} kHz", ms=4)
+                ax.loglog(
+                    [r["wall_time_s"] for r in rs], [max(abs(r[k]), 1e-6) for r in rs], style, label=f"{f:g} kHz", ms=4
+                )
                 for r in rs:
-                    ax.annotate(f"{r['cells_per_wavelength']:g}", (r["wall_time_s"], max(abs(r[k]), 1e-6)),
-                                textcoords="offset points", xytext=(4, 4), fontsize=7)
+                    ax.annotate(
+                        f"{r['cells_per_wavelength']:g}",
+                        (r["wall_time_s"], max(abs(r[k]), 1e-6)),
+                        textcoords="offset points",
+                        xytext=(4, 4),
+                        fontsize=7,
+                    )
         ax.set_xlabel("wall time (s)")
         ax.set_ylabel(lab)
         ax.grid(True, which="both", alpha=0.3)
@@ -863,14 +1106,18 @@ def write_piston(results: dict, out_dir: str | Path) -> None:
     fig.tight_layout()
     plots.save(fig, out / "accuracy_piston.png")
     fmt = lambda v, f: "—" if v is None else format(v, f)
-    lines = ["| cells/λ | kHz | grid | steps | time (s) | axis RMS (re 2ρcU) | axis RMS, lattice k | extrema (cells) "
-             "| extrema, lattice k | null (deg) | side lobe (dB) | line phase RMS (deg) | centred | line amp RMS (dB) | all points |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "| cells/λ | kHz | grid | steps | time (s) | axis RMS (re 2ρcU) | axis RMS, lattice k | extrema (cells) "
+        "| extrema, lattice k | null (deg) | side lobe (dB) | line phase RMS (deg) | centred | line amp RMS (dB) | all points |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in results["rows"]:
-        lines.append(f"| {r['cells_per_wavelength']:g} | {r['frequency_khz']:g} | {r['grid_shape'][0]} x {r['grid_shape'][1]} "
-                     f"| {r['n_steps']} | {r['wall_time_s']:.2f} | {fmt(r.get('axis_rms_error'), '.4f')} "
-                     f"| {fmt(r.get('axis_rms_error_lattice_k'), '.4f')} | {fmt(r.get('axis_extrema_error_cells'), '.2f')} "
-                     f"| {fmt(r.get('axis_extrema_error_cells_lattice_k'), '.2f')} | {r['null_error_deg']:+.4f} "
-                     f"| {r['sidelobe_error_db']:+.3f} | {r['line_phase_rms_deg']:.2f} | {r['line_phase_rms_deg_centred']:.2f} "
-                     f"| {r['line_amp_rms_db']:.3f} | {r['line_amp_rms_db_all']:.3f} |")
+        lines.append(
+            f"| {r['cells_per_wavelength']:g} | {r['frequency_khz']:g} | {r['grid_shape'][0]} x {r['grid_shape'][1]} "
+            f"| {r['n_steps']} | {r['wall_time_s']:.2f} | {fmt(r.get('axis_rms_error'), '.4f')} "
+            f"| {fmt(r.get('axis_rms_error_lattice_k'), '.4f')} | {fmt(r.get('axis_extrema_error_cells'), '.2f')} "
+            f"| {fmt(r.get('axis_extrema_error_cells_lattice_k'), '.2f')} | {r['null_error_deg']:+.4f} "
+            f"| {r['sidelobe_error_db']:+.3f} | {r['line_phase_rms_deg']:.2f} | {r['line_phase_rms_deg_centred']:.2f} "
+            f"| {r['line_amp_rms_db']:.3f} | {r['line_amp_rms_db_all']:.3f} |"
+        )
     (out / "accuracy_piston_table.md").write_text("\n".join(lines) + "\n")

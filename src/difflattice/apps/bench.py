@@ -71,8 +71,7 @@ def scene(case: Case):
     from ..solver.sources import ToneBurst, line_transducer
 
     nx, ny = case.nx, case.ny
-    g = make_grid(frequency_hz=50e3, cells_per_wavelength=20, c_max_m_s=343.0, shape=(nx, ny),
-                  dtype=case.dtype)  # type: ignore[arg-type]
+    g = make_grid(frequency_hz=50e3, cells_per_wavelength=20, c_max_m_s=343.0, shape=(nx, ny), dtype=case.dtype)  # type: ignore[arg-type]
     src = line_transducer(g, (40 * g.dx_m, ny / 2 * g.dx_m), n_cells=104, signal=ToneBurst(50e3, 5))
     if case.name == "homogeneous":
         return g, Medium(343.0, 1.2), src, Sensors(), Edges.all("rigid")
@@ -108,8 +107,13 @@ def time_case(case: Case, impl: str, repeats: int = INNER_REPEATS) -> dict:
         jax.block_until_ready(f(stepper))
         times.append(time.perf_counter() - t0)
     t = statistics.median(times)
-    return {"time_s": t, "times_s": times, "compile_s": compile_s, "device": jax.devices()[0].platform,
-            "mlups": case.nx * case.ny * case.steps / t / 1e6}
+    return {
+        "time_s": t,
+        "times_s": times,
+        "compile_s": compile_s,
+        "device": jax.devices()[0].platform,
+        "mlups": case.nx * case.ny * case.steps / t / 1e6,
+    }
 
 
 # ------------------------------------------------------------------------------------------
@@ -124,8 +128,20 @@ def _child(case: Case, impl: str) -> dict:
         script = reference_script()
         kernel = {"numba-1thread": "numba_serial", "numba": "numba_parallel", "numpy": "numpy_inplace"}[impl]
         threads = 1 if impl == "numba-1thread" else _cpus()
-        cmd = [sys.executable, str(script), "--kernel", kernel, "--size", f"{case.nx}x{case.ny}x{case.steps}",
-               "--dtypes", case.dtype, "--threads", str(threads), "--repeats", str(INNER_REPEATS)]
+        cmd = [
+            sys.executable,
+            str(script),
+            "--kernel",
+            kernel,
+            "--size",
+            f"{case.nx}x{case.ny}x{case.steps}",
+            "--dtypes",
+            case.dtype,
+            "--threads",
+            str(threads),
+            "--repeats",
+            str(INNER_REPEATS),
+        ]
     r = subprocess.run(cmd, capture_output=True, text=True)
     if r.returncode != 0:
         return {"error": (r.stderr or r.stdout)[-500:], "load_avg": load}
@@ -144,8 +160,16 @@ def _cpus() -> int:
         return os.cpu_count() or 1
 
 
-def bench(*, reference: bool = False, rounds: int = 2, force: bool = False, quick: bool = False, cases=None,
-          impls=None, emit=print) -> dict:
+def bench(
+    *,
+    reference: bool = False,
+    rounds: int = 2,
+    force: bool = False,
+    quick: bool = False,
+    cases=None,
+    impls=None,
+    emit=print,
+) -> dict:
     """Run the benchmark; `emit` receives one JSON line per (case, implementation) and per ratio.
     `quick`: a tenth of the steps.
     Returns everything (machine, rows, ratios). Raises RuntimeError on a loaded machine unless
@@ -155,8 +179,10 @@ def bench(*, reference: bool = False, rounds: int = 2, force: bool = False, quic
     load0 = os.getloadavg()[0]
     provisional = load0 > MAX_LOAD
     if provisional and not force:
-        raise RuntimeError(f"1-minute load average {load0:.2f} > {MAX_LOAD}: the machine is busy and timings would "
-                           "not be comparable; wait for a quiet machine or pass --force (results marked provisional)")
+        raise RuntimeError(
+            f"1-minute load average {load0:.2f} > {MAX_LOAD}: the machine is busy and timings would "
+            "not be comparable; wait for a quiet machine or pass --force (results marked provisional)"
+        )
     gpu = jax.default_backend() != "cpu"
     cases = list(cases or (GPU_CASES + CPU_CASES[:1] if gpu else CPU_CASES))
     if quick:  # a tenth of the steps (a check that everything runs, not a measurement)
@@ -176,12 +202,19 @@ def bench(*, reference: bool = False, rounds: int = 2, force: bool = False, quic
     rows = []
     for (case, impl), runs in samples.items():
         ok = [r for r in runs if "mlups" in r]
-        row = {"impl": impl, "case": case.name, "grid": case.grid, "steps": case.steps, "dtype": case.dtype,
-               "mlups": statistics.median(r["mlups"] for r in ok) if ok else None,
-               "mlups_per_round": [round(r["mlups"], 1) for r in ok],
-               "load_avg": [round(r["load_avg"], 2) for r in runs],
-               "threads": 1 if impl in ("native-1thread", "numba-1thread", "numpy") else _cpus(),
-               "device": ok[0]["device"] if ok else None, "provisional": provisional}
+        row = {
+            "impl": impl,
+            "case": case.name,
+            "grid": case.grid,
+            "steps": case.steps,
+            "dtype": case.dtype,
+            "mlups": statistics.median(r["mlups"] for r in ok) if ok else None,
+            "mlups_per_round": [round(r["mlups"], 1) for r in ok],
+            "load_avg": [round(r["load_avg"], 2) for r in runs],
+            "threads": 1 if impl in ("native-1thread", "numba-1thread", "numpy") else _cpus(),
+            "device": ok[0]["device"] if ok else None,
+            "provisional": provisional,
+        }
         if len(ok) < len(runs):
             row["error"] = next(r["error"] for r in runs if "error" in r)
         rows.append(row)
@@ -189,24 +222,46 @@ def bench(*, reference: bool = False, rounds: int = 2, force: bool = False, quic
     ratios = _ratios(rows)
     for r in ratios:
         emit(json.dumps(r))
-    return {"date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "machine": platform.machine(),
-            "processor": _processor(), "cpus": _cpus(), "jax": jax.__version__, "load_avg_at_start": load0,
-            "load_avg_at_end": os.getloadavg()[0], "rounds": rounds, "inner_repeats": INNER_REPEATS,
-            "provisional": provisional, "rows": rows, "ratios": ratios}
+    return {
+        "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "machine": platform.machine(),
+        "processor": _processor(),
+        "cpus": _cpus(),
+        "jax": jax.__version__,
+        "load_avg_at_start": load0,
+        "load_avg_at_end": os.getloadavg()[0],
+        "rounds": rounds,
+        "inner_repeats": INNER_REPEATS,
+        "provisional": provisional,
+        "rows": rows,
+        "ratios": ratios,
+    }
 
 
 def _ratios(rows) -> list[dict]:
     by = {(r["case"], r["grid"], r["impl"]): r["mlups"] for r in rows if r["mlups"]}
     out = []
-    pairs = [("native", "numba-1thread"), ("native-1thread", "numba-1thread"), ("native", "numba"),
-             ("native", "jax"), ("native", "numpy")]
+    pairs = [
+        ("native", "numba-1thread"),
+        ("native-1thread", "numba-1thread"),
+        ("native", "numba"),
+        ("native", "jax"),
+        ("native", "numpy"),
+    ]
     for (case, grid, impl), v in by.items():
         for a, b in pairs:
             if impl == a and (case, grid, b) in by and case == "homogeneous":
-                out.append({"ratio": f"{a}/{b}", "case": case, "grid": grid, "value": round(v / by[(case, grid, b)], 3)})
+                out.append(
+                    {"ratio": f"{a}/{b}", "case": case, "grid": grid, "value": round(v / by[(case, grid, b)], 3)}
+                )
         if case == "full" and ("homogeneous", grid, impl) in by:
-            out.append({"ratio": f"full/homogeneous ({impl})", "grid": grid,
-                        "value": round(v / by[("homogeneous", grid, impl)], 3)})
+            out.append(
+                {
+                    "ratio": f"full/homogeneous ({impl})",
+                    "grid": grid,
+                    "value": round(v / by[("homogeneous", grid, impl)], 3),
+                }
+            )
     return out
 
 
@@ -222,15 +277,21 @@ def _processor() -> str:
 
 def markdown(result: dict) -> str:
     """The benchmark as a Markdown table (docs/performance.md)."""
-    lines = [f"{result['date_utc']}, {result['processor']} ({result['cpus']} CPUs), JAX {result['jax']}; "
-             f"load average {result['load_avg_at_start']:.2f} at the start, {result['load_avg_at_end']:.2f} at the end"
-             + (" (**provisional**: the machine was not quiet)" if result["provisional"] else "") + ".",
-             "", "| case | grid x steps | impl | threads | MLUPS (median) | per round | load avg |",
-             "|---|---|---|---|---|---|---|"]
+    lines = [
+        f"{result['date_utc']}, {result['processor']} ({result['cpus']} CPUs), JAX {result['jax']}; "
+        f"load average {result['load_avg_at_start']:.2f} at the start, {result['load_avg_at_end']:.2f} at the end"
+        + (" (**provisional**: the machine was not quiet)" if result["provisional"] else "")
+        + ".",
+        "",
+        "| case | grid x steps | impl | threads | MLUPS (median) | per round | load avg |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for r in result["rows"]:
         m = "error" if r["mlups"] is None else f"{r['mlups']:.0f}"
-        lines.append(f"| {r['case']} | {r['grid']} x {r['steps']} | {r['impl']} | {r['threads']} | {m} | "
-                     f"{', '.join(f'{x:.0f}' for x in r['mlups_per_round'])} | {', '.join(map(str, r['load_avg']))} |")
+        lines.append(
+            f"| {r['case']} | {r['grid']} x {r['steps']} | {r['impl']} | {r['threads']} | {m} | "
+            f"{', '.join(f'{x:.0f}' for x in r['mlups_per_round'])} | {', '.join(map(str, r['load_avg']))} |"
+        )
     if result["ratios"]:
         lines += ["", "| ratio | grid | value |", "|---|---|---|"]
         lines += [f"| {r['ratio']} | {r['grid']} | {r['value']:.2f} |" for r in result["ratios"]]

@@ -31,6 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
+
 def _default_scenes_dir() -> Path:
     """The repository's data/scenes when running from a checkout, else the copy installed with
     the package (difflattice/scenes: in the repository a symlink to data/scenes, packaged as
@@ -48,22 +49,27 @@ DEFAULT_SCENES_DIR = _default_scenes_dir()
 COMPARISONS: dict[str, dict] = {
     "fig04": {
         "scenes": ("fig04a_wall_speed_zero", "fig04b_wall_rigid"),
-        "kind": "probe", "start_step": 0,
+        "kind": "probe",
+        "start_step": 0,
         "title": "Fig. 4: echo on the reflected path (speed zero: phase reversed; rigid: not)",
     },
     "fig07": {
         "scenes": ("fig07a_convex_edge_sharp", "fig07b_convex_edge_rounded"),
-        "kind": "probe", "start_step": 1000,
+        "kind": "probe",
+        "start_step": 1000,
         "title": "Fig. 7: echo back at the transducer (sharp vs rounded edge)",
     },
     "fig08": {
         "scenes": ("fig08_stepped_wall",),
-        "kind": "probe", "start_step": 1000,
+        "kind": "probe",
+        "start_step": 1000,
         "title": "Fig. 8: the two echoes of the stepped wall at the transducer",
     },
     "fig09": {
         "scenes": ("fig09_cone_horn", "fig09_no_horn"),
-        "kind": "beam", "radius_m": 0.2, "angles_deg": (-30.0, 30.0, 0.5),
+        "kind": "beam",
+        "radius_m": 0.2,
+        "angles_deg": (-30.0, 30.0, 0.5),
         "title": "Fig. 9: beam 200 mm from the face, with and without the 5-degree horn",
     },
 }
@@ -280,9 +286,12 @@ def write_wavefront(sr, path: Path) -> Path | None:
     along = along / max(np.hypot(*along), 1e-12)
     centre = c.mean(0)
     lateral = ((probes - centre) @ along) * g.dx_m
-    fig = plots.wavefront_plot(lateral, {"model (first arrival above threshold)": (lag_mm, "o-")},
-                               ylabel="front behind its leading point (mm)",
-                               title="wavefront along the probe line")
+    fig = plots.wavefront_plot(
+        lateral,
+        {"model (first arrival above threshold)": (lag_mm, "o-")},
+        ylabel="front behind its leading point (mm)",
+        title="wavefront along the probe line",
+    )
     ax = fig.axes[0]
     ax.invert_yaxis()
     return plots.save(fig, path)
@@ -362,8 +371,9 @@ def _select(files: list[Path], names) -> list[Path]:
     return sorted(chosen)
 
 
-def render_scene(path: str | Path, out_dir: str | Path, *, scale: float = 1.0, progress: bool = True,
-                 animate: bool | None = None) -> dict:
+def render_scene(
+    path: str | Path, out_dir: str | Path, *, scale: float = 1.0, progress: bool = True, animate: bool | None = None
+) -> dict:
     """Render one scene file into ``out_dir`` (its own folder); returns its gallery entry with
     file paths relative to ``out_dir``'s parent."""
     from ..lattice.medium import ResolutionWarning
@@ -381,8 +391,12 @@ def render_scene(path: str | Path, out_dir: str | Path, *, scale: float = 1.0, p
     wanted = sorted(sr.moments) or [sr.summary["run"]["n_steps"]]
     quick = scale < 1
     # a quick look writes no per-snapshot frames (PNG frames dominate the time at small scales)
-    files = write_outputs(sr, out, frames=False if quick else None,
-                          animation=("none" if quick else None) if animate is None else (None if animate else "none"))
+    files = write_outputs(
+        sr,
+        out,
+        frames=False if quick else None,
+        animation=("none" if quick else None) if animate is None else (None if animate else "none"),
+    )
     desc = describe_scene(path)
     short = desc["title"].split(":")[0] if ":" in desc["title"] else ""
     label = f"{short}: {name}" if short else name
@@ -395,6 +409,7 @@ def render_scene(path: str | Path, out_dir: str | Path, *, scale: float = 1.0, p
     frames = _pick_frames(sr, wanted)
     s = sr.summary
     root = out.parent
+
     def _rel(v):
         if isinstance(v, list):
             return [_rel(x) for x in v]
@@ -423,8 +438,9 @@ def render_scene(path: str | Path, out_dir: str | Path, *, scale: float = 1.0, p
     return entry
 
 
-def render_gallery(out_dir, *, scale: float = 1.0, names=None, progress: bool = True,
-                   scenes_dir: str | Path | None = None) -> list[dict]:
+def render_gallery(
+    out_dir, *, scale: float = 1.0, names=None, progress: bool = True, scenes_dir: str | Path | None = None
+) -> list[dict]:
     """Render the paper's gallery (see the module docstring); returns one entry per scene."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -437,8 +453,11 @@ def render_gallery(out_dir, *, scale: float = 1.0, names=None, progress: bool = 
         e = render_scene(f, out / f.stem, scale=scale, progress=progress)
         entries.append(e)
         if progress:
-            print(f"    {e['n_steps']} steps on {e['grid_shape'][0]} x {e['grid_shape'][1]} cells: "
-                  f"{e['render_wall_time_s']:.1f} s", flush=True)
+            print(
+                f"    {e['n_steps']} steps on {e['grid_shape'][0]} x {e['grid_shape'][1]} cells: "
+                f"{e['render_wall_time_s']:.1f} s",
+                flush=True,
+            )
     comparisons = {}
     for key, spec in COMPARISONS.items():
         p = write_comparison(out, key, spec, scale)
@@ -465,7 +484,7 @@ def index_markdown(entries: list[dict], comparisons: dict, scale: float) -> str:
         "# Gallery: the figures of McKerrow, Zhu & New (2001)",
         "",
         f"Rendered by `difflattice gallery --scale {scale:g}` from `data/scenes/fig*.toml` "
-        f"({cpw:g} cells per wavelength{'' if scale == 1 else f'; the paper used 20, so this is a coarser look'}). "
+        f"({cpw:g} cells per wavelength{'' if scale == 1 else '; the paper used 20, so this is a coarser look'}). "
         "Each image shows the pressure field (white +, black -, every few cells rendered as in the paper), "
         "obstacle outlines in orange, transducer cells in red, probes as cyan crosses.",
         "",
@@ -478,10 +497,14 @@ def index_markdown(entries: list[dict], comparisons: dict, scale: float) -> str:
         if e["paper"]:
             lines += [e["paper"], ""]
         if e["scene"]:
-            lines += [f"*Scene:* {e['scene'][len('Here: '):]}", ""]
+            lines += [f"*Scene:* {e['scene'][len('Here: ') :]}", ""]
         f = e["files"]
         lines += [f"![{e['name']}]({f['figure']})", ""]
-        extra = [f"[{k}]({v})" for k, v in f.items() if k in ("field", "peak_level", "lobe", "probes", "wavefront", "animation", "summary")]
+        extra = [
+            f"[{k}]({v})"
+            for k, v in f.items()
+            if k in ("field", "peak_level", "lobe", "probes", "wavefront", "animation", "summary")
+        ]
         lines += [
             f"{e['grid_shape'][0]} x {e['grid_shape'][1]} cells, {e['n_steps']} steps "
             f"(shown: {', '.join(str(s) for s in e['shown_steps'])}), "

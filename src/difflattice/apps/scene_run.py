@@ -14,16 +14,15 @@ from pathlib import Path
 
 import equinox as eqx
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from .. import __version__
+from ..lattice.grid import Grid
 from ..observe.analytic import phase_error_rad
 from ..observe.farfield import far_field, level_db
 from ..observe.observables import lobe_metrics
 from ..scene.model import Scene
 from ..solver.loop import INSTABILITY_MESSAGE, Result, run
-from ..lattice.grid import Grid
 from ..solver.stepper import Stepper
 
 
@@ -57,8 +56,16 @@ def _piece_ends(n_steps: int, seg: int, snapshot_every: int | None, moments) -> 
     return sorted(e for e in ends if 1 <= e <= n_steps)
 
 
-def run_in_pieces(stepper: Stepper, n_steps: int, *, segments: int = 20, progress: bool = True, checkpoint=None,
-                moments=(), render_every: int = 1):
+def run_in_pieces(
+    stepper: Stepper,
+    n_steps: int,
+    *,
+    segments: int = 20,
+    progress: bool = True,
+    checkpoint=None,
+    moments=(),
+    render_every: int = 1,
+):
     """Run in `segments` compiled pieces so a progress bar can update between them (the kernel
     itself is untouched). Pieces also end at each step of `moments`, whose full-resolution fields
     are kept. Snapshots are thinned to every `render_every`-th cell as they arrive.
@@ -130,7 +137,8 @@ def run_scene(scene: Scene, *, progress: bool = True) -> SceneRun:
     t0 = time.perf_counter()
     every = built.render_every
     result, snaps, snap_steps, first, moments = run_in_pieces(
-        stepper, n_steps, progress=progress, checkpoint=checkpoint, moments=built.show_steps, render_every=every)
+        stepper, n_steps, progress=progress, checkpoint=checkpoint, moments=built.show_steps, render_every=every
+    )
     wall = time.perf_counter() - t0
     nx, ny = grid.shape
     dist_cells = min(grid.courant * n_steps, math.hypot(nx, ny))
@@ -140,19 +148,32 @@ def run_scene(scene: Scene, *, progress: bool = True) -> SceneRun:
         "difflattice_version": __version__,
         "scene": scene.path,
         "grid": {
-            "shape": list(grid.shape), "dx_m": grid.dx_m, "dt_s": grid.dt_s,
-            "kind": grid.kind, "size_m": list(grid.size_m), "frequency_hz": grid.frequency_hz,
-            "cells_per_wavelength": grid.cells_per_wavelength, "courant": grid.courant,
-            "steps_per_period": grid.steps_per_period, "dtype": grid.dtype,
+            "shape": list(grid.shape),
+            "dx_m": grid.dx_m,
+            "dt_s": grid.dt_s,
+            "kind": grid.kind,
+            "size_m": list(grid.size_m),
+            "frequency_hz": grid.frequency_hz,
+            "cells_per_wavelength": grid.cells_per_wavelength,
+            "courant": grid.courant,
+            "steps_per_period": grid.steps_per_period,
+            "dtype": grid.dtype,
         },
-        "medium": {"boundary_model": medium.boundary_model, "homogeneous": medium.is_homogeneous,
-                   "absorption_db_per_m": medium.absorption_db_per_m},
-        "edges": {s: getattr(edges, s) for s in ("x_lo", "x_hi", "y_lo", "y_hi")} | {"thickness_cells": edges.thickness_cells},
+        "medium": {
+            "boundary_model": medium.boundary_model,
+            "homogeneous": medium.is_homogeneous,
+            "absorption_db_per_m": medium.absorption_db_per_m,
+        },
+        "edges": {s: getattr(edges, s) for s in ("x_lo", "x_hi", "y_lo", "y_hi")}
+        | {"thickness_cells": edges.thickness_cells},
         "run": {
-            "n_steps": n_steps, "duration_s": n_steps * grid.dt_s, "wall_time_s": wall,
+            "n_steps": n_steps,
+            "duration_s": n_steps * grid.dt_s,
+            "wall_time_s": wall,
             "first_segment_incl_compile_s": first,
             "mlups": nx * ny * n_steps / wall / 1e6,
-            "device": str(jax.devices()[0]), "machine": platform.machine(),
+            "device": str(jax.devices()[0]),
+            "machine": platform.machine(),
         },
         "stability": {
             "finite": bool(np.all(np.isfinite(result.peak_history))),
@@ -165,8 +186,8 @@ def run_scene(scene: Scene, *, progress: bool = True) -> SceneRun:
             "expected_phase_error_rad": perr,
             "expected_phase_error_periods": perr / (2 * math.pi),
             "note": "worst direction, from the discrete dispersion relation; above ~0.05 periods "
-                    "arrival times and interference patterns at that distance are not trustworthy: "
-                    "raise cells_per_wavelength",
+            "arrival times and interference patterns at that distance are not trustworthy: "
+            "raise cells_per_wavelength",
         },
     }
     lobe = None
@@ -176,8 +197,14 @@ def run_scene(scene: Scene, *, progress: bool = True) -> SceneRun:
         a0, a1, da = ff["angles_deg"]
         angles = np.arange(a0, a1 + da / 2, da)
         if grid.kind == "rz":
-            p = _lobe_rz(result.phasors, contour, grid, angles, ff["range_m"],
-                         scene.transducers[built.farfield_source]["centre_m"][0])
+            p = _lobe_rz(
+                result.phasors,
+                contour,
+                grid,
+                angles,
+                ff["range_m"],
+                scene.transducers[built.farfield_source]["centre_m"][0],
+            )
         else:
             src = sources[built.farfield_source]
             centre = tuple(src.cells_array.mean(0))
@@ -185,8 +212,11 @@ def run_scene(scene: Scene, *, progress: bool = True) -> SceneRun:
         lv = np.asarray(level_db(p, floor_db=-100))
         lobe = (angles, lv)
         summary["farfield"] = {"range_m": ff["range_m"], **lobe_metrics(angles, lv)}
-    summary["output"] = {"render_every_cells": every, "pixels_per_wavelength": grid.cells_per_wavelength / every,
-                         "show_steps": sorted(moments)}
+    summary["output"] = {
+        "render_every_cells": every,
+        "pixels_per_wavelength": grid.cells_per_wavelength / every,
+        "show_steps": sorted(moments),
+    }
     return SceneRun(scene, grid, stepper, result, summary, lobe, snaps, snap_steps, moments, every)
 
 
@@ -208,8 +238,9 @@ def _mirror_rz(field):
     return np.concatenate([f[:, ::-1], f], axis=1)
 
 
-def write_outputs(sr: SceneRun, out_dir: str | Path, *, animate: bool = True, frames: bool | None = None,
-                  animation: str | None = None) -> dict:
+def write_outputs(
+    sr: SceneRun, out_dir: str | Path, *, animate: bool = True, frames: bool | None = None, animation: str | None = None
+) -> dict:
     """Write summary.json, sensors.npz and images into `out_dir`; returns the paths.
 
     Images: field.png (last step), moment_<step>.png per `[output]` show step, peak_level.png,
@@ -259,19 +290,24 @@ def write_outputs(sr: SceneRun, out_dir: str | Path, *, animate: bool = True, fr
         nr = g.shape[1]
         obst = None if obst is None else _mirror_rz(obst)
         src_cells = [np.concatenate([c[:, :1], nr + c[:, 1:]], axis=1) for c in src_cells] + [
-            np.concatenate([c[:, :1], nr - 1 - c[:, 1:]], axis=1) for c in src_cells]
+            np.concatenate([c[:, :1], nr - 1 - c[:, 1:]], axis=1) for c in src_cells
+        ]
     n_steps = sr.summary["run"]["n_steps"]
-    fig = plots.field_image(view(res.final.pressure), g.dx_m, every=every, step=n_steps, dt_s=g.dt_s,
-                            obstacles=obst, sources=src_cells)
+    fig = plots.field_image(
+        view(res.final.pressure), g.dx_m, every=every, step=n_steps, dt_s=g.dt_s, obstacles=obst, sources=src_cells
+    )
     files["field"] = str(plots.save(fig, out / "field.png"))
     if sr.moments:
         files["moments"] = []
         for step, f in sorted(sr.moments.items()):
-            fig = plots.field_image(view(f), g.dx_m, every=every, step=step, dt_s=g.dt_s, obstacles=obst,
-                                    sources=src_cells)
+            fig = plots.field_image(
+                view(f), g.dx_m, every=every, step=step, dt_s=g.dt_s, obstacles=obst, sources=src_cells
+            )
             files["moments"].append(str(plots.save(fig, out / f"moment_{step:06d}.png")))
     if res.p_max is not None:
-        files["peak_level"] = str(plots.save(plots.level_image(view(res.p_max), g.dx_m, sources=src_cells), out / "peak_level.png"))
+        files["peak_level"] = str(
+            plots.save(plots.level_image(view(res.p_max), g.dx_m, sources=src_cells), out / "peak_level.png")
+        )
     if sr.lobe is not None:
         a, lv = sr.lobe
         files["lobe"] = str(plots.save(plots.lobe_plots(a, {"model": lv}), out / "lobe.png"))
@@ -283,13 +319,27 @@ def write_outputs(sr: SceneRun, out_dir: str | Path, *, animate: bool = True, fr
         # snapshots are already thinned to every `every`-th cell: draw each as one pixel per sample
         if frames:
             for k, (f, s) in enumerate(zip(sr.snapshots, sr.snapshot_steps)):
-                plots.save(plots.field_image(view(f), g.dx_m, every=1, step=s, dt_s=g.dt_s, obstacles=obst,
-                                             sources=src_cells, size_m=size_m), out / "frames" / f"frame_{k:04d}.png")
+                plots.save(
+                    plots.field_image(
+                        view(f), g.dx_m, every=1, step=s, dt_s=g.dt_s, obstacles=obst, sources=src_cells, size_m=size_m
+                    ),
+                    out / "frames" / f"frame_{k:04d}.png",
+                )
             files["frames"] = str(out / "frames")
         if animation != "none":
-            files["animation"] = str(plots.animate([view(f) for f in sr.snapshots], sr.snapshot_steps, g.dx_m,
-                                                   g.dt_s, out / f"animation.{animation}", every=1, obstacles=obst,
-                                                   sources=src_cells, size_m=size_m))
+            files["animation"] = str(
+                plots.animate(
+                    [view(f) for f in sr.snapshots],
+                    sr.snapshot_steps,
+                    g.dx_m,
+                    g.dt_s,
+                    out / f"animation.{animation}",
+                    every=1,
+                    obstacles=obst,
+                    sources=src_cells,
+                    size_m=size_m,
+                )
+            )
     sr.summary["files"] = files
     (out / "summary.json").write_text(json.dumps(sr.summary, indent=2, default=_json_default))
     files["summary"] = str(out / "summary.json")

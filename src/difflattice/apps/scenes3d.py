@@ -57,13 +57,20 @@ class Scene3D:
 
 def _transducer(grid: Grid, centre_cells, diameter_m: float, cycles: float, rings=None) -> PointSources:
     centre_m = tuple(float(c) * grid.dx_m for c in centre_cells)
-    return disc_transducer_3d(grid, centre_m, (1.0, 0.0, 0.0), diameter_m=diameter_m, rings=rings,
-                           signal=ToneBurst(grid.frequency_hz, cycles))
+    return disc_transducer_3d(
+        grid, centre_m, (1.0, 0.0, 0.0), diameter_m=diameter_m, rings=rings, signal=ToneBurst(grid.frequency_hz, cycles)
+    )
 
 
 def _grid(frequency_hz, cells_per_wavelength, shape, dtype) -> Grid:
-    return make_grid(frequency_hz=frequency_hz, cells_per_wavelength=cells_per_wavelength, c_max_m_s=AIR_M_S,
-                     shape=shape, kind="3d", dtype=dtype)
+    return make_grid(
+        frequency_hz=frequency_hz,
+        cells_per_wavelength=cells_per_wavelength,
+        c_max_m_s=AIR_M_S,
+        shape=shape,
+        kind="3d",
+        dtype=dtype,
+    )
 
 
 def _layout(dx_m, diameter_m, distance_m, pml, extra_x=0.0, lateral=None):
@@ -100,7 +107,11 @@ def wall_scene(
     a = 0.5 * diameter_m / dx
     d = distance_m / dx
     t = math.radians(angle_deg)
-    lat = (lateral_m / dx) if lateral_m is not None else 2 * (a + d * math.sin(t) + 0.6 * math.sqrt(d * cells_per_wavelength)) + 8
+    lat = (
+        (lateral_m / dx)
+        if lateral_m is not None
+        else 2 * (a + d * math.sin(t) + 0.6 * math.sqrt(d * cells_per_wavelength)) + 8
+    )
     shape, c, d = _layout(dx, diameter_m, distance_m, pml_cells, extra_x=0.5 * lat * math.tan(t), lateral=lat)
     grid = _grid(frequency_hz, cells_per_wavelength, shape, dtype)
     normal = (-math.cos(t), math.sin(t), 0.0)  # outward normal of the solid (pointing back at the transducer)
@@ -109,11 +120,27 @@ def wall_scene(
     occ = rasterise3d(wall, grid, rasterise)
     src = _transducer(grid, c, diameter_m, cycles, rings)
     n_steps = _steps(grid, 2 * d + 2 * a * math.sin(2 * t) + 4 * a * a / (4 * d), cycles)
-    return Scene3D(f"wall_{angle_deg:g}deg", grid, Medium(AIR_M_S, AIR_KG_M3, rigid=occ), src,
-                   Edges.all("pml", thickness_cells=pml_cells), n_steps, wall, c, (1.0, 0.0, 0.0),
-                   _gate(grid, 2 * (d - a * math.sin(t)) - 2 * a * math.tan(t), cycles, a),
-                   {"wall_point_cells": point, "wall_normal": normal, "angle_deg": angle_deg,
-                    "distance_cells": d, "radius_cells": a, "diameter_m": diameter_m, "rasterise": rasterise})
+    return Scene3D(
+        f"wall_{angle_deg:g}deg",
+        grid,
+        Medium(AIR_M_S, AIR_KG_M3, rigid=occ),
+        src,
+        Edges.all("pml", thickness_cells=pml_cells),
+        n_steps,
+        wall,
+        c,
+        (1.0, 0.0, 0.0),
+        _gate(grid, 2 * (d - a * math.sin(t)) - 2 * a * math.tan(t), cycles, a),
+        {
+            "wall_point_cells": point,
+            "wall_normal": normal,
+            "angle_deg": angle_deg,
+            "distance_cells": d,
+            "radius_cells": a,
+            "diameter_m": diameter_m,
+            "rasterise": rasterise,
+        },
+    )
 
 
 def corner_scene(
@@ -144,10 +171,19 @@ def corner_scene(
     occ = rasterise3d(corner, grid, "smooth")
     src = _transducer(grid, c, diameter_m, cycles)
     n_steps = _steps(grid, 2 * d + 2 * a, cycles)
-    return Scene3D("corner", grid, Medium(AIR_M_S, AIR_KG_M3, rigid=occ), src, Edges.all("pml", thickness_cells=pml_cells),
-                   n_steps, corner, c, (1.0, 0.0, 0.0), _gate(grid, math.sqrt(2) * d - 2 * a, cycles, a),
-                   {"apex_cells": (c[0] + d, c[1], c[2]), "distance_cells": d, "radius_cells": a,
-                    "diameter_m": diameter_m})
+    return Scene3D(
+        "corner",
+        grid,
+        Medium(AIR_M_S, AIR_KG_M3, rigid=occ),
+        src,
+        Edges.all("pml", thickness_cells=pml_cells),
+        n_steps,
+        corner,
+        c,
+        (1.0, 0.0, 0.0),
+        _gate(grid, math.sqrt(2) * d - 2 * a, cycles, a),
+        {"apex_cells": (c[0] + d, c[1], c[2]), "distance_cells": d, "radius_cells": a, "diameter_m": diameter_m},
+    )
 
 
 def post_scene(
@@ -175,10 +211,25 @@ def post_scene(
     occ = rasterise3d(post, grid, "smooth")
     src = _transducer(grid, c, diameter_m, cycles)
     n_steps = _steps(grid, 2 * d + 2 * a, cycles)
-    return Scene3D("post", grid, Medium(AIR_M_S, AIR_KG_M3, rigid=occ), src, Edges.all("pml", thickness_cells=pml_cells),
-                   n_steps, post, c, (1.0, 0.0, 0.0), _gate(grid, 2 * d - 2 * a, cycles, a),
-                   {"post_axis_cells": (c[0] + d + rp, c[1]), "post_radius_cells": rp, "distance_cells": d,
-                    "radius_cells": a, "diameter_m": diameter_m})
+    return Scene3D(
+        "post",
+        grid,
+        Medium(AIR_M_S, AIR_KG_M3, rigid=occ),
+        src,
+        Edges.all("pml", thickness_cells=pml_cells),
+        n_steps,
+        post,
+        c,
+        (1.0, 0.0, 0.0),
+        _gate(grid, 2 * d - 2 * a, cycles, a),
+        {
+            "post_axis_cells": (c[0] + d + rp, c[1]),
+            "post_radius_cells": rp,
+            "distance_cells": d,
+            "radius_cells": a,
+            "diameter_m": diameter_m,
+        },
+    )
 
 
 def _steps(grid: Grid, path_cells: float, cycles: float) -> int:
@@ -198,8 +249,15 @@ def pulse_echo(scene: Scene3D, *, preflight: Literal["print", "check", "off"] = 
     transducer's received signal over the whole run (use `scene.gate_start_step` to cut away the
     transmit). `preflight` (see `simulate`): "print" prints the memory and time estimate first,
     "check" only refuses a run that would not fit, "off" does neither."""
-    res = simulate(scene.grid, scene.medium, scene.source, scene.sensors, n_steps=scene.n_steps, edges=scene.edges,
-                   preflight=preflight)
+    res = simulate(
+        scene.grid,
+        scene.medium,
+        scene.source,
+        scene.sensors,
+        n_steps=scene.n_steps,
+        edges=scene.edges,
+        preflight=preflight,
+    )
     src = scene.source
     lags = src.lags_s if bool(jnp.any(src.lags_s != 0)) else None
     a_scan = received_signal(res.probes, src.weights, lags, scene.grid.dt_s)
@@ -218,9 +276,16 @@ def image_source_reference(scene: Scene3D, t_steps=None) -> np.ndarray:
     src = scene.source
     t = np.arange(1, scene.n_steps + 1) if t_steps is None else np.asarray(t_steps, float)
     sig = src.signal
-    return image_source_echo(src.cells_array.astype(float), np.asarray(src.weights), np.asarray(src.lags_s) / g.dt_s,
-                             scene.meta["wall_point_cells"], scene.meta["wall_normal"],
-                             lambda ts: np.asarray(sig(np.asarray(ts) * g.dt_s)), t, g.courant)
+    return image_source_echo(
+        src.cells_array.astype(float),
+        np.asarray(src.weights),
+        np.asarray(src.lags_s) / g.dt_s,
+        scene.meta["wall_point_cells"],
+        scene.meta["wall_normal"],
+        lambda ts: np.asarray(sig(np.asarray(ts) * g.dt_s)),
+        t,
+        g.courant,
+    )
 
 
 def echo_metrics(t_steps, a_scan, reference, omega: float, gate_start: int) -> dict:
@@ -233,8 +298,11 @@ def echo_metrics(t_steps, a_scan, reference, omega: float, gate_start: int) -> d
     ph = np.exp(1j * omega * t[m])
     E, R = np.sum(e * ph), np.sum(r * ph)
     dphi = float(np.angle(E / R))
-    return {"arrival_periods": dphi / (2 * math.pi), "level_db": 20 * math.log10(abs(E) / abs(R)),
-            "peak_db": 20 * math.log10(np.abs(_envelope(e)).max() / np.abs(_envelope(r)).max())}
+    return {
+        "arrival_periods": dphi / (2 * math.pi),
+        "level_db": 20 * math.log10(abs(E) / abs(R)),
+        "peak_db": 20 * math.log10(np.abs(_envelope(e)).max() / np.abs(_envelope(r)).max()),
+    }
 
 
 def _envelope(x):
@@ -283,7 +351,9 @@ def _shape_from_table(t: dict, where: str) -> Shape3D:
     if kind == "cylinder":
         return g3.Cylinder(arr("centre_m"), arr("axis"), arr("radius_m"), arr("length_m"))
     if kind == "box":
-        return g3.OrientedBox(arr("centre_m"), arr("size_m"), jnp.asarray(t.get("angles_deg", [0.0, 0.0, 0.0]), dtype=float))
+        return g3.OrientedBox(
+            arr("centre_m"), arr("size_m"), jnp.asarray(t.get("angles_deg", [0.0, 0.0, 0.0]), dtype=float)
+        )
     if kind in ("intersection", "union"):
         parts = tuple(_shape_from_table(p, f"{where}.parts[{i}]") for i, p in enumerate(t["parts"]))
         return g3.Intersection3D(parts) if kind == "intersection" else g3.Union3D(parts)
@@ -301,13 +371,20 @@ def _shape_to_table(s: Shape3D) -> dict:
     if isinstance(s, g3.Sphere):
         return {"shape": "sphere", "centre_m": f(s.centre_m), "radius_m": float(s.radius_m)}
     if isinstance(s, g3.Cylinder):
-        return {"shape": "cylinder", "centre_m": f(s.centre_m), "axis": f(s.axis), "radius_m": float(s.radius_m),
-                "length_m": float(s.length_m)}
+        return {
+            "shape": "cylinder",
+            "centre_m": f(s.centre_m),
+            "axis": f(s.axis),
+            "radius_m": float(s.radius_m),
+            "length_m": float(s.length_m),
+        }
     if isinstance(s, g3.OrientedBox):
         return {"shape": "box", "centre_m": f(s.centre_m), "size_m": f(s.size_m), "angles_deg": f(s.angles_deg)}
     if isinstance(s, (g3.Intersection3D, g3.Union3D)):
-        return {"shape": "intersection" if isinstance(s, g3.Intersection3D) else "union",
-                "parts": [_shape_to_table(p) for p in s.shapes]}
+        return {
+            "shape": "intersection" if isinstance(s, g3.Intersection3D) else "union",
+            "parts": [_shape_to_table(p) for p in s.shapes],
+        }
     if isinstance(s, g3.Difference3D):
         return {"shape": "difference", "base": _shape_to_table(s.base), "cut": _shape_to_table(s.cut)}
     raise ValueError(f"cannot write a {type(s).__name__} to a scene file")
@@ -341,22 +418,45 @@ def scene_to_toml(scene: Scene3D, comment: str = "") -> str:
     sig = src.signal
     lines = [f"# {line}" if line else "#" for line in comment.strip().splitlines()] if comment else []
     lines += [
-        "[grid]", 'kind = "3d"', f"frequency_hz = {g.frequency_hz!r}", f"cells_per_wavelength = {g.cells_per_wavelength!r}",
-        f"shape = {_toml_value(list(g.shape))}", f"courant = {g.courant!r}", f'dtype = "{g.dtype}"', "",
-        "[medium]", f"speed_m_s = {AIR_M_S!r}", f"density_kg_m3 = {AIR_KG_M3!r}", "",
-        "[edges]", 'kind = "pml"', f"thickness_cells = {scene.edges.thickness_cells}", "",
-        "[[transducers]]", 'name = "disc"', 'shape = "disc"',
+        "[grid]",
+        'kind = "3d"',
+        f"frequency_hz = {g.frequency_hz!r}",
+        f"cells_per_wavelength = {g.cells_per_wavelength!r}",
+        f"shape = {_toml_value(list(g.shape))}",
+        f"courant = {g.courant!r}",
+        f'dtype = "{g.dtype}"',
+        "",
+        "[medium]",
+        f"speed_m_s = {AIR_M_S!r}",
+        f"density_kg_m3 = {AIR_KG_M3!r}",
+        "",
+        "[edges]",
+        'kind = "pml"',
+        f"thickness_cells = {scene.edges.thickness_cells}",
+        "",
+        "[[transducers]]",
+        'name = "disc"',
+        'shape = "disc"',
         f"centre_m = {_toml_value([float(v) * g.dx_m for v in scene.transducer_centre_cells])}",
         f"axis = {_toml_value([float(v) for v in scene.transducer_axis])}",
-        f"diameter_m = {scene.meta['diameter_m']!r}", 'signal = "burst"', f"cycles = {float(sig.cycles)!r}",
-        "receive = true                  # the A-scan: the weighted sum over its cells (reciprocity)", "",
+        f"diameter_m = {scene.meta['diameter_m']!r}",
+        'signal = "burst"',
+        f"cycles = {float(sig.cycles)!r}",
+        "receive = true                  # the A-scan: the weighted sum over its cells (reciprocity)",
+        "",
     ]
     rast = scene.meta.get("rasterise", "smooth")
     lines += ["[[objects]]", 'material = "rigid"', f'rasterise = "{rast}"']
     for k, v in _shape_to_table(scene.obstacle).items():
         lines.append(f"{k} = {_toml_value(v)}")
-    lines += ["", "[run]", f"name = {json_str(scene.name)}", f"n_steps = {scene.n_steps}",
-              f"gate_start_step = {scene.gate_start_step}", ""]
+    lines += [
+        "",
+        "[run]",
+        f"name = {json_str(scene.name)}",
+        f"n_steps = {scene.n_steps}",
+        f"gate_start_step = {scene.gate_start_step}",
+        "",
+    ]
     return "\n".join(lines)
 
 
@@ -375,17 +475,29 @@ def load_scene3d(path) -> Scene3D:
     data = tomllib.loads(p.read_text())
     gsec = data.get("grid", {})
     if gsec.get("kind") != "3d":
-        raise ValueError(f"{p}: [grid] kind = {gsec.get('kind')!r}; this loader reads 3-D scenes (kind = \"3d\")")
-    grid = make_grid(frequency_hz=gsec["frequency_hz"], cells_per_wavelength=gsec["cells_per_wavelength"],
-                     c_max_m_s=data.get("medium", {}).get("speed_m_s", AIR_M_S), shape=tuple(gsec["shape"]), kind="3d",
-                     courant=gsec.get("courant"), dtype=gsec.get("dtype", "float32"))
+        raise ValueError(f'{p}: [grid] kind = {gsec.get("kind")!r}; this loader reads 3-D scenes (kind = "3d")')
+    grid = make_grid(
+        frequency_hz=gsec["frequency_hz"],
+        cells_per_wavelength=gsec["cells_per_wavelength"],
+        c_max_m_s=data.get("medium", {}).get("speed_m_s", AIR_M_S),
+        shape=tuple(gsec["shape"]),
+        kind="3d",
+        courant=gsec.get("courant"),
+        dtype=gsec.get("dtype", "float32"),
+    )
     med = data.get("medium", {})
     trs = data.get("transducers", [])
     if len(trs) != 1 or trs[0].get("shape") != "disc":
-        raise ValueError(f"{p}: give exactly one [[transducers]] with shape = \"disc\"")
+        raise ValueError(f'{p}: give exactly one [[transducers]] with shape = "disc"')
     tr = trs[0]
-    src = disc_transducer_3d(grid, tuple(tr["centre_m"]), tuple(tr["axis"]), diameter_m=tr.get("diameter_m"),
-                          rings=tr.get("rings"), signal=ToneBurst(grid.frequency_hz, float(tr.get("cycles", 5.0))))
+    src = disc_transducer_3d(
+        grid,
+        tuple(tr["centre_m"]),
+        tuple(tr["axis"]),
+        diameter_m=tr.get("diameter_m"),
+        rings=tr.get("rings"),
+        signal=ToneBurst(grid.frequency_hz, float(tr.get("cycles", 5.0))),
+    )
     occ = None
     shapes = []
     for i, o in enumerate(data.get("objects", [])):
@@ -395,11 +507,22 @@ def load_scene3d(path) -> Scene3D:
         shapes.append(s)
         o_occ = rasterise3d(s, grid, o.get("rasterise", "smooth"))
         occ = o_occ if occ is None else 1 - (1 - occ) * (1 - o_occ)
-    edges = Edges.all(data.get("edges", {}).get("kind", "pml"), thickness_cells=int(data.get("edges", {}).get("thickness_cells", 12)))
+    edges = Edges.all(
+        data.get("edges", {}).get("kind", "pml"), thickness_cells=int(data.get("edges", {}).get("thickness_cells", 12))
+    )
     run = data.get("run", {})
     centre_cells = tuple(float(v) / grid.dx_m for v in tr["centre_m"])
     obstacle = shapes[0] if len(shapes) == 1 else Union3D(tuple(shapes))
-    return Scene3D(run.get("name", p.stem), grid,
-                   Medium(med.get("speed_m_s", AIR_M_S), med.get("density_kg_m3", AIR_KG_M3), rigid=occ), src, edges,
-                   int(run["n_steps"]), obstacle, centre_cells, tuple(tr["axis"]), int(run.get("gate_start_step", 0)),
-                   {"diameter_m": tr.get("diameter_m"), "file": str(p)})
+    return Scene3D(
+        run.get("name", p.stem),
+        grid,
+        Medium(med.get("speed_m_s", AIR_M_S), med.get("density_kg_m3", AIR_KG_M3), rigid=occ),
+        src,
+        edges,
+        int(run["n_steps"]),
+        obstacle,
+        centre_cells,
+        tuple(tr["axis"]),
+        int(run.get("gate_start_step", 0)),
+        {"diameter_m": tr.get("diameter_m"), "file": str(p)},
+    )

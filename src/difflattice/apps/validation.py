@@ -12,15 +12,15 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
-from ..observe.analytic import lattice_wavenumber
-from ..lattice.grid import Grid, make_grid
-from ..lattice.coefficients import Edges
-from ..lattice.medium import Medium
-from ..solver.sensors import Sensors
-from ..solver.stepper import Stepper, State
-from ..solver.loop import run, simulate
-from ..solver.sources import PointSources, ToneBurst
 from ..air import SPEED_OF_SOUND_20C_M_S
+from ..lattice.coefficients import Edges
+from ..lattice.grid import make_grid
+from ..lattice.medium import Medium
+from ..observe.analytic import lattice_wavenumber
+from ..solver.loop import simulate
+from ..solver.sensors import Sensors
+from ..solver.sources import PointSources, ToneBurst
+from ..solver.stepper import Stepper
 
 
 def _dft(x, omega):
@@ -79,7 +79,13 @@ def plane_wave_rt(
         med = Medium(c.astype(grid.jnp_dtype), rho.astype(grid.jnp_dtype), boundary_model=model)
     else:
         occ = jnp.asarray((x > i0) * np.ones((nx, 1)), grid.jnp_dtype)
-        med = Medium(c1_m_s, rho1, rigid=occ if wall == "rigid" else None, soft=occ if wall == "soft" else None, boundary_model=model)
+        med = Medium(
+            c1_m_s,
+            rho1,
+            rigid=occ if wall == "rigid" else None,
+            soft=occ if wall == "soft" else None,
+            boundary_model=model,
+        )
     tot = simulate(grid, med, src, sens, n_steps=n_steps, edges=edges)
     w = grid.omega
     k1 = float(lattice_wavenumber(w, c1, 0.0))
@@ -115,10 +121,14 @@ def edge_reflection_db(
     n_steps = int((2 * d + (cycles + 2) * ppw) / 0.7) + 100
     out = []
     for nx in (x0 + d + L, x0 + 4 * far):
-        grid = make_grid(frequency_hz=50e3, cells_per_wavelength=ppw, c_max_m_s=SPEED_OF_SOUND_20C_M_S, shape=(nx, 1), dtype=dtype)
+        grid = make_grid(
+            frequency_hz=50e3, cells_per_wavelength=ppw, c_max_m_s=SPEED_OF_SOUND_20C_M_S, shape=(nx, 1), dtype=dtype
+        )
         src = PointSources(cells=[(x0, 0)], signal=ToneBurst(50e3, cycles), weights=jnp.ones(1), lags_s=jnp.zeros(1))
         e = Edges(x_lo="rigid", x_hi=kind, y_lo="rigid", y_hi="rigid", thickness_cells=L, **edge_kwargs)
-        r = simulate(grid, Medium(SPEED_OF_SOUND_20C_M_S, 1.2), src, Sensors(probes=[(x0 + d // 2, 0)]), n_steps=n_steps, edges=e)
+        r = simulate(
+            grid, Medium(SPEED_OF_SOUND_20C_M_S, 1.2), src, Sensors(probes=[(x0 + d // 2, 0)]), n_steps=n_steps, edges=e
+        )
         out.append(np.asarray(r.probes[:, 0]))
     p, pref = out
     return float(20 * np.log10(np.abs(p - pref).max() / np.abs(pref).max()))

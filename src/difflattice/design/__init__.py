@@ -15,6 +15,13 @@ from .problem import DesignProblem, horn_design, reflector_design
 from .shapes import HornLimits, HornParams, ReflectorLimits, ReflectorParams
 
 __all__ = [
-    "DesignProblem", "Goal", "HornLimits", "HornParams", "ReflectorLimits", "ReflectorParams",
-    "horn_design", "pattern_metrics", "reflector_design",
+    "DesignProblem",
+    "Goal",
+    "HornLimits",
+    "HornParams",
+    "ReflectorLimits",
+    "ReflectorParams",
+    "horn_design",
+    "pattern_metrics",
+    "reflector_design",
 ]

@@ -29,23 +29,54 @@ def scene_toml(problem: DesignProblem, params, *, title: str = "", snapshot_ever
     """TOML text of the scene (see the module docstring)."""
     g = problem.grid
     shape = params.shape(problem.anchor_m)
-    lines = [f"# {title or 'Design exported by difflattice.design'}",
-             f"# {problem.kind} parameters: " + ", ".join(f"{k} = {v:.6g}" for k, v in params.as_dict().items()),
-             "[grid]", f"frequency_hz = {_num(g.frequency_hz)}", f"cells_per_wavelength = {_num(g.cells_per_wavelength)}",
-             f"shape = [{g.shape[0]}, {g.shape[1]}]", f"courant = {_num(g.courant)}", "",
-             "[medium]", 'background = "air"', "temperature_c = 20.0",
-             f'boundary_model = "{"speed_zero" if problem.wall == "soft" else "conservative"}"',
-             'rasterise = "smooth"', "",
-             "[edges]", 'kind = "pml"', f"thickness_cells = {problem.pml_cells}", "",
-             "[[transducers]]", 'name = "transducer"', f"centre_m = [{_num(problem.anchor_m[0])}, {_num(problem.anchor_m[1])}]",
-             f"n_cells = {problem.n_cells}", f"direction_deg = {_num(problem.direction_deg)}", 'signal = "burst"',
-             f"cycles = {_num(problem.cycles)}", 'window = "hann"', ""]
+    lines = [
+        f"# {title or 'Design exported by difflattice.design'}",
+        f"# {problem.kind} parameters: " + ", ".join(f"{k} = {v:.6g}" for k, v in params.as_dict().items()),
+        "[grid]",
+        f"frequency_hz = {_num(g.frequency_hz)}",
+        f"cells_per_wavelength = {_num(g.cells_per_wavelength)}",
+        f"shape = [{g.shape[0]}, {g.shape[1]}]",
+        f"courant = {_num(g.courant)}",
+        "",
+        "[medium]",
+        'background = "air"',
+        "temperature_c = 20.0",
+        f'boundary_model = "{"speed_zero" if problem.wall == "soft" else "conservative"}"',
+        'rasterise = "smooth"',
+        "",
+        "[edges]",
+        'kind = "pml"',
+        f"thickness_cells = {problem.pml_cells}",
+        "",
+        "[[transducers]]",
+        'name = "transducer"',
+        f"centre_m = [{_num(problem.anchor_m[0])}, {_num(problem.anchor_m[1])}]",
+        f"n_cells = {problem.n_cells}",
+        f"direction_deg = {_num(problem.direction_deg)}",
+        'signal = "burst"',
+        f"cycles = {_num(problem.cycles)}",
+        'window = "hann"',
+        "",
+    ]
     walls = shape.walls() if hasattr(shape, "walls") else (shape.wall(),)
     for w in walls:
-        lines += ["[[objects]]", 'shape = "polyline"', f'material = "{problem.wall}"',
-                  f"thickness_m = {_num(w.thickness_m)}", f"points_m = {_pts(w.points_m)}", ""]
-    lines += ["[sensors]", "p_max = true", f"snapshot_every_steps = {snapshot_every_steps}", "",
-              "[run]", f"n_steps = {problem.n_steps}", ""]
+        lines += [
+            "[[objects]]",
+            'shape = "polyline"',
+            f'material = "{problem.wall}"',
+            f"thickness_m = {_num(w.thickness_m)}",
+            f"points_m = {_pts(w.points_m)}",
+            "",
+        ]
+    lines += [
+        "[sensors]",
+        "p_max = true",
+        f"snapshot_every_steps = {snapshot_every_steps}",
+        "",
+        "[run]",
+        f"n_steps = {problem.n_steps}",
+        "",
+    ]
     return "\n".join(lines)
 
 

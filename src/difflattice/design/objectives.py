@@ -41,8 +41,16 @@ def _first_minimum(levels_db, k):
     return jnp.argmax(mask)
 
 
-def pattern_metrics(pattern, angles_deg, *, reference_on_axis=None, drop_db: float = 6.0,
-                    field_of_view_deg: float = 90.0, sector_deg: float = 10.0, soft_tau_db: float = 1.0) -> dict:
+def pattern_metrics(
+    pattern,
+    angles_deg,
+    *,
+    reference_on_axis=None,
+    drop_db: float = 6.0,
+    field_of_view_deg: float = 90.0,
+    sector_deg: float = 10.0,
+    soft_tau_db: float = 1.0,
+) -> dict:
     """Beam measures of a complex far-field `pattern` on `angles_deg` (see the module docstring)."""
     a = np.asarray(angles_deg, dtype=float)
     step = float(a[1] - a[0])
@@ -94,7 +102,9 @@ class Goal(eqx.Module):
     def __check_init__(self):
         if self.width_weight and self.width_target_deg is None:
             raise ValueError("Goal: width_weight > 0 needs width_target_deg")
-        if not any((self.gain_weight, self.width_weight, self.sidelobe_weight, self.directivity_weight, self.sector_weight)):
+        if not any(
+            (self.gain_weight, self.width_weight, self.sidelobe_weight, self.directivity_weight, self.sector_weight)
+        ):
             raise ValueError("Goal: give at least one non-zero weight")
 
     def loss(self, m: dict):
@@ -102,7 +112,9 @@ class Goal(eqx.Module):
         if self.gain_weight:
             total = total - self.gain_weight * m["on_axis_db"]
         if self.width_weight:
-            total = total + self.width_weight * ((m["beam_width_deg"] - self.width_target_deg) / self.width_scale_deg) ** 2
+            total = (
+                total + self.width_weight * ((m["beam_width_deg"] - self.width_target_deg) / self.width_scale_deg) ** 2
+            )
         if self.sidelobe_weight:
             total = total + self.sidelobe_weight * m["sidelobe_soft_db"]
         if self.directivity_weight:
@@ -116,7 +128,9 @@ class Goal(eqx.Module):
         if self.gain_weight:
             parts.append(f"{self.gain_weight:g} x on-axis gain (max)")
         if self.width_weight:
-            parts.append(f"{self.width_weight:g} x ((-6 dB width - {self.width_target_deg:g} deg) / {self.width_scale_deg:g} deg)^2 (min)")
+            parts.append(
+                f"{self.width_weight:g} x ((-6 dB width - {self.width_target_deg:g} deg) / {self.width_scale_deg:g} deg)^2 (min)"
+            )
         if self.sidelobe_weight:
             parts.append(f"{self.sidelobe_weight:g} x soft side-lobe level (min)")
         if self.directivity_weight:

@@ -16,7 +16,6 @@ from dataclasses import dataclass, field
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from .objectives import Goal
 from .problem import DesignProblem
@@ -40,10 +39,17 @@ class DesignResult:
 
     def summary(self) -> dict:
         return {
-            "goal": self.goal, "start": self.start.as_dict(), "best": self.best.as_dict(),
-            "metrics_start": self.metrics_start, "metrics_best": self.metrics_best,
-            "loss_start": self.loss_start, "loss_best": self.loss_best, "optimiser_steps": self.n_steps,
-            "recorded_steps": len(self.history), "wall_s": self.wall_s, "converged": self.converged,
+            "goal": self.goal,
+            "start": self.start.as_dict(),
+            "best": self.best.as_dict(),
+            "metrics_start": self.metrics_start,
+            "metrics_best": self.metrics_best,
+            "loss_start": self.loss_start,
+            "loss_best": self.loss_best,
+            "optimiser_steps": self.n_steps,
+            "recorded_steps": len(self.history),
+            "wall_s": self.wall_s,
+            "converged": self.converged,
         }
 
 
@@ -51,8 +57,18 @@ def _floats(d: dict) -> dict:
     return {k: float(v) for k, v in d.items()}
 
 
-def optimise(problem: DesignProblem, start, goal: Goal, *, free: tuple[str, ...] | None = None, max_steps: int = 20,
-             rtol: float = 1e-4, atol: float = 1e-4, first_step: float = 0.5, progress: bool = True) -> DesignResult:
+def optimise(
+    problem: DesignProblem,
+    start,
+    goal: Goal,
+    *,
+    free: tuple[str, ...] | None = None,
+    max_steps: int = 20,
+    rtol: float = 1e-4,
+    atol: float = 1e-4,
+    first_step: float = 0.5,
+    progress: bool = True,
+) -> DesignResult:
     """Minimise `goal.loss(problem.metrics(design))` from `start` over the `free` parameters
     (default: all) with BFGS; returns a `DesignResult` (best accepted design). The loss is scaled
     so that the first step moves u (the sigmoid/tanh arguments) by `first_step`. `history` lists
@@ -104,12 +120,20 @@ def optimise(problem: DesignProblem, start, goal: Goal, *, free: tuple[str, ...]
     n = 0
     for n in range(1, max_steps + 1):
         v, state, (loss, m, params) = step(v, state, scale)
-        rec = {"step": n, "wall_s": time.perf_counter() - t0, "loss": float(loss), "metrics": _floats(m),
-               "params": params.as_dict()}
+        rec = {
+            "step": n,
+            "wall_s": time.perf_counter() - t0,
+            "loss": float(loss),
+            "metrics": _floats(m),
+            "params": params.as_dict(),
+        }
         history.append(rec)
         bar.update(1)
-        bar.set_postfix(loss=f"{rec['loss']:.4g}", width=f"{rec['metrics']['beam_width_deg']:.2f}",
-                        gain=f"{rec['metrics']['on_axis_db']:.2f}")
+        bar.set_postfix(
+            loss=f"{rec['loss']:.4g}",
+            width=f"{rec['metrics']['beam_width_deg']:.2f}",
+            gain=f"{rec['metrics']['on_axis_db']:.2f}",
+        )
         stop, _ = done(v, state, scale)
         if bool(stop):
             converged = True
@@ -123,13 +147,23 @@ def optimise(problem: DesignProblem, start, goal: Goal, *, free: tuple[str, ...]
     first = history[0]  # the first step accepts the start point
     best_params = type(start)(**best["params"])
     return DesignResult(
-        start=start, best=best_params, metrics_start=first["metrics"], metrics_best=best["metrics"],
-        loss_start=first["loss"], loss_best=best["loss"], history=history, n_steps=n, wall_s=wall,
-        converged=converged, goal=goal.describe(),
+        start=start,
+        best=best_params,
+        metrics_start=first["metrics"],
+        metrics_best=best["metrics"],
+        loss_start=first["loss"],
+        loss_best=best["loss"],
+        history=history,
+        n_steps=n,
+        wall_s=wall,
+        converged=converged,
+        goal=goal.describe(),
     )
 
 
-def gradient_check(problem: DesignProblem, params, quantity: str | Goal = "beam_width_deg", *, rel_steps=None) -> list[dict]:
+def gradient_check(
+    problem: DesignProblem, params, quantity: str | Goal = "beam_width_deg", *, rel_steps=None
+) -> list[dict]:
     """Gradient of one beam measure (or a `Goal`'s loss) w.r.t. every design parameter against
     central differences.
 
@@ -137,6 +171,7 @@ def gradient_check(problem: DesignProblem, params, quantity: str | Goal = "beam_
     central difference D(h) has truncation error ~ h^2 f''' / 6, estimated by Richardson as
     |D(2h) - D(h)| / 3. Returns rows with the analytic and finite-difference values, their
     difference and that estimate."""
+
     def value(p):
         m = problem.metrics(p)
         return quantity.loss(m) if isinstance(quantity, Goal) else m[quantity]
@@ -147,11 +182,22 @@ def gradient_check(problem: DesignProblem, params, quantity: str | Goal = "beam_
     dx = problem.grid.dx_m
     for name in type(params).NAMES:
         h = (rel_steps or {}).get(name, 1e-4 if name == "flare" else 1e-4 * dx)
-        def at(d):
+
+        def at(d, name=name):
             return float(f(eqx.tree_at(lambda p: getattr(p, name), params, getattr(params, name) + d)))
+
         d1 = (at(h) - at(-h)) / (2 * h)
         d2 = (at(2 * h) - at(-2 * h)) / (4 * h)
         ga = float(getattr(g, name))
-        rows.append({"parameter": name, "step": h, "grad": ga, "fd": d1, "abs_error": abs(ga - d1),
-                     "fd_truncation_estimate": abs(d2 - d1) / 3, "rel_error": abs(ga - d1) / max(abs(d1), 1e-300)})
+        rows.append(
+            {
+                "parameter": name,
+                "step": h,
+                "grad": ga,
+                "fd": d1,
+                "abs_error": abs(ga - d1),
+                "fd_truncation_estimate": abs(d2 - d1) / 3,
+                "rel_error": abs(ga - d1) / max(abs(d1), 1e-300),
+            }
+        )
     return rows

@@ -13,44 +13,90 @@ from .shapes import HornLimits, HornParams, ReflectorLimits, ReflectorParams
 PAPER_FACE_M = 0.0357
 """The Polaroid-like line: 104 cells at 20 cells per wavelength, 50 kHz."""
 
-FIG09_CONE = HornParams(throat_m=0.0367, mouth_m=0.0367 + 2 * 0.125 * math.tan(math.radians(5.0)), length_m=0.125,
-                        wall_m=0.003, flare=0.0)
+FIG09_CONE = HornParams(
+    throat_m=0.0367, mouth_m=0.0367 + 2 * 0.125 * math.tan(math.radians(5.0)), length_m=0.125, wall_m=0.003, flare=0.0
+)
 """data/scenes/fig09_cone_horn.toml: inner faces 36.7 mm apart at the face, 5 deg half-angle, 125 mm, 3 mm walls."""
 
 FIG10_PARABOLA = ReflectorParams(focal_m=0.050, aperture_m=0.190, wall_m=0.003)
 """data/scenes/fig10_parabolic_reflector.toml: focal length 50 mm, aperture 190 mm, 3 mm wall."""
 
-HORN_LIMITS = HornLimits(throat_min_m=0.0365, throat_max_m=0.040, mouth_max_m=0.090, length_min_m=0.040,
-                         length_max_m=0.160, wall_min_m=0.002, wall_max_m=0.004)
-REFLECTOR_LIMITS = ReflectorLimits(focal_min_m=0.025, focal_max_m=0.080, aperture_min_m=0.100, aperture_max_m=0.220,
-                                   wall_min_m=0.002, wall_max_m=0.004)
+HORN_LIMITS = HornLimits(
+    throat_min_m=0.0365,
+    throat_max_m=0.040,
+    mouth_max_m=0.090,
+    length_min_m=0.040,
+    length_max_m=0.160,
+    wall_min_m=0.002,
+    wall_max_m=0.004,
+)
+REFLECTOR_LIMITS = ReflectorLimits(
+    focal_min_m=0.025, focal_max_m=0.080, aperture_min_m=0.100, aperture_max_m=0.220, wall_min_m=0.002, wall_max_m=0.004
+)
 
 
-def design_horn(out: str | Path, *, cells_per_wavelength: float = 8.0, target_deg: float = 8.0, wall: str = "soft",
-                steps: int = 15, check_gradients: bool = True, progress: bool = True) -> dict:
+def design_horn(
+    out: str | Path,
+    *,
+    cells_per_wavelength: float = 8.0,
+    target_deg: float = 8.0,
+    wall: str = "soft",
+    steps: int = 15,
+    check_gradients: bool = True,
+    progress: bool = True,
+) -> dict:
     """Horn for a target -6 dB width at 1 m from the Fig. 9 cone; free: mouth, length, flare."""
     from .study import run_study
 
-    pb = horn_design(limits=HORN_LIMITS, face_m=PAPER_FACE_M, cells_per_wavelength=cells_per_wavelength, wall=wall, cycles=5.0)
+    pb = horn_design(
+        limits=HORN_LIMITS, face_m=PAPER_FACE_M, cells_per_wavelength=cells_per_wavelength, wall=wall, cycles=5.0
+    )
     goal = Goal(width_target_deg=target_deg, width_weight=1.0, width_scale_deg=1.0)
-    return run_study(pb, FIG09_CONE, goal, out, title=f"Horn for a {target_deg:g} deg beam (from the Fig. 9 cone, {wall} walls)",
-                     free=("mouth_m", "length_m", "flare"), max_steps=steps, check_gradients=check_gradients, progress=progress)
+    return run_study(
+        pb,
+        FIG09_CONE,
+        goal,
+        out,
+        title=f"Horn for a {target_deg:g} deg beam (from the Fig. 9 cone, {wall} walls)",
+        free=("mouth_m", "length_m", "flare"),
+        max_steps=steps,
+        check_gradients=check_gradients,
+        progress=progress,
+    )
 
 
-def design_reflector(out: str | Path, *, cells_per_wavelength: float = 8.0, wall: str = "soft", steps: int = 15,
-                     check_gradients: bool = True, progress: bool = True) -> dict:
+def design_reflector(
+    out: str | Path,
+    *,
+    cells_per_wavelength: float = 8.0,
+    wall: str = "soft",
+    steps: int = 15,
+    check_gradients: bool = True,
+    progress: bool = True,
+) -> dict:
     """Reflector for on-axis gain at 1 m from the Fig. 10 parabola; free: focal length, aperture."""
     from .study import run_study
 
-    pb = reflector_design(limits=REFLECTOR_LIMITS, face_m=PAPER_FACE_M, cells_per_wavelength=cells_per_wavelength,
-                          wall=wall, cycles=10.0)
-    return run_study(pb, FIG10_PARABOLA, Goal(gain_weight=1.0), out,
-                     title=f"Reflector for on-axis gain (from the Fig. 10 parabola, {wall} walls)",
-                     free=("focal_m", "aperture_m"), max_steps=steps, check_gradients=check_gradients, progress=progress)
+    pb = reflector_design(
+        limits=REFLECTOR_LIMITS, face_m=PAPER_FACE_M, cells_per_wavelength=cells_per_wavelength, wall=wall, cycles=10.0
+    )
+    return run_study(
+        pb,
+        FIG10_PARABOLA,
+        Goal(gain_weight=1.0),
+        out,
+        title=f"Reflector for on-axis gain (from the Fig. 10 parabola, {wall} walls)",
+        free=("focal_m", "aperture_m"),
+        max_steps=steps,
+        check_gradients=check_gradients,
+        progress=progress,
+    )
 
 
 def one_line(summary: dict) -> str:
     o = summary["optimisation"]
     a, b = o["metrics_start"], o["metrics_best"]
-    return (f"-6 dB width {a['beam_width_deg']:.2f} -> {b['beam_width_deg']:.2f} deg; on-axis gain {a['on_axis_db']:+.2f} -> "
-            f"{b['on_axis_db']:+.2f} dB; loss {o['loss_start']:.4g} -> {o['loss_best']:.4g}; {o['optimiser_steps']} steps, {o['wall_s']:.0f} s")
+    return (
+        f"-6 dB width {a['beam_width_deg']:.2f} -> {b['beam_width_deg']:.2f} deg; on-axis gain {a['on_axis_db']:+.2f} -> "
+        f"{b['on_axis_db']:+.2f} dB; loss {o['loss_start']:.4g} -> {o['loss_best']:.4g}; {o['optimiser_steps']} steps, {o['wall_s']:.0f} s"
+    )

@@ -76,8 +76,9 @@ class DesignProblem(eqx.Module):
             i_s = int(round(self.anchor_m[0] / g.dx_m - 0.5))
             cells = np.stack([np.full(self.n_cells, i_s), np.arange(self.n_cells)], 1)
             w = ring_fractions(jnp.asarray(0.5 * self.face_m / g.dx_m, g.jnp_dtype), self.n_cells).astype(g.jnp_dtype)
-            return PointSources(cells=cells, signal=sig, weights=w, lags_s=jnp.zeros(self.n_cells, g.jnp_dtype),
-                                injection="soft")
+            return PointSources(
+                cells=cells, signal=sig, weights=w, lags_s=jnp.zeros(self.n_cells, g.jnp_dtype), injection="soft"
+            )
         return line_transducer(g, self.anchor_m, n_cells=self.n_cells, direction_deg=self.direction_deg, signal=sig)
 
     @property
@@ -119,13 +120,21 @@ class DesignProblem(eqx.Module):
         from the transducer centre on `angles_deg` (0 = +x, the beam axis); params None = bare
         transducer. A range must clear the contour by about a wavelength (k R > 30)."""
         g = self.grid
-        r = simulate(g, self.medium(params), self.source(), Sensors(phasor_cells=self.contour.cells),
-                     n_steps=self.n_steps, edges=self.edges, checkpoint="sqrt")
+        r = simulate(
+            g,
+            self.medium(params),
+            self.source(),
+            Sensors(phasor_cells=self.contour.cells),
+            n_steps=self.n_steps,
+            edges=self.edges,
+            checkpoint="sqrt",
+        )
         if self.lattice == "rz":
             return self._pattern_rz(r.phasors, ranges_m)
         centre = (self.anchor_m[0] / g.dx_m, self.anchor_m[1] / g.dx_m)
-        ff = lambda rng: far_field(r.phasors, self.contour, g, np.asarray(self.angles_deg), rng, centre,
-                                   dispersion="continuum")
+        ff = lambda rng: far_field(
+            r.phasors, self.contour, g, np.asarray(self.angles_deg), rng, centre, dispersion="continuum"
+        )
         if ranges_m is None:
             return ff(self.range_m)
         return tuple(ff(rng) for rng in ranges_m)
@@ -149,8 +158,13 @@ class DesignProblem(eqx.Module):
         return tuple(at(rng) for rng in ranges_m)
 
     def metrics_of(self, pattern) -> dict:
-        return pattern_metrics(pattern, self.angles_deg, reference_on_axis=self.reference_on_axis,
-                               field_of_view_deg=self.field_of_view_deg, sector_deg=self.sector_deg)
+        return pattern_metrics(
+            pattern,
+            self.angles_deg,
+            reference_on_axis=self.reference_on_axis,
+            field_of_view_deg=self.field_of_view_deg,
+            sector_deg=self.sector_deg,
+        )
 
     def metrics(self, params) -> dict:
         """Beam measures of a design (see `objectives.pattern_metrics`); on-axis gain re the bare transducer."""
@@ -161,8 +175,14 @@ class DesignProblem(eqx.Module):
 
     def fields(self, params, snapshot_every: int):
         """A forward run for pictures: (snapshots, snapshot steps, p_max) as numpy arrays."""
-        r = simulate(self.grid, self.medium(params), self.source(), Sensors(p_max=True, snapshot_every=snapshot_every),
-                     n_steps=self.n_steps, edges=self.edges)
+        r = simulate(
+            self.grid,
+            self.medium(params),
+            self.source(),
+            Sensors(p_max=True, snapshot_every=snapshot_every),
+            n_steps=self.n_steps,
+            edges=self.edges,
+        )
         return np.asarray(r.snapshots), np.asarray(r.snapshot_steps), np.asarray(r.p_max)
 
 
@@ -189,16 +209,40 @@ def _grid(frequency_hz, cells_per_wavelength, wall, shape, dtype, kind="2d") -> 
         if m.kind != "fluid":
             raise ValueError(f"wall = {wall!r}: give 'rigid', 'soft' or a fluid material name")
         c_max = max(c_air, m.speed_m_s)
-    return make_grid(frequency_hz=frequency_hz, cells_per_wavelength=cells_per_wavelength * c_max / c_air,
-                     c_max_m_s=c_max, shape=shape, dtype=dtype, kind=kind)
+    return make_grid(
+        frequency_hz=frequency_hz,
+        cells_per_wavelength=cells_per_wavelength * c_max / c_air,
+        c_max_m_s=c_max,
+        shape=shape,
+        dtype=dtype,
+        kind=kind,
+    )
 
 
 def _dx(frequency_hz, cells_per_wavelength) -> float:
     return air(20.0).speed_m_s / (frequency_hz * cells_per_wavelength)
 
 
-def _finish(kind, grid, limits, anchor_cells, n_cells, direction_deg, cycles, wall, contour, pml, n_steps,
-            range_m, angle_step_deg, field_of_view_deg, sector_deg, reference, lattice="2d", face_m=0.0) -> DesignProblem:
+def _finish(
+    kind,
+    grid,
+    limits,
+    anchor_cells,
+    n_cells,
+    direction_deg,
+    cycles,
+    wall,
+    contour,
+    pml,
+    n_steps,
+    range_m,
+    angle_step_deg,
+    field_of_view_deg,
+    sector_deg,
+    reference,
+    lattice="2d",
+    face_m=0.0,
+) -> DesignProblem:
     n_a = int(round(360.0 / angle_step_deg))
     if abs(n_a * angle_step_deg - 360.0) > 1e-9 or n_a % 2:
         raise ValueError(f"angle_step_deg = {angle_step_deg} must divide 180 deg")
@@ -209,10 +253,25 @@ def _finish(kind, grid, limits, anchor_cells, n_cells, direction_deg, cycles, wa
     else:
         anchor = (anchor_cells[0] * grid.dx_m, (anchor_cells[1] + 0.5 * (n_cells % 2 == 0)) * grid.dx_m)
     contour.check_inside(grid, margin=pml)
-    args = dict(kind=kind, grid=grid, limits=limits, anchor_m=anchor, n_cells=n_cells, direction_deg=direction_deg,
-                cycles=cycles, wall=wall, contour=contour, pml_cells=pml, n_steps=n_steps, range_m=range_m,
-                angles_deg=angles, field_of_view_deg=field_of_view_deg, sector_deg=sector_deg, lattice=lattice,
-                face_m=face_m)
+    args = dict(
+        kind=kind,
+        grid=grid,
+        limits=limits,
+        anchor_m=anchor,
+        n_cells=n_cells,
+        direction_deg=direction_deg,
+        cycles=cycles,
+        wall=wall,
+        contour=contour,
+        pml_cells=pml,
+        n_steps=n_steps,
+        range_m=range_m,
+        angles_deg=angles,
+        field_of_view_deg=field_of_view_deg,
+        sector_deg=sector_deg,
+        lattice=lattice,
+        face_m=face_m,
+    )
     bare = DesignProblem(**args)
     if not reference:
         return bare
@@ -231,20 +290,36 @@ def _n_steps(grid: Grid, contour, cycles: float, traversals: float) -> int:
 
 def _check_wall_resolved(wall_min_m: float, dx: float) -> None:
     if wall_min_m < dx - 1e-12:
-        raise ValueError(f"wall_min_m = {wall_min_m:.6g} m is thinner than one cell ({dx:.6g} m): "
-                         "the grid cannot resolve the wall; raise wall_min_m or cells_per_wavelength")
+        raise ValueError(
+            f"wall_min_m = {wall_min_m:.6g} m is thinner than one cell ({dx:.6g} m): "
+            "the grid cannot resolve the wall; raise wall_min_m or cells_per_wavelength"
+        )
 
 
 def _check_lattice(lattice: str, wall: str) -> None:
     if lattice not in LATTICES:
-        raise ValueError(f"lattice = {lattice!r}; allowed: {', '.join(map(repr, LATTICES))} (2-D plane or axisymmetric)")
+        raise ValueError(
+            f"lattice = {lattice!r}; allowed: {', '.join(map(repr, LATTICES))} (2-D plane or axisymmetric)"
+        )
     if lattice == "rz" and wall == "soft":
-        raise ValueError("wall = 'soft' (the paper's speed-zero walls) has no ring-volume form on an rz lattice: "
-                         "use wall = 'rigid' or a fluid material with lattice = 'rz'")
+        raise ValueError(
+            "wall = 'soft' (the paper's speed-zero walls) has no ring-volume form on an rz lattice: "
+            "use wall = 'rigid' or a fluid material with lattice = 'rz'"
+        )
 
 
-def _layout(back: int, fwd: int, half: int, gap_cells: int, pml_cells: int, frequency_hz, cells_per_wavelength,
-            wall, dtype, lattice="2d"):
+def _layout(
+    back: int,
+    fwd: int,
+    half: int,
+    gap_cells: int,
+    pml_cells: int,
+    frequency_hz,
+    cells_per_wavelength,
+    wall,
+    dtype,
+    lattice="2d",
+):
     """Grid and contour around a transducer anchored `back` cells behind and `fwd` cells before
     the walls' reach, `half` cells either side (rz: `half` rings out from the axis); returns
     (grid, contour, anchor cell)."""
@@ -264,11 +339,25 @@ def _layout(back: int, fwd: int, half: int, gap_cells: int, pml_cells: int, freq
     return grid, BoxContour(ix0, ix1, iy0, iy1), (ix_s, iy_s)
 
 
-def horn_design(*, limits: HornLimits, face_m: float, frequency_hz: float = 50e3, cells_per_wavelength: float = 8.0,
-                wall: str = "soft", cycles: float = 5.0, range_m: float = 1.0, angle_step_deg: float = 0.5,
-                field_of_view_deg: float = 90.0, sector_deg: float = 10.0, gap_cells: int = 4, pml_cells: int = 12,
-                traversals: float = 1.5, dtype: str = "float64", reference: bool = True,
-                lattice: str = "2d") -> DesignProblem:
+def horn_design(
+    *,
+    limits: HornLimits,
+    face_m: float,
+    frequency_hz: float = 50e3,
+    cells_per_wavelength: float = 8.0,
+    wall: str = "soft",
+    cycles: float = 5.0,
+    range_m: float = 1.0,
+    angle_step_deg: float = 0.5,
+    field_of_view_deg: float = 90.0,
+    sector_deg: float = 10.0,
+    gap_cells: int = 4,
+    pml_cells: int = 12,
+    traversals: float = 1.5,
+    dtype: str = "float64",
+    reference: bool = True,
+    lattice: str = "2d",
+) -> DesignProblem:
     """A horn problem: a line transducer of diameter `face_m` facing +x at the throat of any horn
     within `limits` (``lattice="rz"``: a disc of diameter `face_m` facing +z in a horn of
     revolution). The run lasts `traversals` crossings of the contour plus the burst and six
@@ -278,27 +367,63 @@ def horn_design(*, limits: HornLimits, face_m: float, frequency_hz: float = 50e3
     dx = _dx(frequency_hz, cells_per_wavelength)
     n_cells = max(1, int(round(face_m / dx)))
     if lattice == "rz" and limits.throat_min_m < face_m - 1e-12:
-        raise ValueError(f"throat_min_m = {limits.throat_min_m:.6g} m is narrower than the disc (face_m = {face_m:.6g} m): "
-                         "the walls would cover source rings")
+        raise ValueError(
+            f"throat_min_m = {limits.throat_min_m:.6g} m is narrower than the disc (face_m = {face_m:.6g} m): "
+            "the walls would cover source rings"
+        )
     if lattice == "2d" and limits.throat_min_m < n_cells * dx - 1e-12:
-        raise ValueError(f"throat_min_m = {limits.throat_min_m:.6g} m is narrower than the transducer "
-                         f"({n_cells} cells = {n_cells * dx:.6g} m at this resolution): the walls would cover source cells")
+        raise ValueError(
+            f"throat_min_m = {limits.throat_min_m:.6g} m is narrower than the transducer "
+            f"({n_cells} cells = {n_cells * dx:.6g} m at this resolution): the walls would cover source cells"
+        )
     _check_wall_resolved(limits.wall_min_m, dx)
     back = int(math.ceil(limits.wall_max_m / dx)) + 1
     fwd = int(math.ceil((limits.length_max_m + limits.wall_max_m) / dx)) + 1
     half = int(math.ceil((0.5 * limits.mouth_max_m + limits.wall_max_m) / dx)) + 1
-    grid, contour, anchor = _layout(back, fwd, half, gap_cells, pml_cells, frequency_hz, cells_per_wavelength, wall, dtype,
-                                    lattice)
-    return _finish("horn", grid, limits, anchor, _n_source(lattice, n_cells, face_m, dx), 0.0, cycles, wall, contour,
-                   pml_cells, _n_steps(grid, contour, cycles, traversals), range_m, angle_step_deg, field_of_view_deg,
-                   sector_deg, reference, lattice, face_m)
+    grid, contour, anchor = _layout(
+        back, fwd, half, gap_cells, pml_cells, frequency_hz, cells_per_wavelength, wall, dtype, lattice
+    )
+    return _finish(
+        "horn",
+        grid,
+        limits,
+        anchor,
+        _n_source(lattice, n_cells, face_m, dx),
+        0.0,
+        cycles,
+        wall,
+        contour,
+        pml_cells,
+        _n_steps(grid, contour, cycles, traversals),
+        range_m,
+        angle_step_deg,
+        field_of_view_deg,
+        sector_deg,
+        reference,
+        lattice,
+        face_m,
+    )
 
 
-def reflector_design(*, limits: ReflectorLimits, face_m: float, frequency_hz: float = 50e3,
-                     cells_per_wavelength: float = 8.0, wall: str = "soft", cycles: float = 10.0, range_m: float = 1.0,
-                     angle_step_deg: float = 0.5, field_of_view_deg: float = 90.0, sector_deg: float = 10.0,
-                     gap_cells: int = 4, pml_cells: int = 12, traversals: float = 2.0,
-                     dtype: str = "float64", reference: bool = True, lattice: str = "2d") -> DesignProblem:
+def reflector_design(
+    *,
+    limits: ReflectorLimits,
+    face_m: float,
+    frequency_hz: float = 50e3,
+    cells_per_wavelength: float = 8.0,
+    wall: str = "soft",
+    cycles: float = 10.0,
+    range_m: float = 1.0,
+    angle_step_deg: float = 0.5,
+    field_of_view_deg: float = 90.0,
+    sector_deg: float = 10.0,
+    gap_cells: int = 4,
+    pml_cells: int = 12,
+    traversals: float = 2.0,
+    dtype: str = "float64",
+    reference: bool = True,
+    lattice: str = "2d",
+) -> DesignProblem:
     """A reflector problem: a line transducer of diameter `face_m` at the focus of a parabolic
     mirror opening towards +x, facing the vertex (as the paper's Fig. 10); ``lattice="rz"``: a disc
     of diameter `face_m` at the focus of a paraboloidal dish opening towards +z (a transparent disc
@@ -311,18 +436,41 @@ def reflector_design(*, limits: ReflectorLimits, face_m: float, frequency_hz: fl
     f = limits.focal_min_m
     if f - half_face**2 / (4 * f) < dx - 1e-12:
         need = 0.5 * (dx + math.sqrt(dx * dx + half_face**2))
-        raise ValueError(f"focal_min_m = {f:.6g} m puts the mirror within a cell of the transducer's ends "
-                         f"(face {n_cells * dx:.6g} m): use focal_min_m >= {need:.6g} m")
-    rim = max(-ff + (a / 2) ** 2 / (4 * ff) for ff in (limits.focal_min_m, limits.focal_max_m)
-              for a in (limits.aperture_min_m, limits.aperture_max_m))
+        raise ValueError(
+            f"focal_min_m = {f:.6g} m puts the mirror within a cell of the transducer's ends "
+            f"(face {n_cells * dx:.6g} m): use focal_min_m >= {need:.6g} m"
+        )
+    rim = max(
+        -ff + (a / 2) ** 2 / (4 * ff)
+        for ff in (limits.focal_min_m, limits.focal_max_m)
+        for a in (limits.aperture_min_m, limits.aperture_max_m)
+    )
     back = int(math.ceil((limits.focal_max_m + limits.wall_max_m) / dx)) + 1
     fwd = max(int(math.ceil((rim + limits.wall_max_m) / dx)) + 1, 1)
     half = int(math.ceil((0.5 * max(limits.aperture_max_m, n_cells * dx) + limits.wall_max_m) / dx)) + 1
-    grid, contour, anchor = _layout(back, fwd, half, gap_cells, pml_cells, frequency_hz, cells_per_wavelength, wall, dtype,
-                                    lattice)
-    return _finish("reflector", grid, limits, anchor, _n_source(lattice, n_cells, face_m, dx), 180.0, cycles, wall,
-                   contour, pml_cells, _n_steps(grid, contour, cycles, traversals), range_m, angle_step_deg,
-                   field_of_view_deg, sector_deg, reference, lattice, face_m)
+    grid, contour, anchor = _layout(
+        back, fwd, half, gap_cells, pml_cells, frequency_hz, cells_per_wavelength, wall, dtype, lattice
+    )
+    return _finish(
+        "reflector",
+        grid,
+        limits,
+        anchor,
+        _n_source(lattice, n_cells, face_m, dx),
+        180.0,
+        cycles,
+        wall,
+        contour,
+        pml_cells,
+        _n_steps(grid, contour, cycles, traversals),
+        range_m,
+        angle_step_deg,
+        field_of_view_deg,
+        sector_deg,
+        reference,
+        lattice,
+        face_m,
+    )
 
 
 def _n_source(lattice: str, n_cells: int, face_m: float, dx: float) -> int:

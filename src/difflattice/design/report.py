@@ -14,8 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .problem import DesignProblem
 from ..air import SPEED_OF_SOUND_20C_M_S
+from .problem import DesignProblem
 
 
 def _levels_db(p, ref):
@@ -24,9 +24,11 @@ def _levels_db(p, ref):
 
 def resolution_note(problem: DesignProblem) -> str:
     g = problem.grid
-    return (f"{g.cells_per_wavelength * SPEED_OF_SOUND_20C_M_S / g.c_max_m_s:.1f} cells per wavelength in air at "
-            f"{g.frequency_hz / 1e3:.0f} kHz (cell {g.dx_m * 1e3:.3f} mm), grid {g.shape[0]} x {g.shape[1]}, "
-            f"{problem.n_steps} steps, {g.dtype}; beam at {problem.range_m} m by the Kirchhoff-Helmholtz transform")
+    return (
+        f"{g.cells_per_wavelength * SPEED_OF_SOUND_20C_M_S / g.c_max_m_s:.1f} cells per wavelength in air at "
+        f"{g.frequency_hz / 1e3:.0f} kHz (cell {g.dx_m * 1e3:.3f} mm), grid {g.shape[0]} x {g.shape[1]}, "
+        f"{problem.n_steps} steps, {g.dtype}; beam at {problem.range_m} m by the Kirchhoff-Helmholtz transform"
+    )
 
 
 def shape_plot(problem: DesignProblem, designs: dict, ax=None):
@@ -88,11 +90,26 @@ def fields_plot(problem: DesignProblem, designs: dict, *, frame_fraction: float 
         snaps, steps, pmax = problem.fields(params, k)
         i = int(np.argmin(np.abs(steps - frame_fraction * problem.n_steps)))
         occ = None if params is None else np.asarray(problem.occupancy(params))
-        plots.field_image(snaps[i], g.dx_m, every=every, step=int(steps[i]), dt_s=g.dt_s, obstacles=occ,
-                          sources=[problem.source().cells_array], title=label, ax=axs[0, j])
+        plots.field_image(
+            snaps[i],
+            g.dx_m,
+            every=every,
+            step=int(steps[i]),
+            dt_s=g.dt_s,
+            obstacles=occ,
+            sources=[problem.source().cells_array],
+            title=label,
+            ax=axs[0, j],
+        )
         db = 20 * np.log10(np.maximum(pmax / max(float(pmax.max()), 1e-30), 1e-3))
-        axs[1, j].imshow(db.T, origin="lower", cmap="magma", vmin=-60, vmax=0,
-                         extent=[0, g.shape[0] * g.dx_m * 1e3, 0, g.shape[1] * g.dx_m * 1e3])
+        axs[1, j].imshow(
+            db.T,
+            origin="lower",
+            cmap="magma",
+            vmin=-60,
+            vmax=0,
+            extent=[0, g.shape[0] * g.dx_m * 1e3, 0, g.shape[1] * g.dx_m * 1e3],
+        )
         if occ is not None:
             x, y = (np.arange(m) * g.dx_m * 1e3 for m in g.shape)
             axs[1, j].contour(x, y, occ.T, levels=[0.5], colors="cyan", linewidths=0.8)
@@ -115,9 +132,15 @@ def patterns_plot(problem: DesignProblem, patterns: dict, *, title: str):
 def machine_info() -> dict:
     import jax
 
-    return {"date_utc": time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime()), "python": platform.python_version(),
-            "jax": jax.__version__, "platform": platform.platform(), "processor": platform.processor() or platform.machine(),
-            "cpu_count": __import__("os").cpu_count(), "devices": [str(d) for d in jax.devices()]}
+    return {
+        "date_utc": time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime()),
+        "python": platform.python_version(),
+        "jax": jax.__version__,
+        "platform": platform.platform(),
+        "processor": platform.processor() or platform.machine(),
+        "cpu_count": __import__("os").cpu_count(),
+        "devices": [str(d) for d in jax.devices()],
+    }
 
 
 def write_json(path: Path, data: dict) -> Path:
@@ -126,6 +149,8 @@ def write_json(path: Path, data: dict) -> Path:
 
 
 def fmt_metrics(m: dict, sector_deg: float = 10.0) -> str:
-    return (f"-6 dB width {m['beam_width_deg']:.2f} deg, on-axis gain {m['on_axis_db']:+.2f} dB, "
-            f"side lobe {m['sidelobe_db']:.1f} dB, DI {m['directivity_db']:.2f} dB, "
-            f"power within ±{sector_deg:g} deg {100 * m['sector_fraction']:.1f} %")
+    return (
+        f"-6 dB width {m['beam_width_deg']:.2f} deg, on-axis gain {m['on_axis_db']:+.2f} dB, "
+        f"side lobe {m['sidelobe_db']:.1f} dB, DI {m['directivity_db']:.2f} dB, "
+        f"power within ±{sector_deg:g} deg {100 * m['sector_fraction']:.1f} %"
+    )

@@ -59,7 +59,9 @@ class HornParams(eqx.Module):
 
     def shape(self, anchor_m) -> HornWalls:
         """The walls with the throat centred on `anchor_m` (the transducer face centre)."""
-        return HornWalls(jnp.asarray(anchor_m, float), self.throat_m, self.mouth_m, self.length_m, self.wall_m, self.flare)
+        return HornWalls(
+            jnp.asarray(anchor_m, float), self.throat_m, self.mouth_m, self.length_m, self.wall_m, self.flare
+        )
 
     @property
     def half_angle_deg(self):
@@ -102,13 +104,19 @@ class HornLimits(eqx.Module):
     flare_max: float = eqx.field(static=True, default=4.0)
 
     def __check_init__(self):
-        _require(0 < self.throat_min_m <= self.throat_max_m <= self.mouth_max_m,
-                 f"horn limits need 0 < throat_min_m ({self.throat_min_m}) <= throat_max_m ({self.throat_max_m}) "
-                 f"<= mouth_max_m ({self.mouth_max_m})")
-        _require(0 < self.length_min_m <= self.length_max_m,
-                 f"horn limits need 0 < length_min_m ({self.length_min_m}) <= length_max_m ({self.length_max_m})")
-        _require(0 < self.wall_min_m <= self.wall_max_m,
-                 f"horn limits need 0 < wall_min_m ({self.wall_min_m}) <= wall_max_m ({self.wall_max_m})")
+        _require(
+            0 < self.throat_min_m <= self.throat_max_m <= self.mouth_max_m,
+            f"horn limits need 0 < throat_min_m ({self.throat_min_m}) <= throat_max_m ({self.throat_max_m}) "
+            f"<= mouth_max_m ({self.mouth_max_m})",
+        )
+        _require(
+            0 < self.length_min_m <= self.length_max_m,
+            f"horn limits need 0 < length_min_m ({self.length_min_m}) <= length_max_m ({self.length_max_m})",
+        )
+        _require(
+            0 < self.wall_min_m <= self.wall_max_m,
+            f"horn limits need 0 < wall_min_m ({self.wall_min_m}) <= wall_max_m ({self.wall_max_m})",
+        )
         _require(self.flare_max >= 0, f"flare_max = {self.flare_max} must be >= 0")
 
     def check(self, p: HornParams) -> HornParams:
@@ -116,19 +124,33 @@ class HornLimits(eqx.Module):
         v = p.as_dict()
         tol = 1e-12
         _require(all(math.isfinite(x) for x in v.values()), f"horn parameters must be finite, got {v}")
-        _require(self.throat_min_m - tol <= v["throat_m"] <= self.throat_max_m + tol,
-                 f"throat_m = {v['throat_m']:.6g} m outside [{self.throat_min_m:.6g}, {self.throat_max_m:.6g}] m "
-                 "(the throat must clear the transducer face)")
-        _require(v["mouth_m"] >= v["throat_m"] - tol,
-                 f"mouth_m = {v['mouth_m']:.6g} m is narrower than throat_m = {v['throat_m']:.6g} m: "
-                 "the horn must open (mouth >= throat)")
-        _require(v["mouth_m"] <= self.mouth_max_m + tol, f"mouth_m = {v['mouth_m']:.6g} m exceeds mouth_max_m = {self.mouth_max_m:.6g} m")
-        _require(self.length_min_m - tol <= v["length_m"] <= self.length_max_m + tol,
-                 f"length_m = {v['length_m']:.6g} m outside [{self.length_min_m:.6g}, {self.length_max_m:.6g}] m")
-        _require(self.wall_min_m - tol <= v["wall_m"] <= self.wall_max_m + tol,
-                 f"wall_m = {v['wall_m']:.6g} m outside [{self.wall_min_m:.6g}, {self.wall_max_m:.6g}] m "
-                 "(minimum wall thickness)")
-        _require(abs(v["flare"]) <= self.flare_max + tol, f"|flare| = {abs(v['flare']):.6g} exceeds flare_max = {self.flare_max}")
+        _require(
+            self.throat_min_m - tol <= v["throat_m"] <= self.throat_max_m + tol,
+            f"throat_m = {v['throat_m']:.6g} m outside [{self.throat_min_m:.6g}, {self.throat_max_m:.6g}] m "
+            "(the throat must clear the transducer face)",
+        )
+        _require(
+            v["mouth_m"] >= v["throat_m"] - tol,
+            f"mouth_m = {v['mouth_m']:.6g} m is narrower than throat_m = {v['throat_m']:.6g} m: "
+            "the horn must open (mouth >= throat)",
+        )
+        _require(
+            v["mouth_m"] <= self.mouth_max_m + tol,
+            f"mouth_m = {v['mouth_m']:.6g} m exceeds mouth_max_m = {self.mouth_max_m:.6g} m",
+        )
+        _require(
+            self.length_min_m - tol <= v["length_m"] <= self.length_max_m + tol,
+            f"length_m = {v['length_m']:.6g} m outside [{self.length_min_m:.6g}, {self.length_max_m:.6g}] m",
+        )
+        _require(
+            self.wall_min_m - tol <= v["wall_m"] <= self.wall_max_m + tol,
+            f"wall_m = {v['wall_m']:.6g} m outside [{self.wall_min_m:.6g}, {self.wall_max_m:.6g}] m "
+            "(minimum wall thickness)",
+        )
+        _require(
+            abs(v["flare"]) <= self.flare_max + tol,
+            f"|flare| = {abs(v['flare']):.6g} exceeds flare_max = {self.flare_max}",
+        )
         return p
 
     def unpack(self, u) -> HornParams:
@@ -146,13 +168,15 @@ class HornLimits(eqx.Module):
         v = self.check(p).as_dict()
         f = v["flare"] / self.flare_max if self.flare_max > 0 else 0.0
         f = min(max(f, -1 + _EDGE), 1 - _EDGE)
-        return jnp.array([
-            _logit(_frac(v["throat_m"], self.throat_min_m, self.throat_max_m)),
-            _logit(_frac(v["mouth_m"], v["throat_m"], self.mouth_max_m)),
-            _logit(_frac(v["length_m"], self.length_min_m, self.length_max_m)),
-            _logit(_frac(v["wall_m"], self.wall_min_m, self.wall_max_m)),
-            math.atanh(f),
-        ])
+        return jnp.array(
+            [
+                _logit(_frac(v["throat_m"], self.throat_min_m, self.throat_max_m)),
+                _logit(_frac(v["mouth_m"], v["throat_m"], self.mouth_max_m)),
+                _logit(_frac(v["length_m"], self.length_min_m, self.length_max_m)),
+                _logit(_frac(v["wall_m"], self.wall_min_m, self.wall_max_m)),
+                math.atanh(f),
+            ]
+        )
 
 
 class ReflectorLimits(eqx.Module):
@@ -166,25 +190,37 @@ class ReflectorLimits(eqx.Module):
     wall_max_m: float = eqx.field(static=True)
 
     def __check_init__(self):
-        _require(0 < self.focal_min_m <= self.focal_max_m,
-                 f"reflector limits need 0 < focal_min_m ({self.focal_min_m}) <= focal_max_m ({self.focal_max_m})")
-        _require(0 < self.aperture_min_m <= self.aperture_max_m,
-                 f"reflector limits need 0 < aperture_min_m ({self.aperture_min_m}) <= aperture_max_m ({self.aperture_max_m})")
-        _require(0 < self.wall_min_m <= self.wall_max_m,
-                 f"reflector limits need 0 < wall_min_m ({self.wall_min_m}) <= wall_max_m ({self.wall_max_m})")
+        _require(
+            0 < self.focal_min_m <= self.focal_max_m,
+            f"reflector limits need 0 < focal_min_m ({self.focal_min_m}) <= focal_max_m ({self.focal_max_m})",
+        )
+        _require(
+            0 < self.aperture_min_m <= self.aperture_max_m,
+            f"reflector limits need 0 < aperture_min_m ({self.aperture_min_m}) <= aperture_max_m ({self.aperture_max_m})",
+        )
+        _require(
+            0 < self.wall_min_m <= self.wall_max_m,
+            f"reflector limits need 0 < wall_min_m ({self.wall_min_m}) <= wall_max_m ({self.wall_max_m})",
+        )
 
     def check(self, p: ReflectorParams) -> ReflectorParams:
         v = p.as_dict()
         tol = 1e-12
         _require(all(math.isfinite(x) for x in v.values()), f"reflector parameters must be finite, got {v}")
-        _require(self.focal_min_m - tol <= v["focal_m"] <= self.focal_max_m + tol,
-                 f"focal_m = {v['focal_m']:.6g} m outside [{self.focal_min_m:.6g}, {self.focal_max_m:.6g}] m "
-                 "(a shorter focal length puts the mirror through the transducer)")
-        _require(self.aperture_min_m - tol <= v["aperture_m"] <= self.aperture_max_m + tol,
-                 f"aperture_m = {v['aperture_m']:.6g} m outside [{self.aperture_min_m:.6g}, {self.aperture_max_m:.6g}] m")
-        _require(self.wall_min_m - tol <= v["wall_m"] <= self.wall_max_m + tol,
-                 f"wall_m = {v['wall_m']:.6g} m outside [{self.wall_min_m:.6g}, {self.wall_max_m:.6g}] m "
-                 "(minimum wall thickness)")
+        _require(
+            self.focal_min_m - tol <= v["focal_m"] <= self.focal_max_m + tol,
+            f"focal_m = {v['focal_m']:.6g} m outside [{self.focal_min_m:.6g}, {self.focal_max_m:.6g}] m "
+            "(a shorter focal length puts the mirror through the transducer)",
+        )
+        _require(
+            self.aperture_min_m - tol <= v["aperture_m"] <= self.aperture_max_m + tol,
+            f"aperture_m = {v['aperture_m']:.6g} m outside [{self.aperture_min_m:.6g}, {self.aperture_max_m:.6g}] m",
+        )
+        _require(
+            self.wall_min_m - tol <= v["wall_m"] <= self.wall_max_m + tol,
+            f"wall_m = {v['wall_m']:.6g} m outside [{self.wall_min_m:.6g}, {self.wall_max_m:.6g}] m "
+            "(minimum wall thickness)",
+        )
         return p
 
     def unpack(self, u) -> ReflectorParams:
@@ -197,8 +233,10 @@ class ReflectorLimits(eqx.Module):
 
     def pack(self, p: ReflectorParams):
         v = self.check(p).as_dict()
-        return jnp.array([
-            _logit(_frac(v["focal_m"], self.focal_min_m, self.focal_max_m)),
-            _logit(_frac(v["aperture_m"], self.aperture_min_m, self.aperture_max_m)),
-            _logit(_frac(v["wall_m"], self.wall_min_m, self.wall_max_m)),
-        ])
+        return jnp.array(
+            [
+                _logit(_frac(v["focal_m"], self.focal_min_m, self.focal_max_m)),
+                _logit(_frac(v["aperture_m"], self.aperture_min_m, self.aperture_max_m)),
+                _logit(_frac(v["wall_m"], self.wall_min_m, self.wall_max_m)),
+            ]
+        )

@@ -12,22 +12,51 @@ from .export import write_scene
 from .objectives import Goal
 from .optimise import gradient_check, optimise
 from .problem import DesignProblem
-from .report import (fields_plot, fmt_metrics, history_plot, machine_info, patterns_plot, resolution_note,
-                     shape_plot, write_json)
+from .report import (
+    fields_plot,
+    fmt_metrics,
+    history_plot,
+    machine_info,
+    patterns_plot,
+    resolution_note,
+    shape_plot,
+    write_json,
+)
 
 
-def run_study(problem: DesignProblem, start, goal: Goal, out: str | Path, *, title: str, free=None,
-              max_steps: int = 20, check_gradients: bool = True, progress: bool = True) -> dict:
+def run_study(
+    problem: DesignProblem,
+    start,
+    goal: Goal,
+    out: str | Path,
+    *,
+    title: str,
+    free=None,
+    max_steps: int = 20,
+    check_gradients: bool = True,
+    progress: bool = True,
+) -> dict:
     """Optimise `start` for `goal` and write the report to `out`; returns the summary dict."""
     from .. import plots
 
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    summary = {"title": title, "resolution": resolution_note(problem), "machine": machine_info(),
-               "problem": {"kind": problem.kind, "wall": problem.wall, "grid_shape": list(problem.grid.shape),
-                           "dx_m": problem.grid.dx_m, "n_steps": problem.n_steps, "range_m": problem.range_m,
-                           "transducer_cells": problem.n_cells, "burst_cycles": problem.cycles},
-               "free": list(free or type(start).NAMES)}
+    summary = {
+        "title": title,
+        "resolution": resolution_note(problem),
+        "machine": machine_info(),
+        "problem": {
+            "kind": problem.kind,
+            "wall": problem.wall,
+            "grid_shape": list(problem.grid.shape),
+            "dx_m": problem.grid.dx_m,
+            "n_steps": problem.n_steps,
+            "range_m": problem.range_m,
+            "transducer_cells": problem.n_cells,
+            "burst_cycles": problem.cycles,
+        },
+        "free": list(free or type(start).NAMES),
+    }
     if check_gradients:
         rows = gradient_check(problem, start, goal)
         summary["gradient_check"] = rows
@@ -51,22 +80,49 @@ def run_study(problem: DesignProblem, start, goal: Goal, out: str | Path, *, tit
 
 def markdown(s: dict, problem: DesignProblem) -> str:
     o = s["optimisation"]
-    lines = [f"# {s['title']}", "", f"Resolution: {s['resolution']}.", "", f"Goal: {o['goal']} (free: {', '.join(s['free'])}).", "",
-             "| design | " + " | ".join(o["start"]) + " |", "|---|" + "---|" * len(o["start"])]
+    lines = [
+        f"# {s['title']}",
+        "",
+        f"Resolution: {s['resolution']}.",
+        "",
+        f"Goal: {o['goal']} (free: {', '.join(s['free'])}).",
+        "",
+        "| design | " + " | ".join(o["start"]) + " |",
+        "|---|" + "---|" * len(o["start"]),
+    ]
     for k in ("start", "best"):
         lines.append(f"| {k} | " + " | ".join(f"{v:.5g}" for v in o[k].values()) + " |")
-    lines += ["", f"- start: {fmt_metrics(o['metrics_start'], problem.sector_deg)} (loss {o['loss_start']:.4g})",
-              f"- optimised: {fmt_metrics(o['metrics_best'], problem.sector_deg)} (loss {o['loss_best']:.4g})",
-              f"- {o['optimiser_steps']} BFGS steps in {o['wall_s']:.1f} s (compilation included); converged: {o['converged']}",
-              ""]
+    lines += [
+        "",
+        f"- start: {fmt_metrics(o['metrics_start'], problem.sector_deg)} (loss {o['loss_start']:.4g})",
+        f"- optimised: {fmt_metrics(o['metrics_best'], problem.sector_deg)} (loss {o['loss_best']:.4g})",
+        f"- {o['optimiser_steps']} BFGS steps in {o['wall_s']:.1f} s (compilation included); converged: {o['converged']}",
+        "",
+    ]
     if "gradient_check" in s:
-        lines += ["Gradient of the loss at the start vs central differences (step h; truncation estimate "
-                  "|D(2h) - D(h)| / 3):", "", "| parameter | h | gradient | finite difference | |error| | truncation estimate |",
-                  "|---|---|---|---|---|---|"]
+        lines += [
+            "Gradient of the loss at the start vs central differences (step h; truncation estimate "
+            "|D(2h) - D(h)| / 3):",
+            "",
+            "| parameter | h | gradient | finite difference | |error| | truncation estimate |",
+            "|---|---|---|---|---|---|",
+        ]
         for r in s["gradient_check"]:
-            lines.append(f"| {r['parameter']} | {r['step']:.3g} | {r['grad']:.8g} | {r['fd']:.8g} | {r['abs_error']:.2g} | "
-                         f"{r['fd_truncation_estimate']:.2g} |")
+            lines.append(
+                f"| {r['parameter']} | {r['step']:.3g} | {r['grad']:.8g} | {r['fd']:.8g} | {r['abs_error']:.2g} | "
+                f"{r['fd_truncation_estimate']:.2g} |"
+            )
         lines.append("")
-    lines += ["![shapes](shapes.png)", "", "![history](history.png)", "", "![patterns](patterns.png)", "",
-              "![fields](fields.png)", "", "Scene files: `start.toml`, `optimised.toml` (`difflattice simulate optimised.toml --out DIR`).", ""]
+    lines += [
+        "![shapes](shapes.png)",
+        "",
+        "![history](history.png)",
+        "",
+        "![patterns](patterns.png)",
+        "",
+        "![fields](fields.png)",
+        "",
+        "Scene files: `start.toml`, `optimised.toml` (`difflattice simulate optimised.toml --out DIR`).",
+        "",
+    ]
     return "\n".join(lines)

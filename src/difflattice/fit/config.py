@@ -923,9 +923,17 @@ def run_fit(cfg: FitConfig, *, out: str | Path | None = None, quick: bool = Fals
     from .uncertainty import error_budget
 
     t1 = time.perf_counter()
-    budget = error_budget(fitted, transfer, lobe, wave, opts, make_transfer=make_transfer,
-                          second_cells_per_wavelength=None if quick else cfg.uncertainty.second_cells_per_wavelength,
-                          model_families=list(cfg.uncertainty.model_families) or None, progress=verbose)
+    budget = error_budget(
+        fitted,
+        transfer,
+        lobe,
+        wave,
+        opts,
+        make_transfer=make_transfer,
+        second_cells_per_wavelength=None if quick else cfg.uncertainty.second_cells_per_wavelength,
+        model_families=list(cfg.uncertainty.model_families) or None,
+        progress=verbose,
+    )
     t_budget = time.perf_counter() - t1
     prov = provenance(cfg.path if cfg.path is not None and cfg.path.exists() else None, data.paths)
     prov["timing_s"] = {
@@ -970,9 +978,13 @@ def _print_summary(rep: dict, out_dir: Path) -> None:
     )
     t = rep["provenance"]["timing_s"]
     d = next((e for e in rep.get("budget", {}).get("scalars", []) if e["name"] == "diameter_mm"), None)
-    dtxt = (f"{p['diameter_m'] * 1e3:.3f} ± {p['diameter_stderr_m'] * 1e3:.3f} (stat)" if d is None else
-            f"{d['limit']} ({d['status']})" if d["status"] == "at_bound" else
-            f"{d['value']:.3f} ± {d['stat']:.3f} (stat) ± {d['systematic']:.3f} (sys) = ± {d['total']:.3f}")
+    dtxt = (
+        f"{p['diameter_m'] * 1e3:.3f} ± {p['diameter_stderr_m'] * 1e3:.3f} (stat)"
+        if d is None
+        else f"{d['limit']} ({d['status']})"
+        if d["status"] == "at_bound"
+        else f"{d['value']:.3f} ± {d['stat']:.3f} (stat) ± {d['systematic']:.3f} (sys) = ± {d['total']:.3f}"
+    )
     print(
         f"fit: {f['result_code']} in {f['n_steps']} steps; D = {dtxt} mm; RMS {rms}; chi2_red {f['chi2_reduced']:.3g}; "
         f"transfer {t['transfer_simulation']:.1f} s + fit {t['fit']:.1f} s + error budget {t.get('error_budget', 0):.1f} s"

@@ -25,12 +25,12 @@ from dataclasses import dataclass, field
 import jax.numpy as jnp
 import numpy as np
 
-from ..observe.farfield import BoxContour, field_at
-from ..lattice.grid import Grid, make_grid
 from ..lattice.coefficients import Edges
+from ..lattice.grid import Grid, make_grid
 from ..lattice.medium import Medium, air_density_kg_m3
-from ..solver.sensors import Sensors
+from ..observe.farfield import BoxContour, field_at
 from ..solver.loop import simulate
+from ..solver.sensors import Sensors
 from ..solver.sources import PointSources, ToneBurst
 
 
@@ -54,7 +54,12 @@ def _lagrange4(t):
     """Weights of 4-point Lagrange interpolation at fraction t in [0, 1) for nodes -1, 0, 1, 2."""
     t = np.asarray(t, float)
     return np.stack(
-        [-t * (t - 1) * (t - 2) / 6, (t + 1) * (t - 1) * (t - 2) / 2, -(t + 1) * t * (t - 2) / 2, (t + 1) * t * (t - 1) / 6],
+        [
+            -t * (t - 1) * (t - 2) / 6,
+            (t + 1) * (t - 1) * (t - 2) / 2,
+            -(t + 1) * t * (t - 2) / 2,
+            (t + 1) * t * (t - 1) / 6,
+        ],
         axis=-1,
     )
 
@@ -88,7 +93,9 @@ def free_field_transfer(
     cells per wavelength the lattice's 0.4 % slower waves move the first null of a 38 mm piston
     by ~0.05 deg, several sigma of a good lobe measurement); "lattice" reproduces the lattice's
     own far field (what a direct simulation to that range would give)."""
-    grid0 = make_grid(frequency_hz=frequency_hz, cells_per_wavelength=cells_per_wavelength, c_max_m_s=c_m_s, shape=(3, 3), dtype=dtype)
+    grid0 = make_grid(
+        frequency_hz=frequency_hz, cells_per_wavelength=cells_per_wavelength, c_max_m_s=c_m_s, shape=(3, 3), dtype=dtype
+    )
     dx = grid0.dx_m
     L = pml_cells
     offsets = np.arange(n_cells) - (n_cells - 1) / 2.0  # cells
@@ -106,7 +113,13 @@ def free_field_transfer(
         nx = xs + gap + 4 + L
     ny = 2 * (half + L + 2) + 1
     yc = ny // 2
-    grid = make_grid(frequency_hz=frequency_hz, cells_per_wavelength=cells_per_wavelength, c_max_m_s=c_m_s, shape=(nx, ny), dtype=dtype)
+    grid = make_grid(
+        frequency_hz=frequency_hz,
+        cells_per_wavelength=cells_per_wavelength,
+        c_max_m_s=c_m_s,
+        shape=(nx, ny),
+        dtype=dtype,
+    )
     contour = BoxContour(xs - gap, xs + gap, yc - gap, yc + gap)
     cells = [contour.cells]
     if wave_x_m is not None:
@@ -116,12 +129,20 @@ def free_field_transfer(
         cells.append(block)
     cells = np.concatenate(cells)
     sig = ToneBurst(frequency_hz, 4.0)
-    src = PointSources(cells=[(xs, yc)], signal=sig, weights=jnp.ones(1, grid.jnp_dtype), lags_s=jnp.zeros(1, grid.jnp_dtype))
+    src = PointSources(
+        cells=[(xs, yc)], signal=sig, weights=jnp.ones(1, grid.jnp_dtype), lags_s=jnp.zeros(1, grid.jnp_dtype)
+    )
     reach = math.hypot(nx - xs, half) / grid.courant
     n_steps = int(reach + 10 * grid.steps_per_period)
     t0 = time.perf_counter()
-    res = simulate(grid, Medium(c_m_s, air_density_kg_m3(20.0)), src, Sensors(phasor_cells=cells), n_steps=n_steps,
-                   edges=Edges(thickness_cells=L))
+    res = simulate(
+        grid,
+        Medium(c_m_s, air_density_kg_m3(20.0)),
+        src,
+        Sensors(phasor_cells=cells),
+        n_steps=n_steps,
+        edges=Edges(thickness_cells=L),
+    )
     ph = np.asarray(res.phasors) / _source_spectrum(sig, grid, n_steps)
     sim_s = time.perf_counter() - t0
     m2 = len(contour.cells)
@@ -132,7 +153,9 @@ def free_field_transfer(
         # observation points seen from each cell: shift by -offset along y
         obs = np.stack([xs + r * np.cos(th), yc + r * np.sin(th)], -1)  # (A, 2)
         pts = obs[:, None, :] - np.stack([np.zeros(n_cells), offsets], -1)[None, :, :]  # (A, N, 2)
-        lobe = np.asarray(field_at(jnp.asarray(ph[:m2]), contour, grid, pts.reshape(-1, 2), dispersion=dispersion)).reshape(len(th), n_cells)
+        lobe = np.asarray(
+            field_at(jnp.asarray(ph[:m2]), contour, grid, pts.reshape(-1, 2), dispersion=dispersion)
+        ).reshape(len(th), n_cells)
     if wave_x_m is not None:
         blk = ph[m2:].reshape(4, 2 * half + 1)
         tz = zc - iz
@@ -145,7 +168,14 @@ def free_field_transfer(
         if idx.min() < 0 or idx.max() > 2 * half:
             raise ValueError("wavefront positions outside the computed block (internal error)")
         wave = np.sum(col[idx] * wy, axis=-1)
-    info = {"grid_shape": [nx, ny], "n_steps": n_steps, "simulation_s": sim_s, "method": "free-field translation",
-            "farfield_dispersion": dispersion,
-            "cells_per_wavelength": cells_per_wavelength, "dx_m": dx, "dt_s": grid.dt_s}
+    info = {
+        "grid_shape": [nx, ny],
+        "n_steps": n_steps,
+        "simulation_s": sim_s,
+        "method": "free-field translation",
+        "farfield_dispersion": dispersion,
+        "cells_per_wavelength": cells_per_wavelength,
+        "dx_m": dx,
+        "dt_s": grid.dt_s,
+    }
     return Transfer(grid=grid, n_cells=n_cells, cell_offset_m=offsets * dx, lobe=lobe, wave=wave, info=info)

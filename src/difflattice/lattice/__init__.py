@@ -8,7 +8,23 @@ from .grid import MAX_COURANT, MAX_COURANT_3D, PAPER_COURANT, Grid, check_couran
 from .medium import MATERIALS, Material, Medium, air, homogeneous, material
 
 __all__ = [
-    "MATERIALS", "MAX_COURANT", "MAX_COURANT_3D", "PAPER_COURANT", "PML", "AxisymMetric", "Edges", "Grid", "Lattice",
-    "Material", "Medium", "RadialPML", "air", "build_lattice", "check_courant", "homogeneous", "make_grid",
-    "material", "stability_limit",
+    "MATERIALS",
+    "MAX_COURANT",
+    "MAX_COURANT_3D",
+    "PAPER_COURANT",
+    "PML",
+    "AxisymMetric",
+    "Edges",
+    "Grid",
+    "Lattice",
+    "Material",
+    "Medium",
+    "RadialPML",
+    "air",
+    "build_lattice",
+    "check_courant",
+    "homogeneous",
+    "make_grid",
+    "material",
+    "stability_limit",
 ]

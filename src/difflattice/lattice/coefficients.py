@@ -90,7 +90,7 @@ class Edges(eqx.Module):
     sides_z = ("z_lo", "z_hi")
 
     @classmethod
-    def all(cls, kind: EdgeKind, **kwargs) -> "Edges":
+    def all(cls, kind: EdgeKind, **kwargs) -> Edges:
         """The same `kind` on every side (the z sides too, used by a 3-D grid only)."""
         return cls(x_lo=kind, x_hi=kind, y_lo=kind, y_hi=kind, z_lo=kind, z_hi=kind, **kwargs)
 
@@ -113,9 +113,7 @@ class Edges(eqx.Module):
         return out
 
     @classmethod
-    def axisymmetric(
-        cls, z_lo: EdgeKind = "pml", z_hi: EdgeKind = "pml", r_hi: EdgeKind = "pml", **kwargs
-    ) -> Edges:
+    def axisymmetric(cls, z_lo: EdgeKind = "pml", z_hi: EdgeKind = "pml", r_hi: EdgeKind = "pml", **kwargs) -> Edges:
         """Edges of an rz grid: z_lo / z_hi (axis 0) and the outer radius r_hi; y_lo is the axis.
         A rigid baffle is `z_lo="rigid"` (the closed face z = 0)."""
         return cls(x_lo=z_lo, x_hi=z_hi, y_lo="axis", y_hi=r_hi, **kwargs)
@@ -333,7 +331,9 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
                 # unit conductance, its `keep` < 1 does the rest. (Doubling partly soft faces,
                 # 1 + s_l + s_h, made k (2 + d) < -(1 + k) possible: unstable at the Courant limit.)
                 dbl = _faces(soft, axis, lambda l, h: 1 + (l >= 1).astype(l.dtype) + (h >= 1).astype(h.dtype))
-                b = b * _with_outer(dbl, jnp.ones_like(_edge(soft, axis, False)), jnp.ones_like(_edge(soft, axis, True)), axis)
+                b = b * _with_outer(
+                    dbl, jnp.ones_like(_edge(soft, axis, False)), jnp.ones_like(_edge(soft, axis, True)), axis
+                )
             faces.append(b)
         bx, by = faces[:2]
         bz = faces[2] if ndim == 3 else None
@@ -364,7 +364,9 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
             ps = zero if soft is None else soft
             for axis, lo_key, hi_key in ((0, "ax_lo", "ax_hi"), (1, "ay_lo", "ay_hi")):
                 # R seen from the low cell looking into the high cell, fluids only (eq. 14)
-                r_lh = _faces(z, axis, lambda l, h: jnp.where(l + h > 0, (h - l) / jnp.where(l + h > 0, l + h, 1.0), 0.0))
+                r_lh = _faces(
+                    z, axis, lambda l, h: jnp.where(l + h > 0, (h - l) / jnp.where(l + h > 0, l + h, 1.0), 0.0)
+                )
                 r_seen_lo = _faces_pair(r_lh, pr, ps, axis, from_low=True)
                 r_seen_hi = _faces_pair(-r_lh, pr, ps, axis, from_low=False)
                 ones = jnp.ones_like(_edge(z, axis, False))
@@ -399,8 +401,20 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
     pml = _pml(grid, edges, dtype) if edges.uses_pml else None
     metric = AxisymMetric.build(ny, dtype) if grid.kind == "rz" else None
     return Lattice(
-        K=K, q_scale=q_scale, bx=bx, by=by, keep=keep, c=c, sponge=sponge, pml=pml, metric=metric,
-        eta=eta, ghosts=ghosts, mur=mur, bz=bz, **a,
+        K=K,
+        q_scale=q_scale,
+        bx=bx,
+        by=by,
+        keep=keep,
+        c=c,
+        sponge=sponge,
+        pml=pml,
+        metric=metric,
+        eta=eta,
+        ghosts=ghosts,
+        mur=mur,
+        bz=bz,
+        **a,
     )
 
 
@@ -486,8 +500,11 @@ def _radial_pml(ny: int, L: int, m: float, smax: float, dtype) -> dict:
     sig = smax * d**m
     sbar = smax * L * d ** (m + 1) / ((m + 1) * rc)
     row = lambda a: jnp.asarray(np.asarray(a, float).reshape(1, -1), dtype)
-    return {"radial": RadialPML(decay=row((1 - sbar / 2) / (1 + sbar / 2)),
-                                drive=row((sig - sbar) / (4 * rc * (1 + sbar / 2))), width=L)}
+    return {
+        "radial": RadialPML(
+            decay=row((1 - sbar / 2) / (1 + sbar / 2)), drive=row((sig - sbar) / (4 * rc * (1 + sbar / 2))), width=L
+        )
+    }
 
 
 def _axis_shape(axis: int, ndim: int) -> tuple[int, ...]:

@@ -11,7 +11,8 @@ The paper's scenes are built from these primitives in `scenes.py`.
 
 from __future__ import annotations
 
-from typing import Literal, Sequence
+from collections.abc import Sequence
+from typing import Literal
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -30,7 +31,7 @@ class Shape(eqx.Module):
 class Circle(Shape):
     """A disc of `radius_m` around `centre_m` (x, y), metres."""
 
-    centre_m: Float[Array, "2"]
+    centre_m: Float[Array, 2]
     radius_m: Float[Array, ""]
 
     def sdf(self, x, y):
@@ -41,8 +42,8 @@ class Circle(Shape):
 class Segment(Shape):
     """A wall: the segment from `a_m` to `b_m` thickened to `thickness_m` (round ends)."""
 
-    a_m: Float[Array, "2"]
-    b_m: Float[Array, "2"]
+    a_m: Float[Array, 2]
+    b_m: Float[Array, 2]
     thickness_m: Float[Array, ""]
 
     def sdf(self, x, y):
@@ -52,8 +53,8 @@ class Segment(Shape):
 class Box(Shape):
     """An axis-aligned rectangle from `lo_m` (x, y) to `hi_m`."""
 
-    lo_m: Float[Array, "2"]
-    hi_m: Float[Array, "2"]
+    lo_m: Float[Array, 2]
+    hi_m: Float[Array, 2]
 
     def sdf(self, x, y):
         lo, hi = jnp.asarray(self.lo_m), jnp.asarray(self.hi_m)
@@ -71,9 +72,7 @@ class Polygon(Shape):
     def sdf(self, x, y):
         v = jnp.asarray(self.vertices_m)
         a, b = v, jnp.roll(v, -1, axis=0)
-        d = jnp.min(
-            jnp.stack([_segment_distance(x, y, a[i], b[i]) for i in range(v.shape[0])]), axis=0
-        )
+        d = jnp.min(jnp.stack([_segment_distance(x, y, a[i], b[i]) for i in range(v.shape[0])]), axis=0)
         # even-odd rule for inside
         inside = jnp.zeros(jnp.shape(x), bool)
         for i in range(v.shape[0]):
@@ -202,7 +201,7 @@ class HornWalls(Shape):
     the inner face is the profile at the sample points). `n_points` (static) samples per wall.
     """
 
-    throat_centre_m: Float[Array, "2"]
+    throat_centre_m: Float[Array, 2]
     throat_m: Float[Array, ""]
     mouth_m: Float[Array, ""]
     length_m: Float[Array, ""]
@@ -242,7 +241,7 @@ class ParabolicMirror(Shape):
     line offset along the normal). `n_points` (static) samples of the face.
     """
 
-    focus_m: Float[Array, "2"]
+    focus_m: Float[Array, 2]
     focal_m: Float[Array, ""]
     aperture_m: Float[Array, ""]
     wall_m: Float[Array, ""]

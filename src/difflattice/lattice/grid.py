@@ -73,6 +73,7 @@ def stability_limit(kind: GridKind = "2d") -> float:
         raise ValueError(f"grid kind = {kind!r}; allowed: {', '.join(map(repr, GRID_KINDS))}")
     return MAX_COURANT_3D if kind == "3d" else MAX_COURANT
 
+
 PAPER_COURANT = 0.707
 """The paper's choice: just below the limit."""
 
@@ -110,7 +111,9 @@ class Grid(eqx.Module):
                 raise ValueError(f"a 3-D grid needs shape (nx, ny, nz) with at least 3 cells each, got {self.shape}")
         else:
             if len(self.shape) != 2:
-                raise ValueError(f"a {self.kind} grid needs shape (nx, ny), got {self.shape} (for a 3-D grid set kind='3d')")
+                raise ValueError(
+                    f"a {self.kind} grid needs shape (nx, ny), got {self.shape} (for a 3-D grid set kind='3d')"
+                )
             nx, ny = self.shape
             if nx < 3 or ny < 1:
                 raise ValueError(f"grid shape {self.shape} is too small: need at least 3 x 1 cells")
@@ -196,7 +199,9 @@ class Grid(eqx.Module):
     def cell_of(self, position_m) -> tuple[int, ...]:
         """Index of the cell containing a point (x_m, y_m[, z_m]), or (z_m, r_m) for "rz"."""
         if len(position_m) != self.ndim:
-            raise ValueError(f"position {tuple(position_m)} has {len(position_m)} coordinates; this grid has {self.ndim}")
+            raise ValueError(
+                f"position {tuple(position_m)} has {len(position_m)} coordinates; this grid has {self.ndim}"
+            )
         if self.kind == "rz":
             iz, ir = (int(math.floor(p / self.dx_m)) for p in position_m)
             return iz, ir

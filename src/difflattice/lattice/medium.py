@@ -28,8 +28,6 @@ BoundaryModel = Literal["conservative", "paper", "speed_zero"]
 BOUNDARY_MODELS = ("conservative", "paper", "speed_zero")
 
 
-
-
 @dataclass(frozen=True)
 class Material:
     """A material. `kind` is "fluid" (speed and density used), "rigid" (R = +1) or "soft" (R = -1).
@@ -76,9 +74,7 @@ def material(name_or_material: str | Material) -> Material:
     try:
         return MATERIALS[name_or_material]
     except KeyError:
-        raise ValueError(
-            f"unknown material {name_or_material!r}; known: {', '.join(sorted(MATERIALS))}"
-        ) from None
+        raise ValueError(f"unknown material {name_or_material!r}; known: {', '.join(sorted(MATERIALS))}") from None
 
 
 MIN_CELLS_PER_WAVELENGTH = 8.0
@@ -118,8 +114,7 @@ def warn_if_under_resolved(
             f"{minimum:g} its waves are not resolved (at ~2 they cannot propagate and the medium "
             f"reflects almost totally, silently). Fix: raise grid.cells_per_wavelength by x{need:.1f} "
             f"or more"
-            + (f", or model the {fastest} object as material = \"rigid\" (nothing simulated inside)."
-               if why else "."),
+            + (f', or model the {fastest} object as material = "rigid" (nothing simulated inside).' if why else "."),
             ResolutionWarning,
             stacklevel=stacklevel,
         )
@@ -160,9 +155,7 @@ class Medium(eqx.Module):
 
     def __check_init__(self):
         if self.boundary_model not in BOUNDARY_MODELS:
-            raise ValueError(
-                f"boundary_model = {self.boundary_model!r}; allowed: {', '.join(BOUNDARY_MODELS)}"
-            )
+            raise ValueError(f"boundary_model = {self.boundary_model!r}; allowed: {', '.join(BOUNDARY_MODELS)}")
         if not (self.absorption_db_per_m >= 0):
             raise ValueError(f"absorption_db_per_m = {self.absorption_db_per_m} must be >= 0")
 

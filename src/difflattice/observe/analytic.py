@@ -49,9 +49,7 @@ def continuum_rt(z1: float, z2: float) -> tuple[float, float]:
     return r, 1 + r
 
 
-def discrete_rt(
-    omega: float, c1: float, c2: float, rho1: float, rho2: float, model: str
-) -> tuple[complex, complex]:
+def discrete_rt(omega: float, c1: float, c2: float, rho1: float, rho2: float, model: str) -> tuple[complex, complex]:
     """Exact R and T of the discrete 1-D scheme for a plane wave exp(i(k n - omega t)) hitting the
     face between cell 0 (medium 1) and cell 1 (medium 2).
 
@@ -59,7 +57,11 @@ def discrete_rt(
     cell 1). `model` is "conservative" or "paper" (eqs. 17-19)."""
     s = math.sin(omega / 2) ** 2
     k1 = 2 * math.asin(math.sqrt(s) / c1)
-    k2 = 2 * math.asin(min(1.0, math.sqrt(s) / c2)) if math.sqrt(s) / c2 <= 1 else complex(math.pi, 2 * math.acosh(math.sqrt(s) / c2))
+    k2 = (
+        2 * math.asin(min(1.0, math.sqrt(s) / c2))
+        if math.sqrt(s) / c2 <= 1
+        else complex(math.pi, 2 * math.acosh(math.sqrt(s) / c2))
+    )
     lam = -4 * s  # second time difference of exp(-i omega t)
     z1, z2 = rho1 * c1, rho2 * c2
     # unknowns x = (R, T). P_{-1} = e^{-ik1} + R e^{ik1}, P_0 = 1 + R, P_1 = T, P_2 = T e^{ik2}
@@ -154,8 +156,9 @@ PISTON_FIRST_SIDELOBE_DB = -17.570149934295284
 first zero of J2, x = 5.1356223 (J1 = -0.33966874)."""
 
 
-def rayleigh_piston(points_m, radius_m: float, k_per_m: float, *, n_r: int | None = None,
-                    n_phi: int | None = None, weights=None) -> np.ndarray:
+def rayleigh_piston(
+    points_m, radius_m: float, k_per_m: float, *, n_r: int | None = None, n_phi: int | None = None, weights=None
+) -> np.ndarray:
     """Pressure of a baffled circular piston at points (x, z) in metres (z > 0 in front of the
     face, x from the axis), p / (rho c u0), by the Rayleigh integral
 

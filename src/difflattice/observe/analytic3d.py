@@ -105,7 +105,11 @@ def lattice_green_amplitude(omega: float, c: float, direction) -> np.ndarray:
     gn2 = np.sum(g * g, axis=-1)
     # Gaussian curvature of an implicit surface with diagonal Hessian H:
     # K = (g_x^2 h_y h_z + g_y^2 h_x h_z + g_z^2 h_x h_y) / |g|^4
-    num = g[..., 0] ** 2 * h[..., 1] * h[..., 2] + g[..., 1] ** 2 * h[..., 0] * h[..., 2] + g[..., 2] ** 2 * h[..., 0] * h[..., 1]
+    num = (
+        g[..., 0] ** 2 * h[..., 1] * h[..., 2]
+        + g[..., 1] ** 2 * h[..., 0] * h[..., 2]
+        + g[..., 2] ** 2 * h[..., 0] * h[..., 1]
+    )
     K = num / gn2**2
     return 2.0 / (np.sqrt(gn2) * np.sqrt(K))
 

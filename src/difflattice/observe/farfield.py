@@ -23,8 +23,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Complex, Float
 
-from .analytic import lattice_wavenumber
 from ..lattice.grid import Grid
+from .analytic import lattice_wavenumber
 
 
 class BoxContour(eqx.Module):
@@ -77,7 +77,9 @@ class BoxContour(eqx.Module):
 def box_around(cells: np.ndarray, gap: int, grid: Grid | None = None) -> BoxContour:
     """The contour box `gap` cells around a set of cells (e.g. a transducer's)."""
     c = np.asarray(cells).reshape(-1, 2)
-    box = BoxContour(int(c[:, 0].min() - gap), int(c[:, 0].max() + gap), int(c[:, 1].min() - gap), int(c[:, 1].max() + gap))
+    box = BoxContour(
+        int(c[:, 0].min() - gap), int(c[:, 0].max() + gap), int(c[:, 1].min() - gap), int(c[:, 1].max() + gap)
+    )
     return box
 
 

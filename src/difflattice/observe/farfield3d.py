@@ -61,7 +61,9 @@ class BoxSurface(eqx.Module):
                 raise ValueError(f"baffle = {self.baffle!r}; allowed: None or one of {', '.join(BAFFLE_SIDES)}")
             axis, side = self.baffle_axis_side
             if side < 0 and self.lo[axis] != 0:
-                raise ValueError(f"a box on the {self.baffle} baffle starts at cell 0 along that axis, got lo = {self.lo}")
+                raise ValueError(
+                    f"a box on the {self.baffle} baffle starts at cell 0 along that axis, got lo = {self.lo}"
+                )
 
     @property
     def baffle_axis_side(self) -> tuple[int, int]:
@@ -155,8 +157,10 @@ def box_around_3d(cells, gap: int, baffle: str | None = None) -> BoxSurface:
         if baffle.endswith("lo"):
             lo[a] = 0
         else:
-            raise ValueError("baffle on a high window side: give the box explicitly, BoxSurface(lo, hi, baffle=...) "
-                             "with hi at the last cell")
+            raise ValueError(
+                "baffle on a high window side: give the box explicitly, BoxSurface(lo, hi, baffle=...) "
+                "with hi at the last cell"
+            )
     return BoxSurface((lo[0], lo[1], lo[2]), (hi[0], hi[1], hi[2]), baffle)
 
 
@@ -165,8 +169,12 @@ def _with_images(surface: BoxSurface, p, dpdn, pts, normals):
     if surface.baffle is None:
         return p, dpdn, pts, normals
     mp, mn = surface.mirror(pts, normals)
-    return (jnp.concatenate([p, p], axis=-1), jnp.concatenate([dpdn, dpdn], axis=-1),
-            np.concatenate([pts, mp]), np.concatenate([normals, mn]))
+    return (
+        jnp.concatenate([p, p], axis=-1),
+        jnp.concatenate([dpdn, dpdn], axis=-1),
+        np.concatenate([pts, mp]),
+        np.concatenate([normals, mn]),
+    )
 
 
 def directions_in_plane(axis, in_plane, angles_deg) -> np.ndarray:

@@ -245,8 +245,14 @@ def _lagrange4(u: float):
     """First node and the 4 cubic Lagrange weights at fractional index u (nodes i0 .. i0 + 3)."""
     i0 = int(math.floor(u)) - 1
     t = u - (i0 + 1)  # in [0, 1): nodes at -1, 0, 1, 2
-    w = np.array([-t * (t - 1) * (t - 2) / 6, (t + 1) * (t - 1) * (t - 2) / 2,
-                  -(t + 1) * t * (t - 2) / 2, (t + 1) * t * (t - 1) / 6])
+    w = np.array(
+        [
+            -t * (t - 1) * (t - 2) / 6,
+            (t + 1) * (t - 1) * (t - 2) / 2,
+            -(t + 1) * t * (t - 2) / 2,
+            (t + 1) * t * (t - 1) / 6,
+        ]
+    )
     return i0, w
 
 
@@ -263,8 +269,10 @@ def field_sampler(grid: Grid, points_m) -> FieldSampler:
         iz, wz = _lagrange4(z / grid.dx_m - 0.5)  # row centres at (i + 1/2) dx
         jr, wr = _lagrange4(abs(x) / grid.dx_m - 0.5)
         if iz < 0 or iz + 3 >= nz:
-            raise ValueError(f"point z = {z} m needs rows {iz} .. {iz + 3}: outside the grid (0 .. {nz - 1}); "
-                             "move it at least 1.5 cells from the z edges")
+            raise ValueError(
+                f"point z = {z} m needs rows {iz} .. {iz + 3}: outside the grid (0 .. {nz - 1}); "
+                "move it at least 1.5 cells from the z edges"
+            )
         if jr + 3 >= nr:
             raise ValueError(f"point x = {x} m needs ring {jr + 3}: outside the grid (0 .. {nr - 1})")
         row: dict[tuple[int, int], float] = {}

@@ -3,8 +3,6 @@ observables (lobe level, wavefront phase) are in `fit/model.py`."""
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 

@@ -6,4 +6,13 @@ objects."""
 from .model import SCHEMA, Scene, SceneError, load_scene, parse_scene, render_stride, schema_markdown
 from .schema import ConfigError
 
-__all__ = ["SCHEMA", "ConfigError", "Scene", "SceneError", "load_scene", "parse_scene", "render_stride", "schema_markdown"]
+__all__ = [
+    "SCHEMA",
+    "ConfigError",
+    "Scene",
+    "SceneError",
+    "load_scene",
+    "parse_scene",
+    "render_stride",
+    "schema_markdown",
+]

@@ -15,7 +15,7 @@ import tomllib
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
@@ -60,7 +60,6 @@ def render_stride(cells_per_wavelength: float, override: int | None = None) -> i
     return max(1, int(cells_per_wavelength / MIN_PIXELS_PER_WAVELENGTH + 1e-9))
 
 
-
 def _fail(path, key, msg):
     fail(path, key, msg, SceneError)
 
@@ -78,13 +77,13 @@ class BuiltScene(NamedTuple):
     - `show_steps`: steps at which field images are wanted; `render_every`: render stride, cells.
     """
 
-    grid: "Grid"
-    medium: "Medium"
-    sources: tuple["PointSources", ...]
-    sensors: "Sensors"
-    edges: "Edges"
+    grid: Grid
+    medium: Medium
+    sources: tuple[PointSources, ...]
+    sensors: Sensors
+    edges: Edges
     n_steps: int
-    contour: "BoxContour | CylinderSurface | None"
+    contour: BoxContour | CylinderSurface | None
     farfield_source: int
     show_steps: list[int]
     render_every: int
@@ -110,30 +109,36 @@ class Scene:
     def build(self) -> BuiltScene:
         """Build the solver's objects (`BuiltScene`) for `simulate`."""
         from ..lattice import geometry as geo
-        from ..observe.farfield import box_around
-        from ..lattice.grid import make_grid
         from ..lattice.coefficients import Edges
+        from ..lattice.grid import make_grid
         from ..lattice.medium import Medium, air, material, warn_if_under_resolved
-        from ..solver.sensors import Sensors, probe_cells
+        from ..observe.farfield import box_around
         from ..observe.farfield_rz import cylinder_around
+        from ..solver.sensors import Sensors, probe_cells
         from ..solver.sources import ContinuousWave, ToneBurst, disc_housing, disc_transducer, line_transducer
 
         p = self.path
         med = self.medium
-        bg = air(med["temperature_c"]) if med["background"] == "air" else _material(p, "medium.background", med["background"], material)
+        bg = (
+            air(med["temperature_c"])
+            if med["background"] == "air"
+            else _material(p, "medium.background", med["background"], material)
+        )
         if bg.kind != "fluid":
             _fail(p, "medium.background", f"must be a fluid material, got {bg.name} ({bg.kind})")
-        mats = [bg] + [_material(p, f"objects[{i}].material", o["material"], material) for i, o in enumerate(self.objects)]
+        mats = [bg] + [
+            _material(p, f"objects[{i}].material", o["material"], material) for i, o in enumerate(self.objects)
+        ]
         if med["boundary_model"] == "speed_zero":
-            for i, (o, m) in enumerate(zip(self.objects, mats[1:])):
+            for i, m in enumerate(mats[1 : 1 + len(self.objects)]):
                 given = "material" in (self.raw.get("objects", [{}] * len(self.objects))[i] or {})
                 if m.kind == "fluid" or (given and m.kind == "rigid"):
                     warnings.warn(
                         f"{p}: [objects[{i}].material] = {m.name!r} is ignored under "
-                        f"boundary_model = \"speed_zero\": every object is a speed-zero "
+                        f'boundary_model = "speed_zero": every object is a speed-zero '
                         f"(pressure-release, R = -1) region, its speed "
                         f"{'and density ' if m.kind == 'fluid' else ''}not used. Use "
-                        f"material = \"soft\" to say so, or boundary_model = \"conservative\" to "
+                        f'material = "soft" to say so, or boundary_model = "conservative" to '
                         f"simulate {m.name!r}.",
                         UserWarning,
                         stacklevel=2,
@@ -171,7 +176,9 @@ class Scene:
         speed = np.full(grid.shape, bg.speed_m_s)
         rho = np.full(grid.shape, bg.density_kg_m3)
         fluid_objects = False
-        for i, (o, m) in enumerate(zip(self.objects, mats[1:] if med["boundary_model"] != "speed_zero" else [None] * len(self.objects))):
+        for i, (o, m) in enumerate(
+            zip(self.objects, mats[1:] if med["boundary_model"] != "speed_zero" else [None] * len(self.objects))
+        ):
             shape = _shape(p, f"objects[{i}]", o, geo)
             try:
                 occ = np.asarray(geo.rasterise(shape, grid, med["rasterise"]))
@@ -191,9 +198,18 @@ class Scene:
         for i, t in enumerate(self.transducers):
             if t["type"] == "disc" and rz and t["baffle"] != "rigid" and t["diameter_m"] is not None:
                 try:
-                    rigid.append(np.asarray(disc_housing(
-                        grid, radius_m=t["diameter_m"] / 2, z_m=t["centre_m"][0], baffle=t["baffle"],
-                        depth_m=t["can_depth_m"], wall_m=t["can_wall_m"])))
+                    rigid.append(
+                        np.asarray(
+                            disc_housing(
+                                grid,
+                                radius_m=t["diameter_m"] / 2,
+                                z_m=t["centre_m"][0],
+                                baffle=t["baffle"],
+                                depth_m=t["can_depth_m"],
+                                wall_m=t["can_wall_m"],
+                            )
+                        )
+                    )
                 except ValueError as err:
                     _fail(p, f"transducers[{i}]", str(err))
 
@@ -217,14 +233,22 @@ class Scene:
             if rz:
                 for side in ("x_lo", "x_hi", "y_lo", "y_hi"):
                     if e[side] is not None:
-                        _fail(p, f"edges.{side}", "on an rz grid name the sides z_lo, z_hi and r_hi (the axis needs no edge)")
+                        _fail(
+                            p,
+                            f"edges.{side}",
+                            "on an rz grid name the sides z_lo, z_hi and r_hi (the axis needs no edge)",
+                        )
                 edges = Edges.axisymmetric(
                     **{s: (e[s] or e["kind"]) for s in ("z_lo", "z_hi", "r_hi")}, thickness_cells=e["thickness_cells"]
                 )
             else:
                 for side in ("z_lo", "z_hi", "r_hi"):
                     if e[side] is not None:
-                        _fail(p, f"edges.{side}", "is for rz grids ([grid] kind = \"rz\"); a 2d grid has x_lo, x_hi, y_lo, y_hi")
+                        _fail(
+                            p,
+                            f"edges.{side}",
+                            'is for rz grids ([grid] kind = "rz"); a 2d grid has x_lo, x_hi, y_lo, y_hi',
+                        )
                 edges = Edges(
                     **{s: (e[s] or e["kind"]) for s in ("x_lo", "x_hi", "y_lo", "y_hi")},
                     thickness_cells=e["thickness_cells"],
@@ -247,28 +271,49 @@ class Scene:
                 else:
                     _fail(p, f"{where}.signal", f"= {t['signal']!r}; allowed: burst, cw")
                 if (t["type"] == "disc") != rz:
-                    _fail(p, f"{where}.type", f"= {t['type']!r} does not fit a {grid.kind} grid: use type = "
-                          f"{'disc' if rz else 'line'} (or [grid] kind = {'2d' if rz else 'rz'})")
+                    _fail(
+                        p,
+                        f"{where}.type",
+                        f"= {t['type']!r} does not fit a {grid.kind} grid: use type = "
+                        f"{'disc' if rz else 'line'} (or [grid] kind = {'2d' if rz else 'rz'})",
+                    )
                 if rz:
                     if t["baffle"] == "rigid" and edges.x_lo != "rigid":
-                        _fail(p, f"{where}.baffle", f"= 'rigid' needs the rigid baffle plane: set [edges] z_lo = "
-                              f"\"rigid\" (now {edges.x_lo!r}), or baffle = \"none\" / \"can\" for an unbaffled disc")
+                        _fail(
+                            p,
+                            f"{where}.baffle",
+                            f"= 'rigid' needs the rigid baffle plane: set [edges] z_lo = "
+                            f'"rigid" (now {edges.x_lo!r}), or baffle = "none" / "can" for an unbaffled disc',
+                        )
                     if t["diameter_m"] is None:
                         _fail(p, f"{where}.diameter_m", "is required for a disc (its diameter, m)")
                     if len(t["centre_m"]) != 2 or t["centre_m"][1] != 0:
-                        _fail(p, f"{where}.centre_m", f"= {list(t['centre_m'])}: a disc sits on the axis, give [z_m, 0]")
+                        _fail(
+                            p, f"{where}.centre_m", f"= {list(t['centre_m'])}: a disc sits on the axis, give [z_m, 0]"
+                        )
                     sources.append(
                         disc_transducer(
-                            grid, radius_m=t["diameter_m"] / 2, z_m=t["centre_m"][0], signal=sig,
-                            weights=t["weights"], lags_s=t["lags_s"], baffle=t["baffle"],
+                            grid,
+                            radius_m=t["diameter_m"] / 2,
+                            z_m=t["centre_m"][0],
+                            signal=sig,
+                            weights=t["weights"],
+                            lags_s=t["lags_s"],
+                            baffle=t["baffle"],
                         )
                     )
                 else:
                     sources.append(
                         line_transducer(
-                            grid, tuple(t["centre_m"]), n_cells=t["n_cells"], diameter_m=t["diameter_m"],
-                            direction_deg=t["direction_deg"], signal=sig, weights=t["weights"],
-                            lags_s=t["lags_s"], injection=t["injection"],
+                            grid,
+                            tuple(t["centre_m"]),
+                            n_cells=t["n_cells"],
+                            diameter_m=t["diameter_m"],
+                            direction_deg=t["direction_deg"],
+                            signal=sig,
+                            weights=t["weights"],
+                            lags_s=t["lags_s"],
+                            injection=t["injection"],
                         )
                     )
             except (ValueError, TypeError) as err:
@@ -299,8 +344,12 @@ class Scene:
             phasor_cells = contour.cells
         try:
             sensors = Sensors(
-                probes=probes, phasor_cells=phasor_cells, p_max=s["p_max"], p_rms=s["p_rms"],
-                arrival_threshold_pa=s["arrival_threshold_pa"], snapshot_every=s["snapshot_every_steps"],
+                probes=probes,
+                phasor_cells=phasor_cells,
+                p_max=s["p_max"],
+                p_rms=s["p_rms"],
+                arrival_threshold_pa=s["arrival_threshold_pa"],
+                snapshot_every=s["snapshot_every_steps"],
             )
             sensors.check_inside(grid)
         except ValueError as err:
@@ -314,9 +363,18 @@ class Scene:
             _fail(p, "run", f"n_steps = {n_steps} must be >= 1")
         if r["checkpoint"] not in ("none", "sqrt"):
             _fail(p, "run.checkpoint", f"= {r['checkpoint']!r}; allowed: none, sqrt")
-        return BuiltScene(grid, medium, tuple(sources), sensors, edges, n_steps, contour, ff_index,
-                          self.show_steps(grid, n_steps), self.render_every(grid))
-
+        return BuiltScene(
+            grid,
+            medium,
+            tuple(sources),
+            sensors,
+            edges,
+            n_steps,
+            contour,
+            ff_index,
+            self.show_steps(grid, n_steps),
+            self.render_every(grid),
+        )
 
     # ---------------------------------------------------------------------------------------
     def show_steps(self, grid, n_steps: int) -> list[int]:
@@ -335,8 +393,12 @@ class Scene:
         for s in steps:
             if not 1 <= s <= n_steps:
                 t_s = s * grid.dt_s
-                _fail(self.path, "output", f"moment at step {s} ({t_s * 1e6:.1f} µs) lies outside the run "
-                      f"(steps 1..{n_steps}, up to {n_steps * grid.dt_s * 1e6:.1f} µs)")
+                _fail(
+                    self.path,
+                    "output",
+                    f"moment at step {s} ({t_s * 1e6:.1f} µs) lies outside the run "
+                    f"(steps 1..{n_steps}, up to {n_steps * grid.dt_s * 1e6:.1f} µs)",
+                )
         return sorted(set(steps))
 
     def render_every(self, grid) -> int:

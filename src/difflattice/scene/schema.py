@@ -35,9 +35,15 @@ class GridSection(Section):
         20.0, kind="number", gt=0, unit="cells/λ", doc="cells per wavelength in the fastest medium"
     )
     size_m: tuple | None = setting(
-        None, kind="list", items="number", unit="m", doc="[width, height] of the window (rz: [z length, radius]; or give shape)"
+        None,
+        kind="list",
+        items="number",
+        unit="m",
+        doc="[width, height] of the window (rz: [z length, radius]; or give shape)",
     )
-    shape: tuple | None = setting(None, kind="list", items="int", unit="cells", doc="[nx, ny] cells (rz: [nz, nr]; or give size_m)")
+    shape: tuple | None = setting(
+        None, kind="list", items="int", unit="cells", doc="[nx, ny] cells (rz: [nz, nr]; or give size_m)"
+    )
     courant: float = setting(0.707, kind="number", gt=0, doc="fastest medium's speed in cells/step, <= 0.7071")
     dtype: str = setting("float32", kind="str", doc="float32 or float64")
 

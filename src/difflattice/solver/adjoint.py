@@ -144,12 +144,16 @@ def _linear_run_bwd(starts, grads, perturbed, stepper, n_steps, chunk):
             g = g.at[c].add(w * (g_re * jnp.cos(ang) + g_im * jnp.sin(ang)))
         return g
 
-
     # lattice fields whose gradients are wanted (the step reads K, q_scale, bx, by[, bz], keep, sponge)
-    fields_wanted = tuple(
-        f for f in ("K", "q_scale", "bx", "by", "bz", "keep", "sponge")
-        if getattr(lat, f) is not None and any(jax.tree_util.tree_leaves(getattr(perturbed.lattice, f)))
-    ) if want_lat else ()
+    fields_wanted = (
+        tuple(
+            f
+            for f in ("K", "q_scale", "bx", "by", "bz", "keep", "sponge")
+            if getattr(lat, f) is not None and any(jax.tree_util.tree_leaves(getattr(perturbed.lattice, f)))
+        )
+        if want_lat
+        else ()
+    )
 
     need_prev = "keep" in fields_wanted or "sponge" in fields_wanted
 
@@ -256,6 +260,7 @@ def _linear_run_bwd(starts, grads, perturbed, stepper, n_steps, chunk):
         carry, ct = segment(carry, jnp.asarray(n_chunks * chunk, jnp.int32), rem, rem_start)
         pieces.append(ct)
     if n_chunks:
+
         def chunk_back(carry, xs):
             k, start = xs
             return segment(carry, k * chunk, chunk, start)
@@ -272,9 +277,11 @@ def _linear_run_bwd(starts, grads, perturbed, stepper, n_steps, chunk):
     t_all = (jnp.arange(1, n_steps + 1)).astype(dtype) * grid.dt_s
     src_grads = []
     want_c = any(s.injection == "velocity" for s in stepper.sources) and any(
-        jax.tree_util.tree_leaves(perturbed.lattice.c))
+        jax.tree_util.tree_leaves(perturbed.lattice.c)
+    )
     c_ct = None
     for src, ct in zip(stepper.sources, src_cts):
+
         def injected(s, c):
             lat_c = eqx.tree_at(lambda L: L.c, lat, c)
             return jax.vmap(lambda t: source_injection(s, t, grid, lat_c))(t_all)
@@ -294,8 +301,12 @@ def _linear_run_bwd(starts, grads, perturbed, stepper, n_steps, chunk):
     if lat_ct:
         lat_grad = jax.tree_util.tree_map(lambda _: None, lat)
         names = tuple(lat_ct)
-        lat_grad = eqx.tree_at(lambda L: tuple(getattr(L, f) for f in names), lat_grad,
-                               tuple(lat_ct[f] for f in names), is_leaf=lambda x: x is None)
+        lat_grad = eqx.tree_at(
+            lambda L: tuple(getattr(L, f) for f in names),
+            lat_grad,
+            tuple(lat_ct[f] for f in names),
+            is_leaf=lambda x: x is None,
+        )
         out = eqx.tree_at(lambda s: s.lattice, out, lat_grad, is_leaf=lambda x: x is None)
     return out
 

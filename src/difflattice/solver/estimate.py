@@ -140,8 +140,10 @@ def estimate_run(grid_shape, n_steps: int, dtype: str = "float32", features=None
         raise ValueError(f"n_steps = {n_steps!r} must be a positive integer")
     nbytes = sum(memory_breakdown(grid_shape, n_steps, dtype, f).values())
     ndim = len(tuple(grid_shape))
-    mlups = f.mlups if f.mlups is not None else measure_mlups(
-        ndim, "pml" if f.pml else "leapfrog", dtype, heterogeneous=f.heterogeneous
+    mlups = (
+        f.mlups
+        if f.mlups is not None
+        else measure_mlups(ndim, "pml" if f.pml else "leapfrog", dtype, heterogeneous=f.heterogeneous)
     )
     if not mlups > 0:
         raise ValueError(f"mlups = {mlups}: must be > 0")
@@ -196,7 +198,9 @@ def format_estimate(grid_shape, n_steps: int, nbytes: int, seconds: float) -> st
     )
 
 
-def check_fits(grid_shape, n_steps: int, nbytes: int, *, available: int | None = None, seconds: float | None = None) -> None:
+def check_fits(
+    grid_shape, n_steps: int, nbytes: int, *, available: int | None = None, seconds: float | None = None
+) -> None:
     """Raise `RunTooLargeError` (naming the estimate and the fix) if `nbytes` plus the runtime does
     not fit in `FIT_FRACTION` of the available memory."""
     avail = available_memory_bytes() if available is None else int(available)
@@ -225,12 +229,18 @@ def _device_key(ndim: int, stepper: str, dtype: str, heterogeneous: bool) -> str
 
     d = jax.devices()[0]
     medium = "maps" if heterogeneous else "homogeneous"
-    return (f"{d.platform}:{getattr(d, 'device_kind', '')}:{os.cpu_count()}:jax{jax.__version__}:{ndim}d:{stepper}:"
-            f"{medium}:{dtype}")
+    return (
+        f"{d.platform}:{getattr(d, 'device_kind', '')}:{os.cpu_count()}:jax{jax.__version__}:{ndim}d:{stepper}:"
+        f"{medium}:{dtype}"
+    )
 
 
 def measure_mlups(
-    ndim: int, stepper: Literal["leapfrog", "pml"] = "pml", dtype: str = "float32", *, heterogeneous: bool = False,
+    ndim: int,
+    stepper: Literal["leapfrog", "pml"] = "pml",
+    dtype: str = "float32",
+    *,
+    heterogeneous: bool = False,
     refresh: bool = False,
 ) -> float:
     """Million lattice-cell updates per second of `stepper` on a grid of rank `ndim` on this
@@ -253,8 +263,11 @@ def measure_mlups(
     if key in cache and not refresh:
         return float(cache[key]["mlups"])
     mlups = _time_run(ndim, stepper, dtype, heterogeneous)
-    cache[key] = {"mlups": mlups, "measured_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-                  "load_average": list(os.getloadavg())}
+    cache[key] = {
+        "mlups": mlups,
+        "measured_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "load_average": list(os.getloadavg()),
+    }
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_suffix(".tmp")
@@ -281,8 +294,15 @@ def _time_run(ndim: int, stepper: str, dtype: str, heterogeneous: bool = False) 
     shape = (160, 160, 160) if ndim == 3 else (840, 630)
     n_steps = 10 if ndim == 3 else 100
     courant = 0.57 if ndim == 3 else 0.7
-    grid = make_grid(frequency_hz=40e3, cells_per_wavelength=12, c_max_m_s=343.0, shape=shape,
-                     courant=courant, dtype=dtype, kind="3d" if ndim == 3 else "2d")
+    grid = make_grid(
+        frequency_hz=40e3,
+        cells_per_wavelength=12,
+        c_max_m_s=343.0,
+        shape=shape,
+        courant=courant,
+        dtype=dtype,
+        kind="3d" if ndim == 3 else "2d",
+    )
     edges = Edges.all("pml", thickness_cells=8) if stepper == "pml" else Edges.all("rigid")
     medium = Medium(343.0, 1.2)
     if heterogeneous:
@@ -306,7 +326,9 @@ def _time_run(ndim: int, stepper: str, dtype: str, heterogeneous: bool = False) 
 # a stepper's run
 
 
-def features_of(stepper, n_steps: int, *, checkpoint=None, gradient: bool = False, mlups: float | None = None) -> RunFeatures:
+def features_of(
+    stepper, n_steps: int, *, checkpoint=None, gradient: bool = False, mlups: float | None = None
+) -> RunFeatures:
     """The `RunFeatures` of a run of `stepper` (a `solver.Stepper`) for `n_steps` steps."""
     import jax.numpy as jnp
 
@@ -324,14 +346,24 @@ def features_of(stepper, n_steps: int, *, checkpoint=None, gradient: bool = Fals
         chunk = math.isqrt(n_steps) if checkpoint == "sqrt" else int(checkpoint)
         chunks = -(-n_steps // max(chunk, 1))
     return RunFeatures(
-        pml=bool(stepper.staggered), heterogeneous=bool(heterogeneous), soft=lat.keep is not None,
-        absorption=lat.eta > 0, n_probes=sens.n_probes, n_phasors=sens.n_phasors, snapshot_cells=snap_cells,
-        n_snapshots=n_snap, field_stats=int(sens.p_max) + int(sens.p_rms) + int(sens.arrival_threshold_pa is not None),
-        gradient=gradient, checkpoints=chunks, mlups=mlups,
+        pml=bool(stepper.staggered),
+        heterogeneous=bool(heterogeneous),
+        soft=lat.keep is not None,
+        absorption=lat.eta > 0,
+        n_probes=sens.n_probes,
+        n_phasors=sens.n_phasors,
+        snapshot_cells=snap_cells,
+        n_snapshots=n_snap,
+        field_stats=int(sens.p_max) + int(sens.p_rms) + int(sens.arrival_threshold_pa is not None),
+        gradient=gradient,
+        checkpoints=chunks,
+        mlups=mlups,
     )
 
 
-def preflight(stepper, n_steps: int, *, checkpoint=None, show: bool = False, available: int | None = None) -> tuple[int, float]:
+def preflight(
+    stepper, n_steps: int, *, checkpoint=None, show: bool = False, available: int | None = None
+) -> tuple[int, float]:
     """Estimate a run of `stepper` (memory; with `show` also the time, from the measured MLUPS,
     and print both), refuse it (`RunTooLargeError`) if it would not fit; returns (bytes, seconds)
     (seconds NaN when not shown)."""

@@ -10,7 +10,8 @@ per-chunk record of the peak |p| (instability detection), and memory-bounded rev
 from __future__ import annotations
 
 import math
-from typing import Literal, Sequence
+from collections.abc import Sequence
+from typing import Literal
 
 import equinox as eqx
 import jax
@@ -80,7 +81,7 @@ def run(
     state: State | None = None,
     checkpoint: Checkpoint = None,
     unroll: int | None = None,
-    sharding: "jax.sharding.Sharding | None" = None,
+    sharding: jax.sharding.Sharding | None = None,
     adjoint: Literal["autodiff", "lattice", "auto"] = "autodiff",
     backend: Literal["auto", "jax", "native"] = "auto",
 ) -> Result:
@@ -112,8 +113,16 @@ def run(
     if backend != "jax":
         from . import native
 
-        result = native.dispatch(stepper, n_steps, state=state, checkpoint=checkpoint, unroll=unroll,
-                                 sharding=sharding, adjoint=adjoint, backend=backend)
+        result = native.dispatch(
+            stepper,
+            n_steps,
+            state=state,
+            checkpoint=checkpoint,
+            unroll=unroll,
+            sharding=sharding,
+            adjoint=adjoint,
+            backend=backend,
+        )
         if result is not None:
             return result
     # ------------------------------------------------------------------------------------------
@@ -226,7 +235,7 @@ def _constrainer(shape, sharding):
     return f
 
 
-def grid_sharding(devices: Sequence | None = None, axis: int = 0, ndim: int = 2) -> "jax.sharding.NamedSharding":
+def grid_sharding(devices: Sequence | None = None, axis: int = 0, ndim: int = 2) -> jax.sharding.NamedSharding:
     """A sharding that splits grid-shaped arrays of rank `ndim` (3 for a 3-D grid) along `axis`
     (0 = x) across `devices` (default: all devices). On a CPU,
     `XLA_FLAGS=--xla_force_host_platform_device_count=N` (set before JAX starts) gives N host
@@ -272,7 +281,7 @@ def simulate(
     edges: Edges = Edges(),
     checkpoint: Checkpoint = None,
     unroll: int | None = None,
-    sharding: "jax.sharding.Sharding | None" = None,
+    sharding: jax.sharding.Sharding | None = None,
     adjoint: Literal["autodiff", "lattice", "auto"] = "autodiff",
     throw: bool = True,
     backend: Literal["auto", "jax", "native"] = "auto",
@@ -308,16 +317,25 @@ def simulate(
 
 
 @eqx.filter_jit
-def _simulate(stepper: Stepper, n_steps: int, checkpoint, unroll: int | None, sharding, adjoint, throw: bool,
-              backend: str = "auto") -> Result:
+def _simulate(
+    stepper: Stepper,
+    n_steps: int,
+    checkpoint,
+    unroll: int | None,
+    sharding,
+    adjoint,
+    throw: bool,
+    backend: str = "auto",
+) -> Result:
     lat = stepper.lattice
     if jnp.ndim(lat.c) != 0 or isinstance(lat.c, jax.core.Tracer):
         # speeds may be traced (e.g. fitted): check the stability limit at run time
         limit = stability_limit(stepper.grid.kind)
         msg = SPEED_MESSAGE_3D if stepper.grid.kind == "3d" else SPEED_MESSAGE
         stepper = eqx.error_if(stepper, jnp.max(lat.c) > limit * (1 + 1e-6), msg)
-    result = run(stepper, n_steps, checkpoint=checkpoint, unroll=unroll, sharding=sharding, adjoint=adjoint,
-                 backend=backend)
+    result = run(
+        stepper, n_steps, checkpoint=checkpoint, unroll=unroll, sharding=sharding, adjoint=adjoint, backend=backend
+    )
     if throw:
         result = check_result(result, stepper)
     return result

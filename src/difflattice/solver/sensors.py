@@ -15,14 +15,12 @@
 
 from __future__ import annotations
 
-
 import equinox as eqx
 import jax
 import numpy as np
-
-from ..lattice.grid import Grid
 from jaxtyping import Array, Int
 
+from ..lattice.grid import Grid
 from .sources import as_cells
 
 
@@ -59,9 +57,13 @@ class Sensors(eqx.Module):
     def __check_init__(self):
         sl = self.snapshot_slices
         if sl is not None and sl != "volume":
-            if not (isinstance(sl, tuple) and sl and all(
-                isinstance(t, tuple) and len(t) == 2 and t[0] in (0, 1, 2) and isinstance(t[1], int) for t in sl
-            )):
+            if not (
+                isinstance(sl, tuple)
+                and sl
+                and all(
+                    isinstance(t, tuple) and len(t) == 2 and t[0] in (0, 1, 2) and isinstance(t[1], int) for t in sl
+                )
+            ):
                 raise ValueError(
                     f"snapshot_slices = {sl!r}: give ((axis, index), ...) with axis 0, 1 or 2, or 'volume'"
                 )
@@ -103,12 +105,16 @@ class Sensors(eqx.Module):
             raise ValueError("snapshot_slices applies to 3-D grids only (a 2-D snapshot is the whole field)")
         for a, i in self.snapshot_planes(shape) or ():
             if not 0 <= i < shape[a]:
-                raise ValueError(f"snapshot slice (axis {a}, index {i}) lies outside the grid's {shape[a]} cells along that axis")
+                raise ValueError(
+                    f"snapshot slice (axis {a}, index {i}) lies outside the grid's {shape[a]} cells along that axis"
+                )
         for name, cells in (("probes", self.probes), ("phasor_cells", self.phasor_cells)):
             if not isinstance(cells, np.ndarray) or len(cells) == 0:
                 continue  # traced positions: not checkable here
             if cells.shape[1] != len(shape):
-                raise ValueError(f"sensor {name} cells have {cells.shape[1]} indices each; the {dims} grid needs {len(shape)}")
+                raise ValueError(
+                    f"sensor {name} cells have {cells.shape[1]} indices each; the {dims} grid needs {len(shape)}"
+                )
             out = (cells < 0) | (cells >= np.asarray(shape))
             if out.any():
                 bad = tuple(int(v) for v in cells[np.argmax(out.any(axis=1))])

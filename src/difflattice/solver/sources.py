@@ -152,7 +152,6 @@ class PointSources(eqx.Module):
 INJECTIONS = ("soft", "hard", "velocity")
 
 
-
 def as_cells(cells) -> Int[Array, "n d"]:
     """Cell indices as an (n, 2) or, on a 3-D grid, (n, 3) int32 array: NumPy when given concrete
     values (traced by `eqx.filter_jit` as data, so new positions do not recompile), left alone
@@ -166,24 +165,26 @@ def as_cells(cells) -> Int[Array, "n d"]:
         return np.zeros((0, 2), np.int32)
     if not np.issubdtype(arr.dtype, np.integer):
         if not np.all(np.equal(np.mod(arr, 1), 0)):
-            raise ValueError("cells must be integer cell indices (ix, iy[, iz]); convert positions in metres "
-                             "with difflattice.sensors.probe_cells or line_cells")
+            raise ValueError(
+                "cells must be integer cell indices (ix, iy[, iz]); convert positions in metres "
+                "with difflattice.sensors.probe_cells or line_cells"
+            )
     d = arr.shape[-1] if arr.ndim >= 1 else 0
     if d not in (2, 3) or arr.ndim > 2:
         raise ValueError(f"cells must be (n, 2) or (n, 3) cell indices, got an array of shape {arr.shape}")
     return arr.astype(np.int32).reshape(-1, d)
 
 
-def line_cells(
-    grid: Grid, centre_m: tuple[float, float], n_cells: int, direction_deg: float = 0.0
-) -> np.ndarray:
+def line_cells(grid: Grid, centre_m: tuple[float, float], n_cells: int, direction_deg: float = 0.0) -> np.ndarray:
     """Cells of a line transducer of `n_cells` cells, centred at `centre_m` (x_m, y_m), whose face
     points along `direction_deg` (0 = +x). The line runs perpendicular to the facing direction,
     rasterised to the nearest cells; cell k = 0 is at the start of the line."""
     if n_cells < 1:
         raise ValueError(f"n_cells = {n_cells} must be >= 1")
     if len(grid.shape) != 2:
-        raise ValueError(f"a line transducer needs a 2-D grid, got shape {grid.shape}: on a 3-D grid use disc_transducer_3d")
+        raise ValueError(
+            f"a line transducer needs a 2-D grid, got shape {grid.shape}: on a 3-D grid use disc_transducer_3d"
+        )
     theta = math.radians(direction_deg)
     tx, ty = -math.sin(theta), math.cos(theta)  # along the face
     # snap the centre to the half-cell lattice so round-off never splits the line
@@ -230,8 +231,6 @@ def line_transducer(
     lag = jnp.zeros(n_cells, dtype) if lags_s is None else jnp.asarray(lags_s, dtype)
     sig = signal if signal is not None else ToneBurst(grid.frequency_hz, 5.0)
     return PointSources(cells=cells, signal=sig, weights=w, lags_s=lag, injection=injection)
-
-
 
 
 # ------------------------------------------------------------------------------------------
@@ -313,7 +312,9 @@ def disc_transducer(
             "with disc_housing for a face inside the window"
         )
     if baffle != "rigid" and i0 < 1:
-        raise ValueError(f"baffle = {baffle!r}: the face z_m = {z_m} m needs room behind it for the housing; move it up")
+        raise ValueError(
+            f"baffle = {baffle!r}: the face z_m = {z_m} m needs room behind it for the housing; move it up"
+        )
     nx, ny = grid.shape
     if not 0 <= i0 < nx:
         raise ValueError(f"face z_m = {z_m} m (row {i0}) lies outside the grid (0 .. {nx - 1})")
@@ -407,8 +408,9 @@ def ring_table(rings: dict | None, radius_m: float | None) -> tuple[np.ndarray, 
             raise ValueError("give diameter_m, or rings with their radii")
         return np.array([[0.0, radius_m]]), np.ones(1), np.zeros(1)
     if not isinstance(rings, dict) or "weights" not in rings:
-        raise ValueError("rings must be a dict with 'weights' and 'ring_edges_m' (n, 2) or 'radii_m' (n,) "
-                         "(and optionally 'lags_s')")
+        raise ValueError(
+            "rings must be a dict with 'weights' and 'ring_edges_m' (n, 2) or 'radii_m' (n,) (and optionally 'lags_s')"
+        )
     w = np.asarray(rings["weights"], dtype=float).ravel()
     lag = np.asarray(rings.get("lags_s", np.zeros_like(w)), dtype=float).ravel()
     if "ring_edges_m" in rings:
@@ -462,7 +464,12 @@ def rings_from_fit_report(report) -> dict:
 
 
 def disc_cells_3d(
-    grid: Grid, centre_m, axis, diameter_m: float | None = None, *, rings: dict | None = None,
+    grid: Grid,
+    centre_m,
+    axis,
+    diameter_m: float | None = None,
+    *,
+    rings: dict | None = None,
     samples_per_cell: int = 12,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Cells of a flat disc on a 3-D grid at any position and orientation, weighted by the area of
@@ -475,7 +482,9 @@ def disc_cells_3d(
     its lag is the weight-averaged ring lag. A disc normal to a grid axis lies in one layer of
     cells and its rim cells get their covered fraction."""
     if len(grid.shape) != 3:
-        raise ValueError(f"disc_cells_3d needs a 3-D grid (kind='3d'), got shape {grid.shape}; in 2-D use line_transducer")
+        raise ValueError(
+            f"disc_cells_3d needs a 3-D grid (kind='3d'), got shape {grid.shape}; in 2-D use line_transducer"
+        )
     if diameter_m is not None and not diameter_m > 0:
         raise ValueError(f"diameter_m = {diameter_m} must be > 0")
     if samples_per_cell < 2:
@@ -533,5 +542,10 @@ def disc_transducer_3d(
     keep = w != 0
     dtype = grid.jnp_dtype
     sig = signal if signal is not None else ToneBurst(grid.frequency_hz, 5.0)
-    return PointSources(cells=cells[keep], signal=sig, weights=jnp.asarray(w[keep], dtype),
-                        lags_s=jnp.asarray(lags[keep], dtype), injection=injection)
+    return PointSources(
+        cells=cells[keep],
+        signal=sig,
+        weights=jnp.asarray(w[keep], dtype),
+        lags_s=jnp.asarray(lags[keep], dtype),
+        injection=injection,
+    )

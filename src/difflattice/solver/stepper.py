@@ -15,7 +15,7 @@ plane or rz scene compiles exactly its 2-D arithmetic (no z term, no z field).
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from collections.abc import Sequence
 
 import equinox as eqx
 import jax
@@ -83,7 +83,7 @@ class Stepper(eqx.Module):
         sources: PointSources | Sequence[PointSources] = (),
         sensors: Sensors = Sensors(),
         edges: Edges = Edges(),
-    ) -> "Stepper":
+    ) -> Stepper:
         if isinstance(sources, PointSources):
             sources = (sources,)
         sources = tuple(sources)
@@ -145,9 +145,7 @@ class Stepper(eqx.Module):
             wx=faces(0) if self.staggered else None,
             wy=faces(1) if self.staggered else None,
             wz=faces(2) if stag3 else None,
-            src_acc=tuple(jnp.zeros(s.n_cells, dt) for s in self.sources if s.adds)
-            if self.staggered
-            else None,
+            src_acc=tuple(jnp.zeros(s.n_cells, dt) for s in self.sources if s.adds) if self.staggered else None,
             c_r=None if rad is None else jnp.zeros((nx, rad.width), dt),
             phasor_re=jnp.zeros(m, dt) if m else None,
             phasor_im=jnp.zeros(m, dt) if m else None,
@@ -239,7 +237,7 @@ class Stepper(eqx.Module):
             if axis == 1 and rad is not None:  # cylindrical stretching of the ring metric in the r_hi layer
                 wy = new_w[1]
                 w = rad.width
-                w_sum = wy[:, -w:] + wy[:, -w - 1:-1] + state.wy[:, -w:] + state.wy[:, -w - 1:-1]
+                w_sum = wy[:, -w:] + wy[:, -w - 1 : -1] + state.wy[:, -w:] + state.wy[:, -w - 1 : -1]
                 c_r = rad.decay * state.c_r + rad.drive * w_sum
                 # zero-padded to full width, not added in place: XLA fuses the pad into the update
                 # (measured, XLA CPU: an in-place strip update 0.6x the 2-D speed, the pad 0.75x)

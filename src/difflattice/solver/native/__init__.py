@@ -50,8 +50,10 @@ def dispatch(stepper, n_steps: int, *, state, checkpoint, unroll, sharding, adjo
     if adjoint == "lattice":
         # the adjoint-wave-equation reverse mode has its own forward pass (solver/adjoint.py)
         if backend == "native":
-            raise ValueError("backend='native' runs with adjoint='autodiff' only (here adjoint='lattice' applies): "
-                             "use backend='auto' or 'jax' for the lattice adjoint")
+            raise ValueError(
+                "backend='native' runs with adjoint='autodiff' only (here adjoint='lattice' applies): "
+                "use backend='auto' or 'jax' for the lattice adjoint"
+            )
         return None
     reason = why_not(stepper, state, sharding)
     if reason is not None:

@@ -50,9 +50,18 @@ def find_compiler() -> str | None:
 
 
 def _flags(include_dir: str, native_arch: bool) -> list[str]:
-    flags = ["-O3", "-std=c++17", "-shared", "-fPIC", "-pthread", "-fno-math-errno",
-             # XLA's CPU backend contracts a * b + c into FMAs: do the same, so both agree closely
-             "-ffp-contract=fast", "-I", include_dir]
+    flags = [
+        "-O3",
+        "-std=c++17",
+        "-shared",
+        "-fPIC",
+        "-pthread",
+        "-fno-math-errno",
+        # XLA's CPU backend contracts a * b + c into FMAs: do the same, so both agree closely
+        "-ffp-contract=fast",
+        "-I",
+        include_dir,
+    ]
     if native_arch:
         flags.append("-march=native")
         if platform.machine().lower() in ("x86_64", "amd64"):
@@ -126,8 +135,13 @@ def _load() -> Library | str:
     if cxx is None:
         return "no C++ compiler found: install g++ or clang++, or set CXX"
     key = hashlib.sha256()
-    for part in (SOURCE.read_bytes(), " ".join(_flags(include_dir, True)).encode(), _compiler_version(cxx).encode(),
-                 jaxlib.__version__.encode(), _processor_id().encode()):
+    for part in (
+        SOURCE.read_bytes(),
+        " ".join(_flags(include_dir, True)).encode(),
+        _compiler_version(cxx).encode(),
+        jaxlib.__version__.encode(),
+        _processor_id().encode(),
+    ):
         key.update(part)
         key.update(b"\0")
     path = cache_dir() / key.hexdigest()[:20] / "liblattice.so"

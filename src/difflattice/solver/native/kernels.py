@@ -25,13 +25,42 @@ from ..stepper import State, Stepper
 
 # Lattice fields the kernels implement; a field added to `Lattice` later is refused (the JAX loop
 # runs) until the kernels learn it
-KNOWN_LATTICE_FIELDS = frozenset({"K", "q_scale", "bx", "by", "ax_lo", "ax_hi", "ay_lo", "ay_hi", "keep", "c",
-                                  "sponge", "pml", "metric", "eta", "ghosts", "mur"})
+KNOWN_LATTICE_FIELDS = frozenset(
+    {
+        "K",
+        "q_scale",
+        "bx",
+        "by",
+        "ax_lo",
+        "ax_hi",
+        "ay_lo",
+        "ay_hi",
+        "keep",
+        "c",
+        "sponge",
+        "pml",
+        "metric",
+        "eta",
+        "ghosts",
+        "mur",
+    }
+)
 # likewise the carried state, the sensors' options and the sources' injection modes
-KNOWN_STATE_FIELDS = frozenset({"n", "p", "p_prev", "px", "py", "wx", "wy", "src_acc", "c_r", "phasor_re", "phasor_im",
-                                "p_max", "p_sq", "arrival"})
-KNOWN_SENSOR_FIELDS = frozenset({"probes", "phasor_cells", "phasor_frequency_hz", "p_max", "p_rms",
-                                 "arrival_threshold_pa", "snapshot_every", "phasor_from_step"})
+KNOWN_STATE_FIELDS = frozenset(
+    {"n", "p", "p_prev", "px", "py", "wx", "wy", "src_acc", "c_r", "phasor_re", "phasor_im", "p_max", "p_sq", "arrival"}
+)
+KNOWN_SENSOR_FIELDS = frozenset(
+    {
+        "probes",
+        "phasor_cells",
+        "phasor_frequency_hz",
+        "p_max",
+        "p_rms",
+        "arrival_threshold_pa",
+        "snapshot_every",
+        "phasor_from_step",
+    }
+)
 KNOWN_INJECTIONS = frozenset({"soft", "hard", "velocity"})
 L1_BYTES = 40 * 1024  # working-set budgets of the temporal blocking (most x86 cores: 48 KB L1d,
 L2_BYTES = 512 * 1024  # >= 1 MB L2)
@@ -50,20 +79,28 @@ def unsupported(stepper: Stepper, state: State | None, sharding) -> str | None:
         return f"dtype {grid.dtype}"
     if type(stepper) is not Stepper or type(lat) is not Lattice:
         return f"a custom stepper ({type(stepper).__name__})"
-    extra = [f.name for f in dataclasses.fields(lat) if f.name not in KNOWN_LATTICE_FIELDS and getattr(lat, f.name) is not None]
+    extra = [
+        f.name
+        for f in dataclasses.fields(lat)
+        if f.name not in KNOWN_LATTICE_FIELDS and getattr(lat, f.name) is not None
+    ]
     if extra:
         return f"lattice terms the kernels do not implement ({', '.join(extra)})"
     sens = stepper.sensors
-    new_options = [f.name for f in dataclasses.fields(sens)
-                   if f.name not in KNOWN_SENSOR_FIELDS and _is_set(getattr(sens, f.name))]
+    new_options = [
+        f.name for f in dataclasses.fields(sens) if f.name not in KNOWN_SENSOR_FIELDS and _is_set(getattr(sens, f.name))
+    ]
     if new_options:
         return f"sensor options the kernels do not implement ({', '.join(new_options)})"
     modes = {s.injection for s in stepper.sources} - KNOWN_INJECTIONS
     if modes:
         return f"source injection {', '.join(sorted(modes))}"
     carried = jax.eval_shape(stepper.init)
-    new_state = [f.name for f in dataclasses.fields(carried)
-                 if f.name not in KNOWN_STATE_FIELDS and getattr(carried, f.name) is not None]
+    new_state = [
+        f.name
+        for f in dataclasses.fields(carried)
+        if f.name not in KNOWN_STATE_FIELDS and getattr(carried, f.name) is not None
+    ]
     if new_state:
         return f"carried state the kernels do not update ({', '.join(new_state)})"
     if any(lat.mur):
@@ -74,8 +111,14 @@ def unsupported(stepper: Stepper, state: State | None, sharding) -> str | None:
     if lat.ax_lo is not None:
         return 'the "paper" boundary model'
     nx, ny = grid.shape
-    layouts = {"K": (nx, ny), "q_scale": (nx, ny), "keep": (nx, ny), "sponge": (nx, ny), "bx": (nx + 1, ny),
-               "by": (nx, ny + 1)}
+    layouts = {
+        "K": (nx, ny),
+        "q_scale": (nx, ny),
+        "keep": (nx, ny),
+        "sponge": (nx, ny),
+        "bx": (nx + 1, ny),
+        "by": (nx, ny + 1),
+    }
     for name, full in layouts.items():
         v = getattr(lat, name)
         if v is not None and not _broadcasts(jnp.shape(v), full):
@@ -165,8 +208,12 @@ class _Chunk:
         grid, lat, sens = stepper.grid, stepper.lattice, stepper.sensors
         self.dt = dt = grid.jnp_dtype
         self.shape = grid.shape
-        self.attrs = dict(threads=np.int64(threads), levels=np.int64(levels), eta=float(lat.eta),
-                          threshold=float(sens.arrival_threshold_pa or 0.0))
+        self.attrs = dict(
+            threads=np.int64(threads),
+            levels=np.int64(levels),
+            eta=float(lat.eta),
+            threshold=float(sens.arrival_threshold_pa or 0.0),
+        )
         self.bands = np.int64(bands)
         as_dt = lambda v: _absent(dt) if v is None else jnp.asarray(v, dt)
         bx, by = _face_coefficients(lat, self.shape, dt)
@@ -176,15 +223,24 @@ class _Chunk:
         self.sponge = as_dt(lat.sponge)
         if stepper.staggered:
             pml = lat.pml
-            self.pml = [as_dt(getattr(pml, k)) for k in ("ax_cell", "bx_cell", "ax_face", "bx_face",
-                                                          "ay_cell", "by_cell", "ay_face", "by_face")]
+            self.pml = [
+                as_dt(getattr(pml, k))
+                for k in ("ax_cell", "bx_cell", "ax_face", "bx_face", "ay_cell", "by_cell", "ay_face", "by_face")
+            ]
             rad = getattr(pml, "radial", None)  # rz r_hi layer: the ring field C's update factors
-            self.radial = [as_dt(None if rad is None else rad.decay.reshape(-1)),
-                           as_dt(None if rad is None else rad.drive.reshape(-1))]
+            self.radial = [
+                as_dt(None if rad is None else rad.decay.reshape(-1)),
+                as_dt(None if rad is None else rad.drive.reshape(-1)),
+            ]
         srcs = stepper.sources
-        self.src_cells = _cells(jnp.concatenate([_cells(s.cells) for s in srcs])) if srcs else jnp.zeros((0, 2), jnp.int32)
-        self.src_hard = jnp.asarray(np.concatenate([np.full(s.n_cells, s.injection == "hard", np.int32) for s in srcs])
-                                    if srcs else np.zeros(0, np.int32))
+        self.src_cells = (
+            _cells(jnp.concatenate([_cells(s.cells) for s in srcs])) if srcs else jnp.zeros((0, 2), jnp.int32)
+        )
+        self.src_hard = jnp.asarray(
+            np.concatenate([np.full(s.n_cells, s.injection == "hard", np.int32) for s in srcs])
+            if srcs
+            else np.zeros(0, np.int32)
+        )
         self.rec_cells = _cells(sens.probes)
         self.ph_cells = _cells(sens.phasor_cells)
         self.n_probes, self.n_ph = sens.n_probes, sens.n_phasors
@@ -213,11 +269,13 @@ class _Chunk:
 
     def _stats_in(self, st: State):
         dt = self.dt
-        return [_absent(dt) if st.phasor_re is None else st.phasor_re,
-                _absent(dt) if st.phasor_im is None else st.phasor_im,
-                _absent(dt) if st.p_max is None else st.p_max,
-                _absent(dt) if st.p_sq is None else st.p_sq,
-                _absent(jnp.int32) if st.arrival is None else st.arrival]
+        return [
+            _absent(dt) if st.phasor_re is None else st.phasor_re,
+            _absent(dt) if st.phasor_im is None else st.phasor_im,
+            _absent(dt) if st.p_max is None else st.p_max,
+            _absent(dt) if st.p_sq is None else st.p_sq,
+            _absent(jnp.int32) if st.arrival is None else st.arrival,
+        ]
 
     def advance(self, st: State, length: int):
         """`length` steps from `st`; returns the new state and the probes (length, n) or None."""
@@ -227,12 +285,29 @@ class _Chunk:
         rec_shape = jax.ShapeDtypeStruct((length, self.n_probes), self.dt)
         stat_shapes = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in stats]
         if not self.stepper.staggered:
-            args = [st.p, st.p_prev, *self.coef, self.sponge, *self.metric, self.src_cells, self.src_hard, vals, self.rec_cells,
-                    jnp.zeros((0, 2), jnp.int32), self.ph_cells, cos, sin, *stats, n0]
+            args = [
+                st.p,
+                st.p_prev,
+                *self.coef,
+                self.sponge,
+                *self.metric,
+                self.src_cells,
+                self.src_hard,
+                vals,
+                self.rec_cells,
+                jnp.zeros((0, 2), jnp.int32),
+                self.ph_cells,
+                cos,
+                sin,
+                *stats,
+                n0,
+            ]
             field = jax.ShapeDtypeStruct(self.shape, self.dt)
             out = jax.ffi.ffi_call(
-                "difflattice_leapfrog", [field, field, rec_shape, *stat_shapes],
-                input_output_aliases={0: 0, 1: 1, 18: 3, 19: 4, 20: 5, 21: 6, 22: 7}, vmap_method="sequential",
+                "difflattice_leapfrog",
+                [field, field, rec_shape, *stat_shapes],
+                input_output_aliases={0: 0, 1: 1, 18: 3, 19: 4, 20: 5, 21: 6, 22: 7},
+                vmap_method="sequential",
             )(*args, n_steps=np.int64(length), combine=np.int64(0), bands=self.bands, **self.attrs)
             p, p_prev, rec, *stats_out = out
             st = eqx.tree_at(lambda s: (s.p, s.p_prev), st, (p, p_prev))
@@ -241,16 +316,35 @@ class _Chunk:
             p_prev = _absent(self.dt) if st.p_prev is None else st.p_prev
             c_r = getattr(st, "c_r", None)
             c_r = _absent(self.dt) if c_r is None else c_r
-            args = [st.px, st.py, st.wx, st.wy, p_prev, *self.coef, *self.metric, *self.pml, self.src_cells,
-                    self.src_hard, vals, acc, self.rec_cells, self.ph_cells, cos, sin, *stats, n0, c_r, *self.radial]
+            args = [
+                st.px,
+                st.py,
+                st.wx,
+                st.wy,
+                p_prev,
+                *self.coef,
+                *self.metric,
+                *self.pml,
+                self.src_cells,
+                self.src_hard,
+                vals,
+                acc,
+                self.rec_cells,
+                self.ph_cells,
+                cos,
+                sin,
+                *stats,
+                n0,
+                c_r,
+                *self.radial,
+            ]
             assert st.px is not None and st.py is not None and st.wx is not None and st.wy is not None
             fields = (st.px, st.py, st.wx, st.wy, p_prev, acc)
             shapes = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in fields]
             out = jax.ffi.ffi_call(
                 "difflattice_staggered",
                 [*shapes, rec_shape, *stat_shapes, jax.ShapeDtypeStruct(c_r.shape, c_r.dtype)],
-                input_output_aliases={0: 0, 1: 1, 2: 2, 3: 3, 4: 4, 23: 5, 28: 7, 29: 8, 30: 9, 31: 10, 32: 11,
-                                      34: 12},
+                input_output_aliases={0: 0, 1: 1, 2: 2, 3: 3, 4: 4, 23: 5, 28: 7, 29: 8, 30: 9, 31: 10, 32: 11, 34: 12},
                 vmap_method="sequential",
             )(*args, n_steps=np.int64(length), **self.attrs)
             px, py, wx, wy, p_prev, acc, rec, *stats_out, c_r = out
@@ -287,7 +381,7 @@ class _Chunk:
         out, start = [], 0
         for s in self.stepper.sources:
             if s.injection != "hard":
-                out.append(acc[start:start + s.n_cells])
+                out.append(acc[start : start + s.n_cells])
             start += s.n_cells
         return tuple(out)
 
@@ -348,11 +442,30 @@ def run_native(stepper: Stepper, n_steps: int, *, state: State | None, checkpoin
     levels = _levels(ny, jnp.dtype(stepper.grid.jnp_dtype).itemsize, stepper.staggered)
     bands = _bands(stepper)
     threads = _threads(nx, 0 if bands else levels)
-    final, ys, peaks, snaps = _loop(stepper, state, n_steps=n_steps, chunk=chunk, checkpoint=checkpoint,
-                                    unroll=unroll, threads=threads, levels=levels, bands=bands)
+    final, ys, peaks, snaps = _loop(
+        stepper,
+        state,
+        n_steps=n_steps,
+        chunk=chunk,
+        checkpoint=checkpoint,
+        unroll=unroll,
+        threads=threads,
+        levels=levels,
+        bands=bands,
+    )
     n_chunks, rem = divmod(n_steps, chunk)
     steps = [chunk * (i + 1) for i in range(n_chunks)] + ([n_steps] if rem else [])
     phasors = None if final.phasor_re is None else jax.lax.complex(final.phasor_re, final.phasor_im)
     p_rms = None if final.p_sq is None else jnp.sqrt(final.p_sq / n_steps)
-    return Result(final=final, probes=ys, phasors=phasors, p_max=final.p_max, p_rms=p_rms, arrival=final.arrival,
-                  snapshots=snaps, peak_history=peaks, n_steps=n_steps, chunk_steps=tuple(steps))
+    return Result(
+        final=final,
+        probes=ys,
+        phasors=phasors,
+        p_max=final.p_max,
+        p_rms=p_rms,
+        arrival=final.arrival,
+        snapshots=snaps,
+        peak_history=peaks,
+        n_steps=n_steps,
+        chunk_steps=tuple(steps),
+    )

@@ -384,6 +384,7 @@ def role_difflattice(spec: dict) -> dict:
     from difflattice.apps import accuracy
     from difflattice.fit.transfer import free_field_transfer
 
+    jax.config.update("jax_enable_x64", True)  # the float64 series (the library leaves precision to the caller)
     refs = json.loads(Path(spec["ref"]).read_text())
     with redirect_stdout(io.StringIO()):
         sweep = accuracy.sweep(

@@ -56,8 +56,9 @@ def log(*a):
     print(*a, file=sys.stderr, flush=True)
 
 
-def ensure_venv_and_reexec() -> None:
-    """Create .venv-bench if missing and re-run this script inside it (never returns there)."""
+def ensure_venv_and_reexec(script: str | Path | None = None) -> None:
+    """Create .venv-bench if missing and re-run `script` (default: this one) inside it (never
+    returns there)."""
     if Path(sys.prefix).resolve() == VENV.resolve():
         return
     py = VENV / "bin" / "python"
@@ -65,7 +66,7 @@ def ensure_venv_and_reexec() -> None:
         log(f"creating {VENV} (numba, numpy)")
         subprocess.run([sys.executable, "-m", "venv", str(VENV)], check=True)
         subprocess.run([str(VENV / "bin" / "pip"), "install", "-q", "numba", "numpy"], check=True)
-    r = subprocess.run([str(py), str(Path(__file__).resolve()), *sys.argv[1:]])
+    r = subprocess.run([str(py), str(Path(script or __file__).resolve()), *sys.argv[1:]])
     sys.exit(r.returncode)
 
 

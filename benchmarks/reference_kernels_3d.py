@@ -30,33 +30,16 @@ import argparse
 import json
 import os
 import statistics
-import subprocess
 import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-VENV = Path(os.environ.get("DIFFLATTICE_BENCH_VENV", ROOT / ".venv-bench"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from reference_kernels import ensure_venv_and_reexec, log  # noqa: E402  (one venv, one re-exec)
+
 C2 = 1.0 / 3.0
 REPEATS = 3
 WARMUP_STEPS = 2
-
-
-def log(*a):
-    print(*a, file=sys.stderr, flush=True)
-
-
-def ensure_venv_and_reexec() -> None:
-    """Create .venv-bench if missing and re-run this script inside it (never returns there)."""
-    if Path(sys.prefix).resolve() == VENV.resolve():
-        return
-    py = VENV / "bin" / "python"
-    if not py.exists():
-        log(f"creating {VENV} (numba, numpy)")
-        subprocess.run([sys.executable, "-m", "venv", str(VENV)], check=True)
-        subprocess.run([str(VENV / "bin" / "pip"), "install", "-q", "numba", "numpy"], check=True)
-    r = subprocess.run([str(py), str(Path(__file__).resolve()), *sys.argv[1:]])
-    sys.exit(r.returncode)
 
 
 def make_kernels():
@@ -102,7 +85,7 @@ def main():
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--json", default=None)
     args = ap.parse_args()
-    ensure_venv_and_reexec()
+    ensure_venv_and_reexec(__file__)
     import numba
     import numpy as np
 

@@ -14,6 +14,7 @@ PKG = Path(__file__).resolve().parents[1] / "src" / "difflattice"
 LAYERS = {
     "air": 0,
     "config": 0,
+    "transforms": 0,  # pure-Python parameter maps (logit, sigmoid)
     "lattice": 1,
     "solver": 2,
     "observe": 3,

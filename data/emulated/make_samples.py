@@ -8,9 +8,12 @@ times. Noise is seeded, so the values repeat; the host times (t_unix_s, created_
 
 from __future__ import annotations
 
+import functools
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -50,47 +53,67 @@ ALL_FAULTS = {
 }
 
 
-def _fresh(name: str) -> Path:
-    path = HERE / name
-    for p in (path, path.with_suffix(".log")):
+TRUTH_ANGLES_DEG = np.arange(-90.0, 90.5, 0.5)
+"""Angles of the ground-truth tables' lobe [deg]."""
+TRUTH_X_M = np.arange(-0.03, 0.03 + 1e-9, 0.00025)
+"""Lateral offsets of the ground-truth tables' wavefront [m]."""
+
+
+def capture_sample(
+    out: Path,
+    capture: Callable[..., Path],
+    scan: dict[str, Any],
+    *,
+    transducer: dict[str, Any],
+    meta: dict[str, Any],
+    seed: int,
+    faults: dict[str, Any] | None = None,
+) -> None:
+    """Capture one scan into ``out`` (replacing it and its log) from a fresh emulator with
+    ``transducer`` as ground truth on ``RIG``, and print how long it took."""
+    for p in (out, out.with_suffix(".log")):
         p.unlink(missing_ok=True)
-    return path
-
-
-def _run(tmp: Path, name: str, capture, scan: dict, faults: dict | None = None, seed: int = 1) -> None:
-    out = _fresh(name)
-    with start_emulator(link_path=tmp / "rig", transducer=PISTON, rig=RIG, faults=faults, seed=seed) as rig:
+    with (
+        tempfile.TemporaryDirectory() as tmp,
+        start_emulator(link_path=Path(tmp) / "rig", transducer=transducer, rig=RIG, faults=faults, seed=seed) as rig,
+    ):
         t0 = time.perf_counter()
-        meta = META | ({"range_m": RIG["range_m"]} if capture is capture_lobe else {})
-        capture(str(rig.path), out, **scan, metadata=meta)
+        capture(
+            str(rig.path), out, **scan, metadata=meta | ({"range_m": RIG["range_m"]} if capture is capture_lobe else {})
+        )
         elapsed = time.perf_counter() - t0
     cap = load_capture(out)
-    print(f"{name}: {len(cap.seq)} of {cap.metadata['n_points']} points in {elapsed:.2f} s, {len(cap.events)} events")
+    print(
+        f"{out.name}: {len(cap.seq)} of {cap.metadata['n_points']} points in {elapsed:.2f} s, {len(cap.events)} events"
+    )
 
 
-def write_truth() -> None:
-    """The noise-free ground truth at the capture conditions (21 degC), as a transducer table."""
-    piston = Piston(PISTON["diameter_m"], PISTON["sensitivity_uV"], lobe="fraunhofer")
-    c = speed_of_sound(RIG["temperature_c"])
-    angles = np.arange(-90.0, 90.5, 0.5)
-    x = np.arange(-0.03, 0.03 + 1e-9, 0.00025)
-    TableTransducer(
+def truth_table(tr: Piston, *, freq_hz: float, z_m: float, lobe_at_range: bool) -> TableTransducer:
+    """The noise-free ground truth at the rig's temperature as a transducer table: the wavefront at
+    ``z_m`` and the lobe, either the far-field pattern (``lobe_at_range`` False) or the field at
+    the rig's range referred to 1 m (the pressure there times the range)."""
+    c = float(speed_of_sound(RIG["temperature_c"]))
+    angles, x, range_m = TRUTH_ANGLES_DEG, TRUTH_X_M, RIG["range_m"]
+    lobe = tr.at_range(angles, range_m, freq_hz, c) * range_m if lobe_at_range else tr.far_field(angles, freq_hz, c)
+    return TableTransducer(
         lobe_angle_deg=angles,
-        lobe=piston.far_field(angles, FREQ_HZ, c),
-        near_z_m=0.0165,
+        lobe=lobe,
+        near_z_m=z_m,
         near_x_m=x,
-        near=piston.near_field(x, 0.0165, FREQ_HZ, c),
-        near_tof_s=piston.arrival_s(x, 0.0165, c),
-        freq_hz=FREQ_HZ,
-    ).save(HERE / "truth_piston38_40k.json")
+        near=tr.near_field(x, z_m, freq_hz, c),
+        near_tof_s=tr.arrival_s(x, z_m, c),
+        freq_hz=freq_hz,
+    )
 
 
 def main() -> None:
-    with tempfile.TemporaryDirectory() as tmp:
-        _run(Path(tmp), "lobe_piston38_40k.csv", capture_lobe, LOBE)
-        _run(Path(tmp), "wave_piston38_40k_z16.5mm.csv", capture_wave, WAVE, seed=2)
-        _run(Path(tmp), "lobe_piston38_40k_faults.csv", capture_lobe, LOBE, faults=ALL_FAULTS)
-    write_truth()
+    sample = functools.partial(capture_sample, transducer=PISTON, meta=META)
+    sample(HERE / "lobe_piston38_40k.csv", capture_lobe, LOBE, seed=1)
+    sample(HERE / "wave_piston38_40k_z16.5mm.csv", capture_wave, WAVE, seed=2)
+    sample(HERE / "lobe_piston38_40k_faults.csv", capture_lobe, LOBE, seed=1, faults=ALL_FAULTS)
+    piston = Piston(PISTON["diameter_m"], PISTON["sensitivity_uV"], lobe="fraunhofer")
+    table = truth_table(piston, freq_hz=FREQ_HZ, z_m=0.0165, lobe_at_range=False)
+    table.save(HERE / "truth_piston38_40k.json")
 
 
 if __name__ == "__main__":

@@ -22,7 +22,7 @@ def speed_of_sound_m_s(temperature_c: ArrayLike = REFERENCE_TEMPERATURE_C):
     """Speed of sound in dry air, m/s, at `temperature_c` (deg C; float or array)."""
     t = np.asarray(temperature_c, dtype=float)
     if np.any(t <= ABSOLUTE_ZERO_C):
-        raise ValueError(f"temperature_c = {temperature_c} is at or below absolute zero")
+        raise ValueError(f"temperature_c = {temperature_c!r} is at or below absolute zero")
     c = 331.3 * np.sqrt(1.0 + t / 273.15)
     return float(c) if c.ndim == 0 else c
 
@@ -30,7 +30,7 @@ def speed_of_sound_m_s(temperature_c: ArrayLike = REFERENCE_TEMPERATURE_C):
 def density_kg_m3(temperature_c: float = REFERENCE_TEMPERATURE_C, pressure_pa: float = STANDARD_PRESSURE_PA) -> float:
     """Density of dry air, kg/m^3, at `temperature_c` (deg C) and `pressure_pa` (Pa)."""
     if temperature_c <= ABSOLUTE_ZERO_C:
-        raise ValueError(f"temperature_c = {temperature_c} is at or below absolute zero")
+        raise ValueError(f"temperature_c = {temperature_c!r} is at or below absolute zero")
     if not pressure_pa > 0:
         raise ValueError(f"pressure_pa = {pressure_pa} must be > 0")
     return pressure_pa / (GAS_CONSTANT_AIR_J_KG_K * (temperature_c - ABSOLUTE_ZERO_C))

@@ -14,9 +14,14 @@ from pathlib import Path
 
 def _simulate(args) -> int:
     from .apps.scene_run import run_scene, write_outputs
-    from .scene.model import load_scene
+    from .apps.scenes3d import load_scene_at
 
-    scene = load_scene(args.scene)
+    if args.cells_per_wavelength is not None and not args.cells_per_wavelength > 0:
+        print(f"error: --cells-per-wavelength {args.cells_per_wavelength:g}: give a resolution > 0", file=sys.stderr)
+        return 2
+    scene = load_scene_at(args.scene, args.cells_per_wavelength)
+    if scene.grid["kind"] == "3d":
+        return _simulate_3d(args, scene)
     if args.render_every is not None:
         scene.output["render_every_cells"] = args.render_every
     sr = run_scene(scene, progress=not args.quiet)
@@ -37,6 +42,33 @@ def _simulate(args) -> int:
         print(
             f"lobe at {_num(f['range_m'], 'g')} m: -6 dB width {_num(f['width_6db_deg'], '.2f')} deg, "
             f"first null {_num(f.get('first_null_deg'), '.2f')} deg, first side lobe {_num(f.get('first_sidelobe_db'), '.1f')} dB"
+        )
+    print(f"wrote {files['summary']}")
+    return 0
+
+
+def _simulate_3d(args, scene) -> int:
+    """A 3-D scene: estimate (printed, refused if it would not fit), run, A-scans and images."""
+    from .apps.scenes3d import run_scene3d, write_outputs3d
+    from .solver.estimate import format_bytes
+
+    available = None if args.max_memory_gib is None else int(args.max_memory_gib * 2**30)
+    sr = run_scene3d(scene, available_bytes=available, mlups=args.assume_mlups)
+    files = write_outputs3d(sr, args.out)
+    s = sr.summary
+    r, est, mem = s["run"], s["estimate"], s["memory"]
+    peak = mem.get("device_peak_bytes", mem["host_peak_rss_bytes"])
+    print(
+        f"{scene.path}: {r['n_steps']} steps on {' x '.join(map(str, s['grid']['shape']))} cells "
+        f"({s['grid']['cells_per_wavelength']:g} cells per wavelength) in {r['wall_time_s']:.2f} s incl. compile "
+        f"({r['mlups']:.0f} MLUPS; estimated {est['time_s']:.3g} s); peak memory {format_bytes(peak)} "
+        f"(estimated {format_bytes(est['memory_bytes'])} + runtime); expected phase error "
+        f"{s['accuracy']['expected_phase_error_periods']:.3f} periods"
+    )
+    for name, rec in s["receivers"].items():
+        print(
+            f"A-scan {name!r}: echo peak {rec['echo_peak']:.3g} at {rec['echo_peak_s'] * 1e6:.1f} µs "
+            f"(window from {rec['gate_start_s'] * 1e6:.1f} µs; transmit peak {rec['transmit_peak']:.3g})"
         )
     print(f"wrote {files['summary']}")
     return 0
@@ -158,6 +190,28 @@ def build_parser() -> argparse.ArgumentParser:
         help="render every CELLS-th cell in field images (default: 3 at 20 cells per wavelength, "
         "at least 6.7 pixels per wavelength)",
     )
+    s.add_argument(
+        "--cells-per-wavelength",
+        type=float,
+        default=None,
+        metavar="CPW",
+        help="run at this resolution instead of the file's (cell and step counts scale, metres and seconds stay; "
+        "e.g. 8 for a quick 3-D look)",
+    )
+    s.add_argument(
+        "--max-memory-gib",
+        type=float,
+        default=None,
+        metavar="GIB",
+        help="3-D: refuse a run whose memory estimate exceeds this (default: the memory available here)",
+    )
+    s.add_argument(
+        "--assume-mlups",
+        type=float,
+        default=None,
+        metavar="MLUPS",
+        help="3-D: the throughput the time estimate assumes (default: measured once on this machine and cached)",
+    )
     s.set_defaults(func=_simulate)
 
     g = sub.add_parser("gallery", help="render the paper's figures (data/scenes/*.toml)")
@@ -273,12 +327,9 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--quick", action="store_true", help="a tenth of the steps (checks that it runs; not a measurement)")
     b.set_defaults(func=_bench)
 
-    try:
-        from .capture.cli import register
-    except ImportError:  # pragma: no cover - capture is part of the package
-        register = None
-    if register is not None:
-        register(sub)
+    from .capture.cli import register  # capture is part of the package (and imports no JAX)
+
+    register(sub)
     return p
 
 

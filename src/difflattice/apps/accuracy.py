@@ -134,10 +134,20 @@ def _metrics(angles, x_m, lobe, wave, ref_lobe, ref_wave) -> dict:
     }
 
 
-def sweep(cells_per_wavelength=(6, 8, 10, 14, 20, 28, 40), dtypes=("float32", "float64"), *, repeats: int = 1) -> dict:
+def _need_x64(dtypes) -> None:
+    """Precision is the caller's (the CLI turns float64 on for the process): a float64 case without
+    it would silently run in float32."""
     import jax
 
-    jax.config.update("jax_enable_x64", True)
+    if "float64" in tuple(dtypes) and not jax.config.read("jax_enable_x64"):
+        raise ValueError(
+            "dtype float64 needs 64-bit JAX: call jax.config.update('jax_enable_x64', True) at the start of "
+            "the program (the `difflattice` command does), or use dtype float32"
+        )
+
+
+def sweep(cells_per_wavelength=(6, 8, 10, 14, 20, 28, 40), dtypes=("float32", "float64"), *, repeats: int = 1) -> dict:
+    _need_x64(dtypes)
     from ..fit.transfer import free_field_transfer
 
     angles = np.arange(0, 60.001, 0.05)
@@ -226,9 +236,10 @@ def write(results: dict, out_dir: str | Path) -> None:
     (out / "accuracy_table.md").write_text("\n".join(lines) + "\n")
 
 
-def fit_sweep(config_path, cells_per_wavelength=(8, 10, 14, 20, 28, 40)) -> dict:
+def fit_sweep(config_path, out_dir: str | Path, cells_per_wavelength=(8, 10, 14, 20, 28, 40)) -> dict:
     """Run one fit config at a sweep of resolutions: fitted parameters, residuals and time, so a
-    user sees the cheapest resolution at which the answer stops changing."""
+    user sees the cheapest resolution at which the answer stops changing. Each fit's report goes
+    to `out_dir`/ppw<N>."""
     from dataclasses import replace
 
     from ..fit.config import load_config, run_fit
@@ -243,7 +254,7 @@ def fit_sweep(config_path, cells_per_wavelength=(8, 10, 14, 20, 28, 40)) -> dict
             output=replace(base.output, field_image=False),
         )
         t0 = time.perf_counter()
-        rep = run_fit(cfg, out=Path("out") / "fit_sweep" / f"ppw{ppw}", verbose=False)
+        rep = run_fit(cfg, out=Path(out_dir) / f"ppw{ppw}", verbose=False)
         f = rep["fit"]
         rows.append(
             {
@@ -393,8 +404,7 @@ def run_wall(
 
     if wall not in ("rigid", "soft"):
         raise ValueError(f"wall = {wall!r}; allowed: 'rigid' (R = +1), 'soft' (R = -1)")
-    if dtype == "float64":
-        jax.config.update("jax_enable_x64", True)
+    _need_x64([dtype])
     lay = wall_layout(cells_per_wavelength, pml_cells=pml_cells)
     nx, ny = lay["shape"]
     grid = make_grid(
@@ -581,12 +591,10 @@ def edge_sweep(
     the edge's reflection alone). A point source (4-cycle Hann burst) sits 4 wavelengths from the
     layers' inner boundary; probes 1 wavelength inside it on the axis and at the corner diagonal.
     Error: max |p - p_ref| over the record / max |p_ref| at that probe, in dB."""
-    import jax
 
     from ..lattice.coefficients import Edges
 
-    if dtype == "float64":
-        jax.config.update("jax_enable_x64", True)
+    _need_x64([dtype])
     rows = []
     show = RowPrinter(_EDGE_COLUMNS)
     for ppw in cells_per_wavelength:
@@ -856,8 +864,7 @@ def run_piston(
     from ..solver.sources import ContinuousWave, disc_transducer
     from ..solver.stepper import Stepper
 
-    if dtype == "float64":
-        jax.config.update("jax_enable_x64", True)
+    _need_x64([dtype])
     ppw = float(cells_per_wavelength)
     lam = c_m_s / frequency_hz
     dx = lam / ppw

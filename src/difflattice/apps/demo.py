@@ -55,15 +55,15 @@ def truth_spec(dx_m: float, n_basis: int = 3):
 
 
 def truth_params(spec) -> dict:
-    import math
-
     import jax.numpy as jnp
+
+    from ..transforms import logit
 
     frac = TRUTH["diameter_m"] / spec.d_max_m
     return {
         "w": jnp.asarray(TRUTH["w"]),
         "lag": jnp.asarray(TRUTH["lag"][: spec.n_basis]),
-        "diam": jnp.asarray(math.log(frac / (1 - frac))),
+        "diam": jnp.asarray(logit(frac)),
         "gain_db": jnp.asarray(0.0),
         "phase0": jnp.asarray(0.0),
     }
@@ -189,8 +189,10 @@ dir = "{out_dir}"
 
 
 def run_demo(out: str | Path, *, quick: bool = False, model: str = "disc") -> int:
-    """Run the main job into `out` (its data/ folder is emptied first): `model` "disc" (a
-    circular transducer and the disc model, default) or "line" (the Polaroid-like line)."""
+    """Run the main job into `out`: `model` "disc" (a circular transducer and the disc model,
+    default) or "line" (the Polaroid-like line). The captures it writes (`out/data/lobe.csv`,
+    `wave.csv` and their `.log`) are replaced, so that a re-run captures again instead of
+    resuming an earlier run's files; nothing else in `out` is removed."""
     import json
 
     import numpy as np
@@ -204,8 +206,9 @@ def run_demo(out: str | Path, *, quick: bool = False, model: str = "disc") -> in
     out = Path(out).resolve()
     data = out / "data"
     data.mkdir(parents=True, exist_ok=True)
-    for old in data.glob("*"):
-        old.unlink()
+    captures = [data / f"{kind}.{ext}" for kind in ("lobe", "wave") for ext in ("csv", "log")]
+    for old in captures:
+        old.unlink(missing_ok=True)
     link = out / "rig-link"
     step = 3.0 if quick else 1.0
     dx = 0.004 if quick else 0.001

@@ -234,14 +234,14 @@ def _pick_frames(sr, wanted_steps):
 
 def write_figure(sr, path: Path, wanted_steps, *, title: str = "") -> Path:
     """figure.png: one field panel per wanted step, at the size `figure_size_px` gives."""
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # not pyplot: no backend chosen, no global figure list
 
     from .. import plots
 
     g = sr.grid
     frames = _pick_frames(sr, wanted_steps)
     w, h = figure_size_px(g.shape, len(frames))
-    fig = plt.figure(figsize=(w / FIG_DPI, h / FIG_DPI), dpi=FIG_DPI)
+    fig = Figure(figsize=(w / FIG_DPI, h / FIG_DPI), dpi=FIG_DPI)
     from .scene_run import obstacle_map
 
     obst = obstacle_map(sr.stepper)
@@ -253,7 +253,7 @@ def write_figure(sr, path: Path, wanted_steps, *, title: str = "") -> Path:
     for i, (f, s) in enumerate(frames):
         left = (i * PANEL_PX + 60) / w
         width = (PANEL_PX - 75) / w
-        ax = fig.add_axes([left, bottom, width, top - bottom])
+        ax = fig.add_axes((left, bottom, width, top - bottom))
         plots.field_image(f, g.dx_m, every=every, step=s, dt_s=g.dt_s, obstacles=obst, sources=src, ax=ax)
         if len(probes):
             ax.plot(probes[:, 0] * g.dx_m * 1e3, probes[:, 1] * g.dx_m * 1e3, "+", color="tab:cyan", ms=5)
@@ -262,7 +262,6 @@ def write_figure(sr, path: Path, wanted_steps, *, title: str = "") -> Path:
         fig.suptitle(title, fontsize=10, y=1 - 5 / h, va="top")
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=FIG_DPI)
-    plt.close(fig)
     return path
 
 
@@ -306,18 +305,18 @@ def _read_run(out_dir: Path, name: str):
 
 def write_comparison(out_dir: Path, key: str, spec: dict, scale: float) -> Path | None:
     """compare_<key>.png from the scenes' sensors.npz (None if a scene was not rendered)."""
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure  # not pyplot: no backend chosen, no global figure list
 
     runs = {n: _read_run(out_dir, n) for n in spec["scenes"]}
     if any(v is None for v in runs.values()):
         return None
     if len({summ["grid"]["cells_per_wavelength"] for _, summ in runs.values()}) > 1:
         return None  # left over from renders at different scales
-    fig, ax = plt.subplots(figsize=(8, 4))
+    fig = Figure(figsize=(8, 4))
+    ax = fig.subplots()
     if spec["kind"] == "probe":
         for n, (npz, summ) in runs.items():
             if "probes_pa" not in npz:
-                plt.close(fig)
                 return None
             p = npz["probes_pa"][:, 0]
             dt = summ["grid"]["dt_s"]
@@ -351,7 +350,6 @@ def write_comparison(out_dir: Path, key: str, spec: dict, scale: float) -> Path 
     fig.tight_layout()
     path = out_dir / f"compare_{key}.png"
     fig.savefig(path, dpi=FIG_DPI)
-    plt.close(fig)
     return path
 
 

@@ -14,16 +14,18 @@ from pathlib import Path
 
 import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from .. import __version__
 from ..lattice.grid import Grid
 from ..observe.analytic import phase_error_rad
 from ..observe.farfield import far_field, level_db
+from ..observe.farfield_rz import CylinderSurface
 from ..observe.observables import lobe_metrics
-from ..scene.model import Scene
+from ..scene.model import Scene, SceneError
 from ..solver.loop import INSTABILITY_MESSAGE, Result, run
-from ..solver.stepper import Stepper
+from ..solver.stepper import State, Stepper
 
 
 @dataclass
@@ -85,7 +87,7 @@ def run_in_pieces(
     if bad:
         raise ValueError(f"moments {sorted(bad)} lie outside steps 1..{n_steps}")
     runner = eqx.filter_jit(lambda st, s, n: run(s, n, state=st, checkpoint=checkpoint))
-    state = stepper.init()
+    state: State = stepper.init()
     probes, snaps, snap_steps, peaks = [], [], [], []
     kept = {}
     done = 0
@@ -100,14 +102,14 @@ def run_in_pieces(
             first_time = time.perf_counter() - t0
         state = res.final
         if res.probes is not None:
-            probes.append(np.asarray(res.probes))
-        if res.snapshots is not None:
+            probes.append(res.probes)
+        if k is not None and res.snapshots is not None:  # snapshots are recorded only when `k` is set
             for f, s in zip(np.asarray(res.snapshots), res.chunk_steps):
                 step = done + s
                 if step % k == 0 or step == n_steps:  # not the extra frame a moment's piece ends with
                     snaps.append(np.array(f[::render_every, ::render_every]))
                     snap_steps.append(step)
-        peaks.append(np.asarray(res.peak_history))
+        peaks.append(res.peak_history)
         done = end
         if end in wanted:
             kept[end] = np.asarray(state.pressure)
@@ -121,15 +123,17 @@ def run_in_pieces(
     # the merged record covers all n_steps: probes and peaks concatenated, RMS over the whole run
     merged = dataclasses.replace(
         res,
-        probes=np.concatenate(probes) if probes else None,
-        peak_history=np.concatenate(peaks),
-        p_rms=None if res.final.p_sq is None else np.sqrt(np.asarray(res.final.p_sq) / n_steps),
+        probes=jnp.concatenate(probes) if probes else None,
+        peak_history=jnp.concatenate(peaks),
+        p_rms=None if res.final.p_sq is None else jnp.sqrt(res.final.p_sq / n_steps),
         n_steps=n_steps,
     )
     return merged, snaps, snap_steps, first_time, kept
 
 
 def run_scene(scene: Scene, *, progress: bool = True) -> SceneRun:
+    if scene.grid["kind"] == "3d":  # 3-D scenes have their own run and outputs (A-scans, slices, projections)
+        raise SceneError(f'{scene.path}: [grid.kind] = "3d": run it with apps.scenes3d.run_scene3d')
     built = scene.build()
     grid, medium, sources, sensors, edges, n_steps = built[:6]
     stepper = Stepper.build(grid, medium, sources, sensors, edges)
@@ -191,12 +195,11 @@ def run_scene(scene: Scene, *, progress: bool = True) -> SceneRun:
         },
     }
     lobe = None
-    contour = built.contour
-    if contour is not None:
-        ff = scene.farfield
+    contour, ff = built.contour, scene.farfield
+    if contour is not None and ff is not None:  # a contour is built exactly when the scene has [farfield]
         a0, a1, da = ff["angles_deg"]
         angles = np.arange(a0, a1 + da / 2, da)
-        if grid.kind == "rz":
+        if isinstance(contour, CylinderSurface):  # an rz grid
             p = _lobe_rz(
                 result.phasors,
                 contour,
@@ -208,7 +211,7 @@ def run_scene(scene: Scene, *, progress: bool = True) -> SceneRun:
         else:
             src = sources[built.farfield_source]
             centre = tuple(src.cells_array.mean(0))
-            p = far_field(result.phasors, contour, grid, angles, ff["range_m"], centre)
+            p = far_field(result.phasors, contour, grid, np.asarray(angles), ff["range_m"], centre)
         lv = np.asarray(level_db(p, floor_db=-100))
         lobe = (angles, lv)
         summary["farfield"] = {"range_m": ff["range_m"], **lobe_metrics(angles, lv)}
@@ -240,7 +243,7 @@ def _mirror_rz(field):
 
 def write_outputs(
     sr: SceneRun, out_dir: str | Path, *, animate: bool = True, frames: bool | None = None, animation: str | None = None
-) -> dict:
+) -> dict[str, str | list[str]]:
     """Write summary.json, sensors.npz and images into `out_dir`; returns the paths.
 
     Images: field.png (last step), moment_<step>.png per `[output]` show step, peak_level.png,
@@ -266,7 +269,7 @@ def write_outputs(
     res = sr.result
     st = sr.stepper
     every = sr.render_every
-    files = {}
+    files: dict[str, str | list[str]] = {}
     arrays = {"peak_history_pa": np.asarray(res.peak_history), "final_field_pa": np.asarray(res.final.pressure)}
     if res.probes is not None:
         arrays["probes_pa"] = np.asarray(res.probes)
@@ -279,13 +282,14 @@ def write_outputs(
         arrays["arrival_step"] = np.asarray(res.arrival)
     if sr.lobe is not None:
         arrays["lobe_angle_deg"], arrays["lobe_level_db"] = sr.lobe
-    np.savez_compressed(out / "sensors.npz", **arrays)
+    # numpy's stub also matches `**arrays` against `allow_pickle: bool`; every value here is an array
+    np.savez_compressed(out / "sensors.npz", **arrays)  # type: ignore[arg-type]
     files["sensors"] = str(out / "sensors.npz")
 
     obst = obstacle_map(st)
     src_cells = [s.cells_array for s in st.sources]
     view = (lambda f: f) if g.kind != "rz" else _mirror_rz  # rz: show the whole meridian section
-    size_m = g.size_m if g.kind != "rz" else (g.size_m[0], 2 * g.size_m[1])
+    size_m = (g.size_m[0], g.size_m[1]) if g.kind != "rz" else (g.size_m[0], 2 * g.size_m[1])
     if g.kind == "rz":
         nr = g.shape[1]
         obst = None if obst is None else _mirror_rz(obst)
@@ -298,12 +302,13 @@ def write_outputs(
     )
     files["field"] = str(plots.save(fig, out / "field.png"))
     if sr.moments:
-        files["moments"] = []
+        moment_files = []
         for step, f in sorted(sr.moments.items()):
             fig = plots.field_image(
                 view(f), g.dx_m, every=every, step=step, dt_s=g.dt_s, obstacles=obst, sources=src_cells
             )
-            files["moments"].append(str(plots.save(fig, out / f"moment_{step:06d}.png")))
+            moment_files.append(str(plots.save(fig, out / f"moment_{step:06d}.png")))
+        files["moments"] = moment_files
     if res.p_max is not None:
         files["peak_level"] = str(
             plots.save(plots.level_image(view(res.p_max), g.dx_m, sources=src_cells), out / "peak_level.png")

@@ -1,42 +1,62 @@
-"""3-D pulse-echo scenes (issue 16): a circular transducer facing a wall at an incidence angle, a
-concave right-angle corner, a vertical post; each run gives the A-scan the transducer receives.
+"""3-D scenes (issue 16): pulse-echo scenes built through the official scene path, and the run and
+outputs of any `[grid] kind = "3d"` scene file.
 
-Each scene is a function returning a `Scene3D` (grid, medium, source, receiver sensors, edges,
-step count and the geometry a reference needs); `pulse_echo` runs it (printing the memory and
-time estimate first, refusing a run that would not fit) and returns the A-scan: by reciprocity,
-the weighted sum over the transducer's source cells of the pressure recorded there
-(`sensors.received_signal`). Scene files (`data/scenes/*3d*.toml`) describe the same scenes; see
-`load_scene3d` for the fields this module reads from them (and `scene_to_toml`, which writes them).
+- The pulse-echo scenes (a disc transducer facing a wall at an incidence angle, a concave
+  right-angle corner, a vertical post) are scene tables (`wall_data`, `corner_data`,
+  `post_data`: the same dicts the files `data/scenes/*3d*.toml` hold), validated and built by
+  `scene.model` like every scene; `wall_scene` etc. return a `Scene3D` (the built scene plus
+  the geometry a reference needs), `pulse_echo` runs it and returns the A-scan the transducer
+  receives (reciprocity: the weighted sum over its cells of the pressure there,
+  `sensors.received_signal`). `load_scene3d` reads a file into a `Scene3D`, `scene_to_toml`
+  writes one.
+- `run_scene3d` runs any 3-D `Scene` (what `difflattice simulate` does for a 3-D file): the
+  memory and time estimate is printed first and a run that would not fit is refused; then
+  `write_outputs3d` writes the A-scans (CSV, JSON), the orthogonal slices and the
+  maximum-intensity projections of the peak level (PNG) and a summary (JSON) with the estimate,
+  the measured time and the peak memory.
 
-Conventions: the transducer sits on the grid's x axis side facing +x; angles are in degrees, a
-wall's incidence angle is the angle between the transducer axis and the wall normal, turned in the
-x-y plane. Lattice units inside, SI at the API.
+Conventions: the pulse-echo transducer faces +x; a wall's incidence angle is the angle between
+the transducer axis and the wall normal, turned in the x-y plane. Air is `difflattice.air` at
+20 deg C. SI at the API, cells and steps only where a name says so.
 """
 
 from __future__ import annotations
 
+import copy
+import json
 import math
+import os
+import platform
+import sys
+import time
+import tomllib
 from dataclasses import dataclass, field
-from typing import Literal
+from pathlib import Path
+from typing import Any, Literal
 
 import jax.numpy as jnp
 import numpy as np
 
+from ..air import SPEED_OF_SOUND_20C_M_S
 from ..lattice.coefficients import Edges
-from ..lattice.geometry3d import Cylinder, HalfSpace, Intersection3D, Shape3D, Union3D, rasterise3d
-from ..lattice.grid import Grid, make_grid
+from ..lattice.geometry3d import Shape3D, Union3D
+from ..lattice.grid import Grid
 from ..lattice.medium import Medium
-from ..solver.loop import simulate
+from ..scene.model import BuiltScene, Scene, SceneError, SceneTooLargeError, load_scene, parse_scene, shape3d
+from ..scene.schema import ARRAY_SECTIONS, SECTIONS
+from ..solver.loop import Result, simulate
 from ..solver.sensors import Sensors, received_signal
-from ..solver.sources import PointSources, ToneBurst, disc_transducer_3d
+from ..solver.sources import PointSources, ring_table
 
-AIR_M_S = 343.0
-AIR_KG_M3 = 1.2
+AIR_TEMPERATURE_C = 20.0
+"""The pulse-echo scenes' air (`difflattice.air` at this temperature)."""
 
 
 @dataclass(frozen=True)
 class Scene3D:
-    """A 3-D pulse-echo scene, ready to run (`pulse_echo`)."""
+    """A 3-D pulse-echo scene, ready to run (`pulse_echo`): the built scene's grid, medium,
+    transducer, edges and step count, the obstacle as a solid, the transducer's centre (cells)
+    and axis, the echo window's first step, and `data`, the scene tables it was built from."""
 
     name: str
     grid: Grid
@@ -44,33 +64,32 @@ class Scene3D:
     source: PointSources
     edges: Edges
     n_steps: int
-    obstacle: Shape3D
+    obstacle: Shape3D | None
     transducer_centre_cells: tuple[float, float, float]
     transducer_axis: tuple[float, float, float]
     gate_start_step: int  # the echo window starts here (after the transmit ring-down)
     meta: dict = field(default_factory=dict)
+    data: dict = field(default_factory=dict)
 
     @property
     def sensors(self) -> Sensors:
         return Sensors(probes=self.source.cells_array)
 
 
-def _transducer(grid: Grid, centre_cells, diameter_m: float, cycles: float, rings=None) -> PointSources:
-    centre_m = tuple(float(c) * grid.dx_m for c in centre_cells)
-    return disc_transducer_3d(
-        grid, centre_m, (1.0, 0.0, 0.0), diameter_m=diameter_m, rings=rings, signal=ToneBurst(grid.frequency_hz, cycles)
-    )
+def _dx_m(frequency_hz: float, cells_per_wavelength: float) -> float:
+    return SPEED_OF_SOUND_20C_M_S / (frequency_hz * cells_per_wavelength)
 
 
-def _grid(frequency_hz, cells_per_wavelength, shape, dtype) -> Grid:
-    return make_grid(
-        frequency_hz=frequency_hz,
-        cells_per_wavelength=cells_per_wavelength,
-        c_max_m_s=AIR_M_S,
-        shape=shape,
-        kind="3d",
-        dtype=dtype,
-    )
+def _sig(x: float) -> float:
+    """`x` to 4 significant digits (times written to scene tables)."""
+    return float(f"{x:.4g}")
+
+
+def _r(v):
+    """Lengths and directions to 7 significant digits (a readable file; 0.1 µm at 5 cm)."""
+    if isinstance(v, (list, tuple)):
+        return [_r(x) for x in v]
+    return float(f"{float(v):.7g}")
 
 
 def _layout(dx_m, diameter_m, distance_m, pml, extra_x=0.0, lateral=None):
@@ -86,7 +105,76 @@ def _layout(dx_m, diameter_m, distance_m, pml, extra_x=0.0, lateral=None):
     return (nx, n_lat, n_lat), c, d
 
 
-def wall_scene(
+def _steps_per_period(cells_per_wavelength: float, courant: float) -> float:
+    return cells_per_wavelength / courant
+
+
+def _n_steps(cpw: float, courant: float, path_cells: float, cycles: float) -> int:
+    """Steps until an echo over `path_cells` has fully arrived (plus two periods)."""
+    return int(math.ceil(path_cells / courant + (cycles + 2) * _steps_per_period(cpw, courant)))
+
+
+def _gate(cpw: float, courant: float, earliest_path_cells: float, cycles: float, radius_cells: float = 0.0) -> int:
+    """First step of the echo window: a period before the earliest echo, but not before the
+    transmit has ended and its ring-down (the rim wave crossing the face) has left the face."""
+    spp = _steps_per_period(cpw, courant)
+    transmit = cycles * spp + 2 * radius_cells / courant
+    return int(max(transmit, earliest_path_cells / courant - spp))
+
+
+def _tables(
+    *,
+    shape,
+    centre_cells,
+    dx: float,
+    frequency_hz: float,
+    cells_per_wavelength: float,
+    diameter_m: float,
+    cycles: float,
+    pml_cells: int,
+    rasterise: str,
+    dtype: str,
+    objects: list[dict],
+    n_steps: int,
+    gate_step: int,
+    rings: dict | None = None,
+) -> dict:
+    """The scene tables of a pulse-echo scene (a disc facing +x that also receives)."""
+    from ..lattice.grid import DEFAULT_COURANT_3D
+
+    dt = DEFAULT_COURANT_3D * dx / SPEED_OF_SOUND_20C_M_S
+    tr: dict[str, Any] = {
+        "name": "disc",
+        "type": "disc",
+        "centre_m": _r([float(v) * dx for v in centre_cells]),
+        "axis": [1.0, 0.0, 0.0],
+        "diameter_m": float(diameter_m),
+        "signal": "burst",
+        "cycles": float(cycles),
+        "receive": True,
+        "gate_start_s": _sig(gate_step * dt),
+    }
+    if rings is not None:
+        edges, w, lags = ring_table(rings, 0.5 * diameter_m)
+        tr.update(ring_edges_m=edges.tolist(), weights=w.tolist(), lags_s=lags.tolist())
+    return {
+        "grid": {
+            "kind": "3d",
+            "frequency_hz": float(frequency_hz),
+            "cells_per_wavelength": float(cells_per_wavelength),
+            "size_m": _r([int(n) * dx for n in shape]),
+            "dtype": dtype,
+        },
+        "medium": {"background": "air", "temperature_c": AIR_TEMPERATURE_C, "rasterise": rasterise},
+        "edges": {"kind": "pml", "thickness_cells": int(pml_cells)},
+        "transducers": [tr],
+        "objects": objects,
+        "sensors": {"p_max": True},
+        "run": {"duration_s": _sig(n_steps * dt)},
+    }
+
+
+def wall_data(
     angle_deg: float = 0.0,
     *,
     distance_m: float = 0.0257,
@@ -99,51 +187,40 @@ def wall_scene(
     rasterise: Literal["hard", "smooth"] = "smooth",
     dtype: Literal["float32", "float64"] = "float32",
     rings: dict | None = None,
-) -> Scene3D:
-    """A rigid plane wall `distance_m` in front of a disc transducer (along its axis), its normal
-    turned by `angle_deg` from the axis in the x-y plane (0 = normal incidence). The wall fills
-    the half-space behind the plane, into the absorbing layers."""
-    dx = AIR_M_S / (frequency_hz * cells_per_wavelength)
+) -> dict:
+    """Scene tables of a rigid plane wall `distance_m` in front of a disc transducer (along its
+    axis), its normal turned by `angle_deg` from the axis in the x-y plane (0 = normal incidence).
+    The wall fills the half-space behind the plane, into the absorbing layers."""
+    from ..lattice.grid import DEFAULT_COURANT_3D as C
+
+    cpw = cells_per_wavelength
+    dx = _dx_m(frequency_hz, cpw)
     a = 0.5 * diameter_m / dx
     d = distance_m / dx
     t = math.radians(angle_deg)
-    lat = (
-        (lateral_m / dx)
-        if lateral_m is not None
-        else 2 * (a + d * math.sin(t) + 0.6 * math.sqrt(d * cells_per_wavelength)) + 8
-    )
+    lat = (lateral_m / dx) if lateral_m is not None else 2 * (a + d * math.sin(t) + 0.6 * math.sqrt(d * cpw)) + 8
     shape, c, d = _layout(dx, diameter_m, distance_m, pml_cells, extra_x=0.5 * lat * math.tan(t), lateral=lat)
-    grid = _grid(frequency_hz, cells_per_wavelength, shape, dtype)
-    normal = (-math.cos(t), math.sin(t), 0.0)  # outward normal of the solid (pointing back at the transducer)
-    point = (c[0] + d, c[1], c[2])
-    wall = HalfSpace(jnp.asarray(point) * dx, jnp.asarray(normal))
-    occ = rasterise3d(wall, grid, rasterise)
-    src = _transducer(grid, c, diameter_m, cycles, rings)
-    n_steps = _steps(grid, 2 * d + 2 * a * math.sin(2 * t) + 4 * a * a / (4 * d), cycles)
-    return Scene3D(
-        f"wall_{angle_deg:g}deg",
-        grid,
-        Medium(AIR_M_S, AIR_KG_M3, rigid=occ),
-        src,
-        Edges.all("pml", thickness_cells=pml_cells),
-        n_steps,
-        wall,
-        c,
-        (1.0, 0.0, 0.0),
-        _gate(grid, 2 * (d - a * math.sin(t)) - 2 * a * math.tan(t), cycles, a),
-        {
-            "wall_point_cells": point,
-            "wall_normal": normal,
-            "angle_deg": angle_deg,
-            "distance_cells": d,
-            "radius_cells": a,
-            "diameter_m": diameter_m,
-            "rasterise": rasterise,
-        },
+    normal = [-math.cos(t), math.sin(t), 0.0]  # outward normal of the solid (pointing back at the transducer)
+    point = [(c[0] + d) * dx, c[1] * dx, c[2] * dx]
+    return _tables(
+        shape=shape,
+        centre_cells=c,
+        dx=dx,
+        frequency_hz=frequency_hz,
+        cells_per_wavelength=cpw,
+        diameter_m=diameter_m,
+        cycles=cycles,
+        pml_cells=pml_cells,
+        rasterise=rasterise,
+        dtype=dtype,
+        objects=[{"shape": "halfspace", "material": "rigid", "point_m": _r(point), "normal": _r(normal)}],
+        n_steps=_n_steps(cpw, C, 2 * d + 2 * a * math.sin(2 * t) + 4 * a * a / (4 * d), cycles),
+        gate_step=_gate(cpw, C, 2 * (d - a * math.sin(t)) - 2 * a * math.tan(t), cycles, a),
+        rings=rings,
     )
 
 
-def corner_scene(
+def corner_data(
     *,
     distance_m: float = 0.0257,
     diameter_m: float = 8.6e-3,
@@ -152,41 +229,40 @@ def corner_scene(
     cycles: float = 3.0,
     pml_cells: int = 12,
     dtype: Literal["float32", "float64"] = "float32",
-) -> Scene3D:
-    """A concave right-angle corner (two rigid walls meeting along a vertical edge, parallel to z)
-    whose edge lies `distance_m` ahead on the transducer axis, the axis bisecting the corner: the
-    corner returns the beam towards the transducer like a mirror at normal incidence (the paper's
-    Fig. 6 in 3-D)."""
-    dx = AIR_M_S / (frequency_hz * cells_per_wavelength)
+) -> dict:
+    """Scene tables of a concave right-angle corner (two rigid walls meeting along a vertical
+    edge, parallel to z) whose edge lies `distance_m` ahead on the transducer axis, the axis
+    bisecting the corner: the corner returns the beam towards the transducer like a mirror at
+    normal incidence (the paper's Fig. 6 in 3-D). The solid is the union of the half-spaces
+    behind the two walls (their intersection would be a convex wedge)."""
+    from ..lattice.grid import DEFAULT_COURANT_3D as C
+
+    cpw = cells_per_wavelength
+    dx = _dx_m(frequency_hz, cpw)
     a = 0.5 * diameter_m / dx
     d = distance_m / dx
-    lat = 2 * (a + 0.5 * d) + 8
-    shape, c, d = _layout(dx, diameter_m, distance_m, pml_cells, extra_x=0.0, lateral=lat)
-    grid = _grid(frequency_hz, cells_per_wavelength, shape, dtype)
-    apex = jnp.asarray((c[0] + d, c[1], c[2])) * dx
+    shape, c, d = _layout(dx, diameter_m, distance_m, pml_cells, extra_x=0.0, lateral=2 * (a + 0.5 * d) + 8)
+    apex = [(c[0] + d) * dx, c[1] * dx, c[2] * dx]
     s = 1 / math.sqrt(2)
-    # the solid is everything beyond either wall: the union of the half-spaces behind them (their
-    # intersection would be a convex wedge pointing at the transducer)
-    corner = Union3D((HalfSpace(apex, jnp.asarray((-s, s, 0.0))), HalfSpace(apex, jnp.asarray((-s, -s, 0.0)))))
-    occ = rasterise3d(corner, grid, "smooth")
-    src = _transducer(grid, c, diameter_m, cycles)
-    n_steps = _steps(grid, 2 * d + 2 * a, cycles)
-    return Scene3D(
-        "corner",
-        grid,
-        Medium(AIR_M_S, AIR_KG_M3, rigid=occ),
-        src,
-        Edges.all("pml", thickness_cells=pml_cells),
-        n_steps,
-        corner,
-        c,
-        (1.0, 0.0, 0.0),
-        _gate(grid, math.sqrt(2) * d - 2 * a, cycles, a),
-        {"apex_cells": (c[0] + d, c[1], c[2]), "distance_cells": d, "radius_cells": a, "diameter_m": diameter_m},
+    parts = [{"shape": "halfspace", "point_m": _r(apex), "normal": _r([-s, sgn * s, 0.0])} for sgn in (1, -1)]
+    return _tables(
+        shape=shape,
+        centre_cells=c,
+        dx=dx,
+        frequency_hz=frequency_hz,
+        cells_per_wavelength=cpw,
+        diameter_m=diameter_m,
+        cycles=cycles,
+        pml_cells=pml_cells,
+        rasterise="smooth",
+        dtype=dtype,
+        objects=[{"shape": "union", "material": "rigid", "parts": parts}],
+        n_steps=_n_steps(cpw, C, 2 * d + 2 * a, cycles),
+        gate_step=_gate(cpw, C, math.sqrt(2) * d - 2 * a, cycles, a),
     )
 
 
-def post_scene(
+def post_data(
     *,
     distance_m: float = 0.0257,
     post_diameter_m: float = 4.3e-3,
@@ -196,52 +272,105 @@ def post_scene(
     cycles: float = 3.0,
     pml_cells: int = 12,
     dtype: Literal["float32", "float64"] = "float32",
-) -> Scene3D:
-    """A vertical rigid post (a cylinder along z through the whole grid, `post_diameter_m` wide)
-    whose axis crosses the transducer axis `distance_m` ahead: a 2-D cut would make it an
-    infinite wall; in 3-D its echo spreads in the horizontal plane."""
-    dx = AIR_M_S / (frequency_hz * cells_per_wavelength)
+) -> dict:
+    """Scene tables of a vertical rigid post (a cylinder along z through the whole grid,
+    `post_diameter_m` wide) whose axis crosses the transducer axis `distance_m` ahead: a 2-D cut
+    would make it an infinite wall; in 3-D its echo spreads in the horizontal plane."""
+    from ..lattice.grid import DEFAULT_COURANT_3D as C
+
+    cpw = cells_per_wavelength
+    dx = _dx_m(frequency_hz, cpw)
     a = 0.5 * diameter_m / dx
     rp = 0.5 * post_diameter_m / dx
-    shape, c, d = _layout(dx, diameter_m, distance_m + post_diameter_m, pml_cells)
+    shape, c, _ = _layout(dx, diameter_m, distance_m + post_diameter_m, pml_cells)
     d = distance_m / dx
-    grid = _grid(frequency_hz, cells_per_wavelength, shape, dtype)
-    centre = jnp.asarray((c[0] + d + rp, c[1], c[2])) * dx
-    post = Cylinder(centre, jnp.asarray((0.0, 0.0, 1.0)), jnp.asarray(rp * dx), jnp.asarray(4.0 * shape[2] * dx))
-    occ = rasterise3d(post, grid, "smooth")
-    src = _transducer(grid, c, diameter_m, cycles)
-    n_steps = _steps(grid, 2 * d + 2 * a, cycles)
-    return Scene3D(
-        "post",
-        grid,
-        Medium(AIR_M_S, AIR_KG_M3, rigid=occ),
-        src,
-        Edges.all("pml", thickness_cells=pml_cells),
-        n_steps,
-        post,
-        c,
-        (1.0, 0.0, 0.0),
-        _gate(grid, 2 * d - 2 * a, cycles, a),
-        {
-            "post_axis_cells": (c[0] + d + rp, c[1]),
-            "post_radius_cells": rp,
-            "distance_cells": d,
-            "radius_cells": a,
-            "diameter_m": diameter_m,
-        },
+    post = {
+        "shape": "cylinder",
+        "material": "rigid",
+        "centre_m": _r([(c[0] + d + rp) * dx, c[1] * dx, c[2] * dx]),
+        "axis": [0.0, 0.0, 1.0],
+        "radius_m": _r(rp * dx),
+        "length_m": _r(4.0 * shape[2] * dx),
+    }
+    return _tables(
+        shape=shape,
+        centre_cells=c,
+        dx=dx,
+        frequency_hz=frequency_hz,
+        cells_per_wavelength=cpw,
+        diameter_m=diameter_m,
+        cycles=cycles,
+        pml_cells=pml_cells,
+        rasterise="smooth",
+        dtype=dtype,
+        objects=[post],
+        n_steps=_n_steps(cpw, C, 2 * d + 2 * a, cycles),
+        gate_step=_gate(cpw, C, 2 * d - 2 * a, cycles, a),
     )
 
 
-def _steps(grid: Grid, path_cells: float, cycles: float) -> int:
-    """Steps until an echo over `path_cells` has fully arrived (plus two periods)."""
-    return int(math.ceil(path_cells / grid.courant + (cycles + 2) * grid.steps_per_period))
+def wall_scene(angle_deg: float = 0.0, **kw) -> Scene3D:
+    """The wall scene (`wall_data`'s arguments), built through the scene path."""
+    return scene3d_from_data(wall_data(angle_deg, **kw), f"wall_{angle_deg:g}deg")
 
 
-def _gate(grid: Grid, earliest_path_cells: float, cycles: float, radius_cells: float = 0.0) -> int:
-    """First step of the echo window: a period before the earliest echo, but not before the
-    transmit has ended and its ring-down (the rim wave crossing the face) has left the face."""
-    transmit = cycles * grid.steps_per_period + 2 * radius_cells / grid.courant
-    return int(max(transmit, earliest_path_cells / grid.courant - grid.steps_per_period))
+def corner_scene(**kw) -> Scene3D:
+    """The corner scene (`corner_data`'s arguments), built through the scene path."""
+    return scene3d_from_data(corner_data(**kw), "corner")
+
+
+def post_scene(**kw) -> Scene3D:
+    """The post scene (`post_data`'s arguments), built through the scene path."""
+    return scene3d_from_data(post_data(**kw), "post")
+
+
+def scene3d_from_data(data: dict, name: str, path: str | None = None) -> Scene3D:
+    """Validate and build scene tables of a 3-D pulse-echo scene (one disc transducer with
+    `receive = true`) into a `Scene3D`."""
+    scene = parse_scene(copy.deepcopy(data), path or f"<{name}>")
+    return _scene3d(scene, scene.build(), name, data)
+
+
+def _scene3d(scene: Scene, built: BuiltScene, name: str, data: dict) -> Scene3D:
+    p = scene.path
+    if len(built.sources) != 1 or not built.receivers:
+        raise SceneError(f"{p}: [transducers] a pulse-echo scene has one disc transducer with receive = true")
+    g = built.grid
+    t = scene.transducers[0]
+    centre = tuple(float(v) / g.dx_m for v in t["centre_m"])
+    axis = tuple(float(v) for v in (t["axis"] or (1.0, 0.0, 0.0)))
+    solids = [shape3d(p, f"objects[{i}]", o) for i, o in enumerate(scene.objects)]
+    obstacle = None if not solids else solids[0] if len(solids) == 1 else Union3D(tuple(solids))
+    radius_m = 0.5 * t["diameter_m"] if t["diameter_m"] is not None else None
+    meta: dict[str, Any] = {"diameter_m": t["diameter_m"], "file": p}
+    if radius_m is not None:
+        meta["radius_cells"] = radius_m / g.dx_m
+    objs = scene.objects
+    if len(objs) == 1 and objs[0]["shape"] == "halfspace":
+        o = objs[0]
+        point = tuple(float(v) / g.dx_m for v in o["point_m"])
+        n = np.asarray(o["normal"], float)
+        meta.update(
+            wall_point_cells=point,
+            wall_normal=tuple(float(v) for v in n / np.linalg.norm(n)),
+            angle_deg=math.degrees(math.atan2(abs(n[1]), -n[0])),
+            distance_cells=point[0] - centre[0],
+            rasterise=scene.medium["rasterise"],
+        )
+    return Scene3D(
+        name,
+        g,
+        built.medium,
+        built.sources[0],
+        built.edges,
+        built.n_steps,
+        obstacle,
+        (centre[0], centre[1], centre[2]),
+        (axis[0], axis[1], axis[2]),
+        built.receivers[0].gate_start_step,
+        meta,
+        data,
+    )
 
 
 def pulse_echo(scene: Scene3D, *, preflight: Literal["print", "check", "off"] = "print"):
@@ -317,77 +446,7 @@ def _envelope(x):
 
 
 # ------------------------------------------------------------------------------------------
-# scene files (kind = "3d")
-
-_SHAPES = {
-    "halfspace": (HalfSpace, ("point_m", "normal")),
-    "slab": (None, ("point_m", "normal", "thickness_m")),
-    "sphere": (None, ("centre_m", "radius_m")),
-    "cylinder": (Cylinder, ("centre_m", "axis", "radius_m", "length_m")),
-    "box": (None, ("centre_m", "size_m", "angles_deg")),
-    "intersection": (Intersection3D, ("parts",)),
-    "union": (None, ("parts",)),
-    "difference": (None, ("base", "cut")),
-}
-
-
-def _shape_from_table(t: dict, where: str) -> Shape3D:
-    from ..lattice import geometry3d as g3
-
-    kind = t.get("shape")
-    if kind not in _SHAPES:
-        raise ValueError(f"{where}.shape = {kind!r}; allowed: {', '.join(_SHAPES)}")
-    need = _SHAPES[kind][1]
-    missing = [k for k in need if k not in t and not (kind == "box" and k == "angles_deg")]
-    if missing:
-        raise ValueError(f"{where}: shape = {kind!r} needs {', '.join(missing)}")
-    arr = lambda k: jnp.asarray(t[k], dtype=float)  # noqa: E731
-    if kind == "halfspace":
-        return g3.HalfSpace(arr("point_m"), arr("normal"))
-    if kind == "slab":
-        return g3.Slab(arr("point_m"), arr("normal"), arr("thickness_m"))
-    if kind == "sphere":
-        return g3.Sphere(arr("centre_m"), arr("radius_m"))
-    if kind == "cylinder":
-        return g3.Cylinder(arr("centre_m"), arr("axis"), arr("radius_m"), arr("length_m"))
-    if kind == "box":
-        return g3.OrientedBox(
-            arr("centre_m"), arr("size_m"), jnp.asarray(t.get("angles_deg", [0.0, 0.0, 0.0]), dtype=float)
-        )
-    if kind in ("intersection", "union"):
-        parts = tuple(_shape_from_table(p, f"{where}.parts[{i}]") for i, p in enumerate(t["parts"]))
-        return g3.Intersection3D(parts) if kind == "intersection" else g3.Union3D(parts)
-    return g3.Difference3D(_shape_from_table(t["base"], f"{where}.base"), _shape_from_table(t["cut"], f"{where}.cut"))
-
-
-def _shape_to_table(s: Shape3D) -> dict:
-    from ..lattice import geometry3d as g3
-
-    f = lambda v: [float(x) for x in np.ravel(np.asarray(v))]  # noqa: E731
-    if isinstance(s, g3.HalfSpace):
-        return {"shape": "halfspace", "point_m": f(s.point_m), "normal": f(s.normal)}
-    if isinstance(s, g3.Slab):
-        return {"shape": "slab", "point_m": f(s.point_m), "normal": f(s.normal), "thickness_m": float(s.thickness_m)}
-    if isinstance(s, g3.Sphere):
-        return {"shape": "sphere", "centre_m": f(s.centre_m), "radius_m": float(s.radius_m)}
-    if isinstance(s, g3.Cylinder):
-        return {
-            "shape": "cylinder",
-            "centre_m": f(s.centre_m),
-            "axis": f(s.axis),
-            "radius_m": float(s.radius_m),
-            "length_m": float(s.length_m),
-        }
-    if isinstance(s, g3.OrientedBox):
-        return {"shape": "box", "centre_m": f(s.centre_m), "size_m": f(s.size_m), "angles_deg": f(s.angles_deg)}
-    if isinstance(s, (g3.Intersection3D, g3.Union3D)):
-        return {
-            "shape": "intersection" if isinstance(s, g3.Intersection3D) else "union",
-            "parts": [_shape_to_table(p) for p in s.shapes],
-        }
-    if isinstance(s, g3.Difference3D):
-        return {"shape": "difference", "base": _shape_to_table(s.base), "cut": _shape_to_table(s.cut)}
-    raise ValueError(f"cannot write a {type(s).__name__} to a scene file")
+# scene files
 
 
 def _toml_value(v) -> str:
@@ -398,7 +457,7 @@ def _toml_value(v) -> str:
     if isinstance(v, (float, np.floating)):
         return repr(float(v))
     if isinstance(v, str):
-        return json_str(v)
+        return json.dumps(v)
     if isinstance(v, dict):
         return "{ " + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + " }"
     if isinstance(v, (list, tuple)):
@@ -406,123 +465,347 @@ def _toml_value(v) -> str:
     raise ValueError(f"cannot write {v!r} to TOML")
 
 
-def json_str(s: str) -> str:
-    import json
-
-    return json.dumps(s)
-
-
-def scene_to_toml(scene: Scene3D, comment: str = "") -> str:
-    """A scene file (kind = "3d") that `load_scene3d` turns back into `scene`."""
-    g, src = scene.grid, scene.source
-    sig = src.signal
+def data_to_toml(data: dict, comment: str = "") -> str:
+    """Scene tables as a scene file (sections in the schema's order)."""
     lines = [f"# {line}" if line else "#" for line in comment.strip().splitlines()] if comment else []
-    lines += [
-        "[grid]",
-        'kind = "3d"',
-        f"frequency_hz = {g.frequency_hz!r}",
-        f"cells_per_wavelength = {g.cells_per_wavelength!r}",
-        f"shape = {_toml_value(list(g.shape))}",
-        f"courant = {g.courant!r}",
-        f'dtype = "{g.dtype}"',
-        "",
-        "[medium]",
-        f"speed_m_s = {AIR_M_S!r}",
-        f"density_kg_m3 = {AIR_KG_M3!r}",
-        "",
-        "[edges]",
-        'kind = "pml"',
-        f"thickness_cells = {scene.edges.thickness_cells}",
-        "",
-        "[[transducers]]",
-        'name = "disc"',
-        'shape = "disc"',
-        f"centre_m = {_toml_value([float(v) * g.dx_m for v in scene.transducer_centre_cells])}",
-        f"axis = {_toml_value([float(v) for v in scene.transducer_axis])}",
-        f"diameter_m = {scene.meta['diameter_m']!r}",
-        'signal = "burst"',
-        f"cycles = {float(sig.cycles)!r}",
-        "receive = true                  # the A-scan: the weighted sum over its cells (reciprocity)",
-        "",
-    ]
-    rast = scene.meta.get("rasterise", "smooth")
-    lines += ["[[objects]]", 'material = "rigid"', f'rasterise = "{rast}"']
-    for k, v in _shape_to_table(scene.obstacle).items():
-        lines.append(f"{k} = {_toml_value(v)}")
-    lines += [
-        "",
-        "[run]",
-        f"name = {json_str(scene.name)}",
-        f"n_steps = {scene.n_steps}",
-        f"gate_start_step = {scene.gate_start_step}",
-        "",
-    ]
+    for name in SECTIONS:
+        if name not in data:
+            continue
+        tables = data[name] if name in ARRAY_SECTIONS else [data[name]]
+        for t in tables:
+            lines.append(f"[[{name}]]" if name in ARRAY_SECTIONS else f"[{name}]")
+            lines += [f"{k} = {_toml_value(v)}" for k, v in t.items()]
+            lines.append("")
     return "\n".join(lines)
 
 
-def load_scene3d(path) -> Scene3D:
-    """Read a scene file whose [grid] says kind = "3d" (the format `scene_to_toml` writes:
-    [grid] frequency_hz, cells_per_wavelength, shape, courant, dtype; [medium] speed_m_s,
-    density_kg_m3; [edges] kind = "pml", thickness_cells; one [[transducers]] of shape "disc"
-    (centre_m, axis, diameter_m, optional rings = {ring_edges_m, weights, lags_s}, signal "burst",
-    cycles, receive); [[objects]] rigid solids (shape = halfspace | slab | sphere | cylinder |
-    box | intersection | union | difference, their parameters in metres, rasterise hard or
-    smooth); [run] n_steps, gate_start_step)."""
-    import tomllib
-    from pathlib import Path
+def scene_to_toml(scene: Scene3D, comment: str = "") -> str:
+    """The scene file (kind = "3d") that `load_scene3d` turns back into `scene`."""
+    return data_to_toml(scene.data, comment)
 
+
+def load_scene3d(path) -> Scene3D:
+    """Read a 3-D pulse-echo scene file (`[grid] kind = "3d"`, one disc transducer with
+    `receive = true`) through the scene path into a `Scene3D`."""
     p = Path(path)
-    data = tomllib.loads(p.read_text())
-    gsec = data.get("grid", {})
-    if gsec.get("kind") != "3d":
-        raise ValueError(f'{p}: [grid] kind = {gsec.get("kind")!r}; this loader reads 3-D scenes (kind = "3d")')
-    grid = make_grid(
-        frequency_hz=gsec["frequency_hz"],
-        cells_per_wavelength=gsec["cells_per_wavelength"],
-        c_max_m_s=data.get("medium", {}).get("speed_m_s", AIR_M_S),
-        shape=tuple(gsec["shape"]),
-        kind="3d",
-        courant=gsec.get("courant"),
-        dtype=gsec.get("dtype", "float32"),
+    try:
+        data = tomllib.loads(p.read_text())
+    except OSError as e:
+        raise SceneError(f"{p}: cannot read the scene file ({e.strerror})") from None
+    except tomllib.TOMLDecodeError as e:
+        raise SceneError(f"{p}: not valid TOML: {e}") from None
+    kind = (data.get("grid") or {}).get("kind")
+    if kind != "3d":
+        raise SceneError(f'{p}: [grid.kind] = {kind!r}; this loader reads 3-D scenes (kind = "3d")')
+    scene = load_scene(p)
+    return _scene3d(scene, scene.build(), p.stem, data)
+
+
+def scaled_scene_data(data: dict, cells_per_wavelength: float) -> dict:
+    """Scene tables at another resolution (`apps.gallery.scale_scene_data`: cell and step counts
+    scale, metres and seconds stay), keeping a 3-D disc's per-ring weights and lags (its rings
+    are in metres, not cells)."""
+    from .gallery import scale_scene_data
+
+    cpw0 = float((data.get("grid") or {}).get("cells_per_wavelength", 20.0))
+    if not cells_per_wavelength > 0:
+        raise SceneError(f"cells_per_wavelength = {cells_per_wavelength}: give a resolution > 0")
+    out = scale_scene_data(data, cells_per_wavelength / cpw0)
+    out["grid"]["cells_per_wavelength"] = float(cells_per_wavelength)
+    if (data.get("grid") or {}).get("kind") == "3d":
+        for t_new, t_old in zip(out.get("transducers", []), data.get("transducers", [])):
+            for key in ("weights", "lags_s"):
+                if key in t_old:
+                    t_new[key] = copy.deepcopy(t_old[key])
+    return out
+
+
+def load_scene_at(path, cells_per_wavelength: float | None = None) -> Scene:
+    """Read a scene file (any kind), at `cells_per_wavelength` if given (`scaled_scene_data`)."""
+    if cells_per_wavelength is None:
+        return load_scene(path)
+    p = Path(path)
+    try:
+        data = tomllib.loads(p.read_text())
+    except OSError as e:
+        raise SceneError(f"{p}: cannot read the scene file ({e.strerror})") from None
+    except tomllib.TOMLDecodeError as e:
+        raise SceneError(f"{p}: not valid TOML: {e}") from None
+    return parse_scene(scaled_scene_data(data, cells_per_wavelength), str(p))
+
+
+# ------------------------------------------------------------------------------------------
+# running a 3-D scene file
+
+
+@dataclass
+class SceneRun3D:
+    """A finished 3-D scene run: the scene, what it built, the result, the A-scans of its
+    receiving transducers ({name: (t_s, a_scan)}) and the summary."""
+
+    scene: Scene
+    built: BuiltScene
+    result: Result
+    a_scans: dict
+    summary: dict
+
+    @property
+    def grid(self) -> Grid:
+        return self.built.grid
+
+
+def _peak_memory_bytes() -> dict:
+    """The process's peak memory: the accelerator's peak bytes in use where JAX reports them,
+    and the host's peak resident set (ru_maxrss) always."""
+    import resource
+
+    import jax
+
+    out: dict[str, Any] = {"host_peak_rss_bytes": int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024}
+    d = jax.devices()[0]
+    if d.platform != "cpu":
+        stats = d.memory_stats() or {}
+        if "peak_bytes_in_use" in stats:
+            out["device_peak_bytes"] = int(stats["peak_bytes_in_use"])
+    return out
+
+
+def run_scene3d(
+    scene: Scene, *, available_bytes: int | None = None, mlups: float | None = None, quiet: bool = False
+) -> SceneRun3D:
+    """Build and run a 3-D scene: the estimate (memory, and time from the measured throughput or
+    `mlups`) is printed to stderr before the run (unless `quiet`) and kept in the summary; a run
+    that would not fit in `available_bytes` (default: this machine's available memory) is refused
+    with `SceneTooLargeError`. Returns the run with the A-scans of the receiving transducers."""
+    import equinox as eqx
+    import jax
+
+    from .. import __version__
+    from ..observe.analytic3d import lattice_wavenumber_3d
+    from ..solver.estimate import RunTooLargeError, check_fits, estimate_run, features_of, format_estimate
+    from ..solver.loop import check_result, run
+    from ..solver.stepper import Stepper
+
+    if scene.grid["kind"] != "3d":
+        raise SceneError(f'{scene.path}: [grid.kind] = {scene.grid["kind"]!r}; run_scene3d runs kind = "3d" scenes')
+    t0 = time.perf_counter()
+    built = scene.build(available_bytes=available_bytes)
+    grid, n_steps = built.grid, built.n_steps
+    stepper = Stepper.build(grid, built.medium, built.sources, built.sensors, built.edges)
+    shape = tuple(grid.shape)
+    feats = features_of(stepper, n_steps, mlups=mlups)
+    nbytes, secs = estimate_run(shape, n_steps, grid.dtype, feats)
+    line = format_estimate(shape, n_steps, nbytes, secs)
+    if not quiet:
+        print(line, file=sys.stderr, flush=True)
+    try:
+        check_fits(shape, n_steps, nbytes, available=available_bytes, seconds=secs)
+    except RunTooLargeError as err:
+        raise SceneTooLargeError(f"{scene.path}: [grid] {' '.join(str(err).split())}") from None
+    build_s = time.perf_counter() - t0
+
+    t1 = time.perf_counter()
+    result = eqx.filter_jit(lambda st: check_result(run(st, n_steps), st))(stepper)
+    jax.block_until_ready(result.peak_history)
+    wall = time.perf_counter() - t1
+    memory = _peak_memory_bytes()
+
+    a_scans = {}
+    t_s = np.arange(1, n_steps + 1) * grid.dt_s
+    probes = np.asarray(result.probes) if result.probes is not None else np.zeros((n_steps, 0))
+    receivers = {}
+    for r in built.receivers:
+        src = built.sources[r.source]
+        lags = src.lags_s if bool(jnp.any(src.lags_s != 0)) else None
+        a = np.asarray(received_signal(probes[:, r.start : r.stop], src.weights, lags, grid.dt_s))
+        a_scans[r.name] = (t_s, a)
+        gated = np.abs(a[r.gate_start_step :]) if r.gate_start_step < n_steps else np.zeros(1)
+        k = int(np.argmax(gated))
+        receivers[r.name] = {
+            "cells": r.stop - r.start,
+            "gate_start_step": r.gate_start_step,
+            "gate_start_s": r.gate_start_step * grid.dt_s,
+            "echo_peak": float(gated[k]),
+            "echo_peak_s": (r.gate_start_step + k + 1) * grid.dt_s,
+            "transmit_peak": float(np.abs(a[: max(1, r.gate_start_step)]).max()),
+            "units": "Pa x cell weights (the weighted sum of the pressure over the transducer's cells)",
+        }
+
+    dist_cells = min(grid.courant * n_steps, math.sqrt(sum(n * n for n in shape)))
+    omega = grid.omega
+    k0 = omega / grid.courant
+    k_axis, k_diag = (float(lattice_wavenumber_3d(omega, grid.courant, d)) for d in ((1, 0, 0), (1, 1, 1)))
+    perr = max(abs(k_axis - k0), abs(k_diag - k0)) * dist_cells
+    edges = built.edges
+    summary = {
+        "difflattice_version": __version__,
+        "scene": scene.path,
+        "grid": {
+            "shape": list(shape),
+            "dx_m": grid.dx_m,
+            "dt_s": grid.dt_s,
+            "kind": grid.kind,
+            "size_m": list(grid.size_m),
+            "frequency_hz": grid.frequency_hz,
+            "cells_per_wavelength": grid.cells_per_wavelength,
+            "courant": grid.courant,
+            "steps_per_period": grid.steps_per_period,
+            "dtype": grid.dtype,
+        },
+        "medium": {
+            "boundary_model": built.medium.boundary_model,
+            "homogeneous": built.medium.is_homogeneous,
+            "absorption_db_per_m": built.medium.absorption_db_per_m,
+        },
+        "edges": {s: getattr(edges, s) for s in ("x_lo", "x_hi", "y_lo", "y_hi", "z_lo", "z_hi")}
+        | {"thickness_cells": edges.thickness_cells},
+        "estimate": {
+            "printed": line,
+            "memory_bytes": nbytes,
+            "time_s": secs,
+            "mlups_assumed": feats.mlups if feats.mlups is not None else "measured (solver.estimate.measure_mlups)",
+        },
+        "run": {
+            "n_steps": n_steps,
+            "duration_s": n_steps * grid.dt_s,
+            "build_s": build_s,
+            "wall_time_s": wall,
+            "note": "wall_time_s: the time loop including its compilation",
+            "mlups": math.prod(shape) * n_steps / wall / 1e6,
+            "device": str(jax.devices()[0]),
+            "machine": platform.machine(),
+            "load_average": list(os.getloadavg()),
+        },
+        "memory": memory,
+        "stability": {
+            "finite": bool(np.all(np.isfinite(np.asarray(result.peak_history)))),
+            "peak_pa": float(np.max(np.asarray(result.peak_history))),
+            "final_peak_pa": float(np.asarray(result.peak_history)[-1]),
+        },
+        "receivers": receivers,
+        "accuracy": {
+            "farthest_distance_m": dist_cells * grid.dx_m,
+            "expected_phase_error_periods": perr / (2 * math.pi),
+            "note": "worst of the axis and diagonal directions, from the 3-D lattice's dispersion relation "
+            "(analytic3d); above ~0.05 periods arrival times at that distance are not trustworthy: raise "
+            "cells_per_wavelength",
+        },
+    }
+    return SceneRun3D(scene, built, result, a_scans, summary)
+
+
+def _plane_label(axis: int, index: int, dx_m: float) -> tuple[str, tuple[str, str]]:
+    names = tuple(n for i, n in enumerate("xyz") if i != axis)
+    return f"{names[0]}-{names[1]} at {'xyz'[axis]} = {index * dx_m * 1e3:.1f} mm", (names[0], names[1])
+
+
+def write_outputs3d(sr: SceneRun3D, out_dir: str | Path) -> dict:
+    """Write a 3-D run's outputs into `out_dir`; returns the paths:
+
+    - a_scan.csv (t_s and one column per receiving transducer) and a_scan.json (the same with
+      the echo window), a_scan.png;
+    - peak_slices.png: the peak level (dB re its maximum) on the orthogonal planes of
+      `[sensors] snapshot_slices_m` (default: through the transducer's centre), transducer cells
+      in cyan and rigid obstacles outlined; field_slices.png: the pressure at the last step there;
+    - mip_z.png, mip_y.png: maximum-intensity projections of the peak level along z (seen from
+      above) and y (from the side); probes.png: the `[sensors] probes_m` pressures;
+    - sensors.npz (probe series, A-scans, the peak-level, RMS and arrival volumes where recorded,
+      snapshot planes), summary.json.
+    """
+    from .. import plots
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    g, res, built = sr.grid, sr.result, sr.built
+    files: dict[str, Any] = {}
+    arrays: dict[str, np.ndarray] = {"peak_history_pa": np.asarray(res.peak_history)}
+    if res.probes is not None:
+        arrays["probes_pa"] = np.asarray(res.probes)
+        arrays["probe_cells"] = np.asarray(built.sensors.probes)
+    if sr.a_scans:
+        names = list(sr.a_scans)
+        t = next(iter(sr.a_scans.values()))[0]
+        cols = np.stack([sr.a_scans[n][1] for n in names], axis=1)
+        np.savetxt(out / "a_scan.csv", np.column_stack([t, cols]), delimiter=",", header=",".join(["t_s", *names]))
+        files["a_scan_csv"] = str(out / "a_scan.csv")
+        doc = {
+            "dt_s": g.dt_s,
+            "t_s": t.tolist(),
+            "a_scan": {n: sr.a_scans[n][1].tolist() for n in names},
+            "receivers": sr.summary["receivers"],
+        }
+        (out / "a_scan.json").write_text(json.dumps(doc))
+        files["a_scan_json"] = str(out / "a_scan.json")
+        files["a_scan_png"] = str(plots.save(plots.time_series_plot(t, cols, names), out / "a_scan.png"))
+        for n in names:
+            arrays[f"a_scan_{n}"] = sr.a_scans[n][1]
+    n_user = min((r.start for r in built.receivers), default=built.sensors.n_probes)
+    if res.probes is not None and n_user > 0:  # the [sensors] probes_m points (before the receivers' cells)
+        t = (np.arange(res.probes.shape[0]) + 1) * g.dt_s
+        fig = plots.time_series_plot(t, np.asarray(res.probes)[:, :n_user], [f"probe {i}" for i in range(n_user)])
+        files["probes"] = str(plots.save(fig, out / "probes.png"))
+    planes = built.sensors.snapshot_planes(tuple(g.shape)) or ()
+    src_cells = [np.asarray(s.cells_array) for s in built.sources]
+    rigid = None if built.medium.rigid is None else np.asarray(built.medium.rigid)
+    marks, outlines = {}, {}
+
+    def plane(a3, axis, index):
+        return np.take(a3, index, axis=axis)
+
+    for axis, index in planes:
+        label, _ = _plane_label(axis, index, g.dx_m)
+        keep = [i for i in range(3) if i != axis]
+        marks[label] = [c[:, keep] for c in src_cells]
+        if rigid is not None:
+            outlines[label] = plane(rigid, axis, index)
+    if res.p_rms is not None:
+        arrays["p_rms_pa"] = np.asarray(res.p_rms)
+    if res.arrival is not None:
+        arrays["arrival_step"] = np.asarray(res.arrival)
+    if res.p_max is not None:
+        pmax = np.asarray(res.p_max)
+        arrays["p_max_pa"] = pmax
+        peak = {}
+        for axis, index in planes:
+            label, axes = _plane_label(axis, index, g.dx_m)
+            peak[label] = (axes, plane(pmax, axis, index))
+        fig = plots.slices_3d(
+            peak, g.dx_m, floor_db=-40.0, marks=marks, outlines=outlines, title="peak level (dB re max)"
+        )
+        files["peak_slices"] = str(plots.save(fig, out / "peak_slices.png"))
+        for axis in (2, 1):
+            fig = plots.max_intensity_projection(pmax, g.dx_m, axis=axis, floor_db=-40.0)
+            files[f"mip_{'xyz'[axis]}"] = str(plots.save(fig, out / f"mip_{'xyz'[axis]}.png"))
+    final = np.asarray(res.final.pressure)
+    field_planes = {}
+    for axis, index in planes:
+        label, axes = _plane_label(axis, index, g.dx_m)
+        field_planes[label] = (axes, plane(final, axis, index))
+    n_steps = sr.summary["run"]["n_steps"]
+    fig = plots.slices_3d(
+        field_planes,
+        g.dx_m,
+        marks=marks,
+        outlines=outlines,
+        title=f"pressure at step {n_steps} ({n_steps * g.dt_s * 1e6:.0f} µs)",
     )
-    med = data.get("medium", {})
-    trs = data.get("transducers", [])
-    if len(trs) != 1 or trs[0].get("shape") != "disc":
-        raise ValueError(f'{p}: give exactly one [[transducers]] with shape = "disc"')
-    tr = trs[0]
-    src = disc_transducer_3d(
-        grid,
-        tuple(tr["centre_m"]),
-        tuple(tr["axis"]),
-        diameter_m=tr.get("diameter_m"),
-        rings=tr.get("rings"),
-        signal=ToneBurst(grid.frequency_hz, float(tr.get("cycles", 5.0))),
-    )
-    occ = None
-    shapes = []
-    for i, o in enumerate(data.get("objects", [])):
-        if o.get("material", "rigid") != "rigid":
-            raise ValueError(f"{p}: objects[{i}].material = {o.get('material')!r}; 3-D scene files hold rigid objects")
-        s = _shape_from_table(o, f"objects[{i}]")
-        shapes.append(s)
-        o_occ = rasterise3d(s, grid, o.get("rasterise", "smooth"))
-        occ = o_occ if occ is None else 1 - (1 - occ) * (1 - o_occ)
-    edges = Edges.all(
-        data.get("edges", {}).get("kind", "pml"), thickness_cells=int(data.get("edges", {}).get("thickness_cells", 12))
-    )
-    run = data.get("run", {})
-    centre_cells = tuple(float(v) / grid.dx_m for v in tr["centre_m"])
-    obstacle = shapes[0] if len(shapes) == 1 else Union3D(tuple(shapes))
-    return Scene3D(
-        run.get("name", p.stem),
-        grid,
-        Medium(med.get("speed_m_s", AIR_M_S), med.get("density_kg_m3", AIR_KG_M3), rigid=occ),
-        src,
-        edges,
-        int(run["n_steps"]),
-        obstacle,
-        centre_cells,
-        tuple(tr["axis"]),
-        int(run.get("gate_start_step", 0)),
-        {"diameter_m": tr.get("diameter_m"), "file": str(p)},
-    )
+    files["field_slices"] = str(plots.save(fig, out / "field_slices.png"))
+    if res.snapshots is not None:
+        snaps = res.snapshots if isinstance(res.snapshots, tuple) else (res.snapshots,)
+        for (axis, index), s in zip(planes, snaps):
+            arrays[f"snapshots_{'xyz'[axis]}{index}_pa"] = np.asarray(s)
+        arrays["snapshot_steps"] = np.asarray(res.snapshot_steps)
+    np.savez_compressed(out / "sensors.npz", allow_pickle=False, **arrays)
+    files["sensors"] = str(out / "sensors.npz")
+    sr.summary["files"] = files
+    (out / "summary.json").write_text(json.dumps(sr.summary, indent=2, default=_json_default))
+    files["summary"] = str(out / "summary.json")
+    return files
+
+
+def _json_default(o):
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    return str(o)

@@ -3,24 +3,39 @@
 Each function runs small simulations and measures one quantity the analytic references in
 `analytic.py` predict: plane-wave reflection/transmission at an interface, reflection of a window
 edge, the discrete energy of a closed box.
+
+Precision is the caller's: the float64 runs (the default `dtype`) need
+`jax.config.update("jax_enable_x64", True)` at start-up (tests/conftest.py and the benchmark
+scripts do it); without it the stepper refuses them with a `ValueError`. Nothing here changes it.
 """
 
 from __future__ import annotations
 
 import math
+from typing import Literal
 
 import jax.numpy as jnp
 import numpy as np
 
 from ..air import SPEED_OF_SOUND_20C_M_S
-from ..lattice.coefficients import Edges
+from ..lattice.coefficients import EdgeKind, Edges
 from ..lattice.grid import make_grid
-from ..lattice.medium import Medium
+from ..lattice.medium import BoundaryModel, Medium
 from ..observe.analytic import lattice_wavenumber
-from ..solver.loop import simulate
+from ..solver.loop import Result, simulate
 from ..solver.sensors import Sensors
 from ..solver.sources import PointSources, ToneBurst
 from ..solver.stepper import Stepper
+
+Precision = Literal["float32", "float64"]
+"""The grid's float type (`make_grid(dtype=...)`)."""
+
+
+def _probes(result: Result) -> np.ndarray:
+    """The probe records of a run whose sensors have probes, (n_steps, n_probes)."""
+    if result.probes is None:
+        raise ValueError("the run recorded no probes: give Sensors(probes=...)")
+    return np.asarray(result.probes)
 
 
 def _dft(x, omega):
@@ -34,12 +49,12 @@ def plane_wave_rt(
     c2_m_s: float,
     rho1: float,
     rho2: float,
-    model: str,
+    model: BoundaryModel,
     cells_per_wavelength_1: float = 20.0,
     frequency_hz: float = 50e3,
     cycles: float = 12.0,
-    dtype: str = "float64",
-    wall: str | None = None,
+    dtype: Precision = "float64",
+    wall: Literal["rigid", "soft"] | None = None,
 ) -> tuple[complex, complex]:
     """Measure R and T of a normal-incidence plane wave at the face between medium 1 (cells
     <= i0) and medium 2 (cells > i0), at the drive frequency, in the conventions of
@@ -67,11 +82,11 @@ def plane_wave_rt(
     probe_r, probe_t = i0 - int(1.5 * wl1), i0 + 1 + int(min(wl1 * c2_m_s / c1_m_s, n2 - L - 5) / 2)
     edges = Edges(x_lo="pml", x_hi="pml", y_lo="rigid", y_hi="rigid", thickness_cells=L)
     src = PointSources(
-        cells=[(xs, 0)], signal=ToneBurst(frequency_hz, cycles), weights=jnp.ones(1), lags_s=jnp.zeros(1)
+        cells=jnp.asarray([(xs, 0)]), signal=ToneBurst(frequency_hz, cycles), weights=jnp.ones(1), lags_s=jnp.zeros(1)
     )
     # enough steps for the burst to reach the probes, reflect and pass
     n_steps = int((2 * d_src + 2 * burst + 3 * wl1) / c1) + 200
-    sens = Sensors(probes=[(probe_r, 0), (i0, 0), (probe_t, 0)])
+    sens = Sensors(probes=jnp.asarray([(probe_r, 0), (i0, 0), (probe_t, 0)]))
     ref = simulate(grid, Medium(c1_m_s, rho1), src, sens, n_steps=n_steps, edges=edges)
     if wall is None:
         c = jnp.where(jnp.asarray(x) <= i0, c1_m_s, c2_m_s) * jnp.ones((nx, 1))
@@ -89,7 +104,7 @@ def plane_wave_rt(
     tot = simulate(grid, med, src, sens, n_steps=n_steps, edges=edges)
     w = grid.omega
     k1 = float(lattice_wavenumber(w, c1, 0.0))
-    pr, pref0 = np.asarray(tot.probes), np.asarray(ref.probes)
+    pr, pref0 = _probes(tot), _probes(ref)
     inc_r = _dft(pref0[:, 0], w)
     refl = _dft(pr[:, 0] - pref0[:, 0], w)
     d = i0 - probe_r
@@ -103,11 +118,11 @@ def plane_wave_rt(
 
 
 def edge_reflection_db(
-    kind: str,
+    kind: EdgeKind,
     *,
     thickness_cells: int = 20,
     cells_per_wavelength: float = 20.0,
-    dtype: str = "float64",
+    dtype: Precision = "float64",
     cycles: float = 4.0,
     **edge_kwargs,
 ) -> float:
@@ -124,12 +139,13 @@ def edge_reflection_db(
         grid = make_grid(
             frequency_hz=50e3, cells_per_wavelength=ppw, c_max_m_s=SPEED_OF_SOUND_20C_M_S, shape=(nx, 1), dtype=dtype
         )
-        src = PointSources(cells=[(x0, 0)], signal=ToneBurst(50e3, cycles), weights=jnp.ones(1), lags_s=jnp.zeros(1))
-        e = Edges(x_lo="rigid", x_hi=kind, y_lo="rigid", y_hi="rigid", thickness_cells=L, **edge_kwargs)
-        r = simulate(
-            grid, Medium(SPEED_OF_SOUND_20C_M_S, 1.2), src, Sensors(probes=[(x0 + d // 2, 0)]), n_steps=n_steps, edges=e
+        src = PointSources(
+            cells=jnp.asarray([(x0, 0)]), signal=ToneBurst(50e3, cycles), weights=jnp.ones(1), lags_s=jnp.zeros(1)
         )
-        out.append(np.asarray(r.probes[:, 0]))
+        e = Edges(x_lo="rigid", x_hi=kind, y_lo="rigid", y_hi="rigid", thickness_cells=L, **edge_kwargs)
+        probes = Sensors(probes=jnp.asarray([(x0 + d // 2, 0)]))
+        r = simulate(grid, Medium(SPEED_OF_SOUND_20C_M_S, 1.2), src, probes, n_steps=n_steps, edges=e)
+        out.append(_probes(r)[:, 0])
     p, pref = out
     return float(20 * np.log10(np.abs(p - pref).max() / np.abs(pref).max()))
 
@@ -146,7 +162,7 @@ def discrete_energy(stepper: Stepper, p_new, p_old) -> float:
 
     dp = p_new - p_old
     kin = jnp.sum(dp * dp / K)
-    pot = 0.0
+    pot = jnp.zeros((), dp.dtype)
     for axis in (0, 1):
         g1 = face_gradient(lat, p_new, axis)
         g0p = face_gradient(lat, p_old, axis)

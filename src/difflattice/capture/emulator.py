@@ -35,11 +35,11 @@ import tty
 from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 
-from ..config import Parser, Section, add_options, setting
+from ..config import Parser, Section, add_options, setting, specs
 from . import protocol as P
 from .groundtruth import Piston, TableTransducer, lobe_truth, make_transducer, wave_truth
 
@@ -147,24 +147,26 @@ class EmulatorConfig:
     @classmethod
     def from_json(cls, text: str) -> EmulatorConfig:
         doc = json.loads(text)
-        faults = {k: tuple(v) if k.endswith("_at") else v for k, v in doc["faults"].items()}
         return cls(
             link_path=doc["link_path"],
             transducer=doc["transducer"],
-            rig=RigConfig(**doc["rig"]),
-            noise=Noise(**doc["noise"]),
-            faults=Faults(**faults),
+            rig=_build(RigConfig, doc["rig"], "rig"),
+            noise=_build(Noise, doc["noise"], "noise"),
+            faults=_build(Faults, doc["faults"], "fault"),
             seed=doc["seed"],
         )
 
 
-def _build(cls: type, values: dict[str, Any] | None, what: str) -> Any:
-    names = {f.name for f in dataclasses.fields(cls)}
+_S = TypeVar("_S", bound=Section)
+
+
+def _build(cls: type[_S], values: dict[str, Any] | None, what: str) -> _S:
+    """``cls(**values)``, refusing keys ``cls`` does not declare (lists become tuples in ``Section``)."""
+    names = {s.name for s in specs(cls)}
     unknown = set(values or {}) - names
     if unknown:
         raise ValueError(f"unknown {what} key(s) {sorted(unknown)}; known: {sorted(names)}")
-    values = {k: tuple(v) if k.endswith("_at") else v for k, v in (values or {}).items()}
-    return cls(**values)
+    return cls(**(values or {}))
 
 
 def make_config(
@@ -292,7 +294,7 @@ class Emulator:
 
     # firmware state -------------------------------------------------------------------------
 
-    def _boot(self, reason: str, now: float) -> None:
+    def _boot(self, reason: P.BootReason, now: float) -> None:
         old = self.boot_id
         while self.boot_id == old:  # a new boot id at every boot
             self.boot_id = self.rng.randrange(1, 65536)
@@ -305,7 +307,7 @@ class Emulator:
         self.last_line = now
         self._send(P.Boot(self.cfg.rig.fw_version, self.boot_id, reason), now)
 
-    def _state(self) -> str:
+    def _state(self) -> P.State:
         return "SCAN" if self.scan else "IDLE"
 
     def _hbt(self, now: float) -> P.Hbt:

@@ -348,8 +348,8 @@ def load_capture(path: str | Path, *, allow_incomplete: bool = False) -> LobeCap
     try:
         lines = data.decode("ascii").split("\n")[:-1]
     except UnicodeDecodeError as exc:
-        line = data[: exc.start].count(b"\n") + 1
-        raise CaptureFileError(f"{path}:{line}: non-ASCII byte") from None
+        bad_line = data[: exc.start].count(b"\n") + 1
+        raise CaptureFileError(f"{path}:{bad_line}: non-ASCII byte") from None
 
     def fail(lineno: int, problem: str) -> CaptureFileError:
         return CaptureFileError(f"{path}:{lineno}: {problem}")
@@ -461,8 +461,9 @@ def _build(
     names = COLUMNS[kind]
     order = sorted(rows)
     table = np.array([rows[s] for s in order], dtype=np.int64).reshape(len(order), len(names) - 1)
-    raw = {name: table[:, j] for j, name in enumerate(names[:-1])}
-    raw["t_unix_s"] = np.array([times[s] for s in order], dtype=float)
+    times_s = np.array([times[s] for s in order], dtype=np.float64)
+    raw: dict[str, NDArray[Any]] = {name: table[:, j] for j, name in enumerate(names[:-1])}
+    raw["t_unix_s"] = times_s
     n = meta["n_points"]
     meta = dict(meta)
     if kind == "lobe":
@@ -478,38 +479,33 @@ def _build(
             x1_m=(meta["x0_um"] + (n - 1) * meta["dx_um"]) * 1e-6,
             z_m=meta["z_um"] * 1e-6,
         )
-    common = dict(
-        path=path,
-        kind=kind,
-        metadata=meta,
-        columns=raw,
-        complete=complete,
-        missing=missing,
-        events=tuple(events),
-        seq=raw["seq"],
-        t_unix_s=raw["t_unix_s"],
-        records_crc32=crc,
-    )
-    temp_c = raw["temp_cC"] / 100
-    tof_s = raw["tof_ns"] * 1e-9
+    # the `Capture` fields, in their order (positional, so that mypy checks each one's type)
+    common = (path, kind, meta, raw, complete, missing, tuple(events), raw["seq"], times_s, crc)
+    temp_c = _f64(raw["temp_cC"] / 100)
+    tof_s = _f64(raw["tof_ns"] * 1e-9)
     if kind == "lobe":
         return LobeCapture(
-            **common,
-            angle_deg=raw["angle_mdeg"] / 1e3,
-            amp_uV=raw["amp_uV"].astype(float),
-            amp_sd_uV=raw["amp_sd_uV"].astype(float),
+            *common,
+            angle_deg=_f64(raw["angle_mdeg"] / 1e3),
+            amp_uV=_f64(raw["amp_uV"]),
+            amp_sd_uV=_f64(raw["amp_sd_uV"]),
             tof_s=tof_s,
             temp_c=temp_c,
         )
     return WaveCapture(
-        **common,
-        x_m=raw["x_um"] * 1e-6,
-        z_m=raw["z_um"] * 1e-6,
+        *common,
+        x_m=_f64(raw["x_um"] * 1e-6),
+        z_m=_f64(raw["z_um"] * 1e-6),
         tof_s=tof_s,
-        phase_deg=raw["phase_mdeg"] / 1e3,
-        amp_uV=raw["amp_uV"].astype(float),
+        phase_deg=_f64(raw["phase_mdeg"] / 1e3),
+        amp_uV=_f64(raw["amp_uV"]),
         temp_c=temp_c,
     )
+
+
+def _f64(values: NDArray[Any]) -> NDArray[np.float64]:
+    """``values`` as float64 (integer columns scaled to SI units are float64 already: no copy)."""
+    return np.asarray(values, dtype=np.float64)
 
 
 # --------------------------------------------------------------------------------------------

@@ -281,9 +281,10 @@ class TableTransducer:
 
     def __post_init__(self) -> None:
         for axis, values in ((self.lobe_angle_deg, self.lobe), (self.near_x_m, self.near)):
-            if (axis is None) != (values is None):
-                raise ValueError("a table needs both its axis and its values")
-            if axis is not None and (len(axis) != len(values) or len(axis) < 2 or np.any(np.diff(axis) <= 0)):
+            if axis is None or values is None:
+                if (axis is None) != (values is None):
+                    raise ValueError("a table needs both its axis and its values")
+            elif len(axis) != len(values) or len(axis) < 2 or np.any(np.diff(axis) <= 0):
                 raise ValueError("table axes must be increasing, with >= 2 points matching the values")
         if self.near is not None and (self.near_z_m is None or self.near_tof_s is None):
             raise ValueError("a near-field table needs near_z_m and near_tof_s")
@@ -312,14 +313,11 @@ class TableTransducer:
         if self.freq_hz is not None:
             doc["freq_hz"] = self.freq_hz
         if self.lobe is not None:
-            doc["lobe"] = {"angle_deg": list(map(float, self.lobe_angle_deg)), **_re_im(self.lobe)}
+            angle_deg, lobe = self._lobe_table()
+            doc["lobe"] = {"angle_deg": list(map(float, angle_deg)), **_re_im(lobe)}
         if self.near is not None:
-            doc["near"] = {
-                "z_m": self.near_z_m,
-                "x_m": list(map(float, self.near_x_m)),
-                **_re_im(self.near),
-                "tof_s": list(map(float, self.near_tof_s)),
-            }
+            z_m, x_m, near, tof_s = self._near_table()
+            doc["near"] = {"z_m": z_m, "x_m": list(map(float, x_m)), **_re_im(near), "tof_s": list(map(float, tof_s))}
         path = Path(path)
         path.write_text(json.dumps(doc, indent=1))
         return path
@@ -328,26 +326,40 @@ class TableTransducer:
         if self.freq_hz is not None and abs(freq_hz - self.freq_hz) > 0.5:
             raise ValueError(f"the table is for {self.freq_hz} Hz, not {freq_hz} Hz")
 
-    def far_field(self, angle_deg: NDArray[np.float64], freq_hz: float, c_m_s: float) -> NDArray[np.complex128]:
-        if self.lobe is None:
+    def _lobe_table(self) -> tuple[NDArray[np.float64], NDArray[np.complex128]]:
+        """``(angle_deg, lobe)``; raises ``ValueError`` when the table has no lobe section."""
+        if self.lobe_angle_deg is None or self.lobe is None:
             raise ValueError("the table has no lobe section")
+        return self.lobe_angle_deg, self.lobe
+
+    def _near_table(
+        self,
+    ) -> tuple[float, NDArray[np.float64], NDArray[np.complex128], NDArray[np.float64]]:
+        """``(z_m, x_m, near, tof_s)``; raises ``ValueError`` when the table has no near-field section."""
+        if self.near_z_m is None or self.near_x_m is None or self.near is None or self.near_tof_s is None:
+            raise ValueError("the table has no near-field section")
+        return self.near_z_m, self.near_x_m, self.near, self.near_tof_s
+
+    def far_field(self, angle_deg: NDArray[np.float64], freq_hz: float, c_m_s: float) -> NDArray[np.complex128]:
+        axis, lobe = self._lobe_table()
         self._check_freq(freq_hz)
-        return self.sensitivity_uV * _interp_complex(angle_deg, self.lobe_angle_deg, self.lobe, "angle")
+        return self.sensitivity_uV * _interp_complex(angle_deg, axis, lobe, "angle")
 
     def near_field(self, x_m: NDArray[np.float64], z_m: float, freq_hz: float, c_m_s: float) -> NDArray[np.complex128]:
-        self._check_z(z_m)
+        axis, near, _ = self._near_at(z_m)
         self._check_freq(freq_hz)
-        return self.sensitivity_uV * _interp_complex(x_m, self.near_x_m, self.near, "x")
+        return self.sensitivity_uV * _interp_complex(x_m, axis, near, "x")
 
     def arrival_s(self, x_m: NDArray[np.float64], z_m: float, c_m_s: float) -> NDArray[np.float64]:
-        self._check_z(z_m)
-        return np.interp(_inside(x_m, self.near_x_m, "x"), self.near_x_m, self.near_tof_s)
+        axis, _, tof_s = self._near_at(z_m)
+        return np.interp(_inside(x_m, axis, "x"), axis, tof_s)
 
-    def _check_z(self, z_m: float) -> None:
-        if self.near is None:
-            raise ValueError("the table has no near-field section")
-        if abs(z_m - self.near_z_m) > 1e-6:
-            raise ValueError(f"the table is for z = {self.near_z_m} m, not {z_m} m")
+    def _near_at(self, z_m: float) -> tuple[NDArray[np.float64], NDArray[np.complex128], NDArray[np.float64]]:
+        """The near-field table ``(x_m, near, tof_s)``, checking that it is for distance ``z_m``."""
+        table_z_m, x_m, near, tof_s = self._near_table()
+        if abs(z_m - table_z_m) > 1e-6:
+            raise ValueError(f"the table is for z = {table_z_m} m, not {z_m} m")
+        return x_m, near, tof_s
 
 
 def _complex_from(section: dict[str, Any], path: str | Path, name: str) -> NDArray[np.complex128]:
@@ -409,7 +421,7 @@ def lobe_truth(
     tr: Transducer, angle_deg: ArrayLike, *, range_m: float, freq_hz: float, temperature_c: float
 ) -> tuple[NDArray[np.float64], float]:
     """Noise-free lobe measurement: ``(amp_uV, tof_s)`` at ``angle_deg`` (conventions above)."""
-    c = speed_of_sound(temperature_c)
+    c = float(speed_of_sound(temperature_c))
     angles = np.atleast_1d(np.asarray(angle_deg, float))
     at_range = getattr(tr, "at_range", None)  # a piston or disc: the field at the microphone itself
     amp = np.abs(at_range(angles, range_m, freq_hz, c) if at_range else tr.far_field(angles, freq_hz, c) / range_m)
@@ -421,7 +433,7 @@ def wave_truth(
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Noise-free wavefront measurement: ``(tof_s, phase_deg, amp_uV)`` at ``x_m`` (conventions
     above: ``phase_deg`` is the lag in [0, 360))."""
-    c = speed_of_sound(temperature_c)
+    c = float(speed_of_sound(temperature_c))
     x = np.atleast_1d(np.asarray(x_m, float))
     p = tr.near_field(x, z_m, freq_hz, c)
     return tr.arrival_s(x, z_m, c), lag_deg(p), np.abs(p)

@@ -21,7 +21,7 @@ from collections import Counter, deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Required, TypedDict, Unpack
 
 import serial
 
@@ -691,14 +691,34 @@ def _check_resume(path: Path, existing: dict[str, Any], wanted: dict[str, Any]) 
         )
 
 
+class CaptureOptions(TypedDict, total=False):
+    """The keyword options :func:`capture_lobe` and :func:`capture_wave` share.
+
+    ``metadata`` (required): measurement metadata, ``temperature_c`` [degC] always and ``range_m``
+    [m] for a lobe scan; optional keys in :class:`files.Measurement`. ``progress``: a progress bar
+    on stderr (default False). ``timeout_s``: silence that means the link is down [s] (default 3;
+    other timeouts scale with it, :meth:`Timeouts.scaled`). ``reconnect_s``: how long to wait for
+    a lost link [s] (default 30).
+    """
+
+    metadata: Required[dict[str, Any]]
+    progress: bool
+    timeout_s: float
+    reconnect_s: float
+
+
 def _capture(
     port: str | Path,
     out_path: str | Path,
     plan: ScanPlan,
+    *,
     metadata: dict[str, Any],
-    progress: bool,
-    timeouts: Timeouts,
+    progress: bool = False,
+    timeout_s: float = 3.0,
+    reconnect_s: float = 30.0,
 ) -> Path:
+    """Capture ``plan`` into ``out_path``, continuing an unfinished file (options: :class:`CaptureOptions`)."""
+    timeouts = Timeouts.scaled(timeout_s, reconnect_s)
     path = Path(out_path)
     if path.suffix != ".csv":
         raise ValueError(f"{path}: capture files end in .csv")
@@ -803,22 +823,17 @@ def capture_lobe(
     n_avg: int,
     cycles: int,
     freq_hz: float,
-    metadata: dict[str, Any],
-    progress: bool = False,
-    timeout_s: float = 3.0,
-    reconnect_s: float = 30.0,
+    **options: Unpack[CaptureOptions],
 ) -> Path:
     """Capture a lobe pattern into ``out_path`` (``.csv``; raw log ``.log`` beside it).
 
     Angles [deg] from ``start_deg`` to ``stop_deg`` (inclusive, a whole number of ``step_deg``),
     ``n_avg`` bursts of ``cycles`` cycles at ``freq_hz`` [Hz, rounded to an integer] per point.
-    ``metadata`` needs ``temperature_c`` [degC] and ``range_m`` [m]; optional keys are listed in
-    :class:`files.Measurement`. ``timeout_s``: silence that means the link is down (other timeouts
-    scale with it, :meth:`Timeouts.scaled`); ``reconnect_s``: how long to wait for a lost link.
-    Calling it again on an unfinished file continues the scan; on a complete file it does nothing.
+    ``options``: ``metadata`` (needs ``temperature_c`` [degC] and ``range_m`` [m]), ``progress``,
+    ``timeout_s``, ``reconnect_s`` (:class:`CaptureOptions`). Calling it again on an unfinished
+    file continues the scan; on a complete file it does nothing.
     """
-    plan = ScanPlan.lobe(start_deg, stop_deg, step_deg, n_avg, cycles, freq_hz)
-    return _capture(port, out_path, plan, metadata, progress, Timeouts.scaled(timeout_s, reconnect_s))
+    return _capture(port, out_path, ScanPlan.lobe(start_deg, stop_deg, step_deg, n_avg, cycles, freq_hz), **options)
 
 
 def capture_wave(
@@ -832,13 +847,9 @@ def capture_wave(
     n_avg: int,
     cycles: int,
     freq_hz: float,
-    metadata: dict[str, Any],
-    progress: bool = False,
-    timeout_s: float = 3.0,
-    reconnect_s: float = 30.0,
+    **options: Unpack[CaptureOptions],
 ) -> Path:
     """Capture a wavefront scan along x [m] from ``x0_m`` to ``x1_m`` by ``dx_m`` at distance
     ``z_m`` [m] from the face into ``out_path``; otherwise as :func:`capture_lobe`
     (``metadata`` needs ``temperature_c``)."""
-    plan = ScanPlan.wave(x0_m, x1_m, dx_m, z_m, n_avg, cycles, freq_hz)
-    return _capture(port, out_path, plan, metadata, progress, Timeouts.scaled(timeout_s, reconnect_s))
+    return _capture(port, out_path, ScanPlan.wave(x0_m, x1_m, dx_m, z_m, n_avg, cycles, freq_hz), **options)

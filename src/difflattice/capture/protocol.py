@@ -41,9 +41,9 @@ def crc16(body: bytes) -> int:
 class FrameError(ValueError):
     """A line that is not a valid v1 frame or message; ``code`` is the rig's ERR code for it."""
 
-    def __init__(self, code: str, detail: str) -> None:
+    def __init__(self, code: ErrCode, detail: str) -> None:
         super().__init__(f"{code}: {detail}")
-        self.code = code
+        self.code: ErrCode = code
         self.detail = detail
 
 
@@ -55,6 +55,8 @@ State = Literal["IDLE", "SCAN"]
 BootReason = Literal["POR", "EXT", "BOR", "WDT", "UNK"]
 EndStatus = Literal["OK", "ABORTED", "FAULT"]
 ErrCode = Literal["BADCRC", "MALFORMED", "TOOLONG", "BADCMD", "BADARG", "BUSY", "NOTHOMED", "LIMIT"]
+BadLineReason = ErrCode | Literal["JUNK"]
+"""Why bytes were not a line: the rig's ERR code for a bad line, or ``JUNK`` (bytes outside a line)."""
 
 
 @dataclass(frozen=True)
@@ -348,7 +350,7 @@ class BadLine:
     """Bytes that are not a valid line: junk before a ``$``, or a line failing its checks."""
 
     raw: bytes
-    reason: str
+    reason: BadLineReason
 
 
 class LineBuffer:

@@ -19,6 +19,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, Float
 
 
 def _crossing(levels_db, step_deg: float, drop_db: float):
@@ -107,8 +108,8 @@ class Goal(eqx.Module):
         ):
             raise ValueError("Goal: give at least one non-zero weight")
 
-    def loss(self, m: dict):
-        total = 0.0
+    def loss(self, m: dict) -> Float[Array, ""] | float:
+        total: Float[Array, ""] | float = 0.0
         if self.gain_weight:
             total = total - self.gain_weight * m["on_axis_db"]
         if self.width_weight:

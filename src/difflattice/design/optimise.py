@@ -19,14 +19,15 @@ import jax.numpy as jnp
 
 from .objectives import Goal
 from .problem import DesignProblem
+from .shapes import DesignParams
 
 
 @dataclass
 class DesignResult:
     """Start and best designs, their measures, and the accepted design at every step."""
 
-    start: object
-    best: object
+    start: DesignParams
+    best: DesignParams
     metrics_start: dict
     metrics_best: dict
     loss_start: float
@@ -99,7 +100,7 @@ def optimise(
         loss, (m, params) = raw(v)
         return scale * loss, (loss, m, params)
 
-    solver = optx.BFGS(rtol=rtol, atol=atol)
+    solver: optx.BFGS = optx.BFGS(rtol=rtol, atol=atol)  # generic in (Y, Aux, Hessian): left open
     one = jnp.asarray(1.0, v0.dtype)
     f_struct, aux_struct = eqx.filter_eval_shape(fn, v0, one)
     step = eqx.filter_jit(lambda v, s, a: solver.step(fn, v, a, {}, s, frozenset()))

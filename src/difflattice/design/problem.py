@@ -91,8 +91,6 @@ class DesignProblem(eqx.Module):
         """Smooth occupancy of the design's walls (None for no shape)."""
         if params is None:
             return None
-        if self.lattice == "rz":
-            return _smooth_occupancy_rz(params.shape(self.anchor_m), self.grid, self.ramp_cells)
         return rasterise(params.shape(self.anchor_m), self.grid, "smooth", ramp_cells=self.ramp_cells)
 
     def medium(self, params) -> Medium:
@@ -129,12 +127,14 @@ class DesignProblem(eqx.Module):
             edges=self.edges,
             checkpoint="sqrt",
         )
+        phasors, contour = r.phasors, self.contour
+        assert phasors is not None  # recorded: the sensors ask for them
         if self.lattice == "rz":
-            return self._pattern_rz(r.phasors, ranges_m)
+            return self._pattern_rz(phasors, ranges_m)
+        assert isinstance(contour, BoxContour)  # a 2-D problem's contour (`_layout`)
         centre = (self.anchor_m[0] / g.dx_m, self.anchor_m[1] / g.dx_m)
-        ff = lambda rng: far_field(
-            r.phasors, self.contour, g, np.asarray(self.angles_deg), rng, centre, dispersion="continuum"
-        )
+        angles = np.asarray(self.angles_deg)
+        ff = lambda rng: far_field(phasors, contour, g, angles, rng, centre, dispersion="continuum")
         if ranges_m is None:
             return ff(self.range_m)
         return tuple(ff(rng) for rng in ranges_m)
@@ -184,20 +184,6 @@ class DesignProblem(eqx.Module):
             edges=self.edges,
         )
         return np.asarray(r.snapshots), np.asarray(r.snapshot_steps), np.asarray(r.p_max)
-
-
-def _smooth_occupancy_rz(shape, grid: Grid, ramp_cells: float):
-    """`geometry.rasterise(shape, grid, "smooth")` on an rz grid (cell centres z = (i + 1/2) dx,
-    r = (j + 1/2) dx), written out here: under an outer `jax.jit`, reverse mode through
-    `rasterise` on an rz grid gave a shape gradient 7x off central differences (eager mode and
-    this form agree with them; see the report of the rz design work)."""
-    nx, ny = grid.shape
-    dx = grid.dx_m
-    z = (np.arange(nx) + 0.5) * dx
-    r = (np.arange(ny) + 0.5) * dx
-    zz, rr = (jnp.asarray(a, grid.jnp_dtype) for a in np.meshgrid(z, r, indexing="ij"))
-    u = jnp.clip(0.5 - shape.sdf(zz, rr) / (dx * ramp_cells), 0.0, 1.0)
-    return u * u * (3 - 2 * u)
 
 
 def _grid(frequency_hz, cells_per_wavelength, wall, shape, dtype, kind="2d") -> Grid:

@@ -143,8 +143,15 @@ def machine_info() -> dict:
     }
 
 
+def _json_default(o: object) -> float | str:
+    """JSON of what `json` cannot write: NumPy real scalars as floats, anything else as its str."""
+    if isinstance(o, (np.integer, np.floating, np.bool_)):
+        return float(o)
+    return str(o)
+
+
 def write_json(path: Path, data: dict) -> Path:
-    path.write_text(json.dumps(data, indent=2, default=lambda o: float(o) if np.isscalar(o) else str(o)) + "\n")
+    path.write_text(json.dumps(data, indent=2, default=_json_default) + "\n")
     return path
 
 

@@ -23,13 +23,14 @@ import jax
 import jax.numpy as jnp
 
 from ..lattice.geometry import HornWalls, ParabolicMirror
+from ..transforms import logit
 
 _EDGE = 1e-6  # pack() keeps sigmoids this far inside (0, 1): a design exactly at a limit has a finite u
 
 
 def _logit(p: float) -> float:
-    p = min(max(p, _EDGE), 1 - _EDGE)
-    return math.log(p / (1 - p))
+    """`logit` of `p` clipped _EDGE inside (0, 1): a design exactly at a limit packs finitely."""
+    return logit(min(max(p, _EDGE), 1 - _EDGE))
 
 
 def _frac(v: float, lo: float, hi: float) -> float:
@@ -89,6 +90,9 @@ class ReflectorParams(eqx.Module):
 
     def as_dict(self) -> dict:
         return {k: float(getattr(self, k)) for k in self.NAMES}
+
+
+DesignParams = HornParams | ReflectorParams  # the shapes a design optimises
 
 
 class HornLimits(eqx.Module):

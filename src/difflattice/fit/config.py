@@ -38,6 +38,7 @@ PROFILES = ("uniform", "free", "symmetric", "smooth")  # fit.model.PROFILES (not
 DISC_PROFILES = (*PROFILES, "rim_taper")  # fit.disc.DISC_PROFILES; a disc takes "symmetric" as "free"
 SOLVERS = ("levenberg_marquardt", "dogleg", "gauss_newton", "bfgs")  # fit.solve.SOLVERS
 LOSSES = ("l2", "huber", "cauchy")
+BAFFLES = ("rigid", "none", "can")  # solver.sources.BAFFLES (not imported: no JAX here)
 MIN_FIT_CELLS_PER_WAVELENGTH = 8.0
 """Below this a fit's transfer simulation carries a phase error large enough to bias the fitted
 parameters (docs/accuracy.md); it is allowed, with a warning."""
@@ -196,6 +197,33 @@ class ModelSection(Section):
         doc="range at which the lobe is modelled (default: the data's range; e.g. 1000 for data that are a Fraunhofer pattern)",
         fix="give a range in metres, > 0",
     )
+    baffle: str = setting(
+        "rigid",
+        kind="str",
+        choices=BAFFLES,
+        doc='model = "disc": what surrounds the face: rigid (an infinite rigid baffle in the face plane), none '
+        "(a bare disc: the modelled face on a rigid disc one cell thick, in free space) or can (the face flush "
+        "with the front of a closed rigid can, can_depth_m deep, can_wall_m wall)",
+        fix='use "rigid" (a transducer in a large panel), "none" (a bare transducer) or "can" (in its housing)',
+    )
+    can_depth_m: float | None = setting(
+        None,
+        kind="number",
+        gt=0,
+        le=10,
+        unit="m",
+        doc='baffle = "can": depth of the housing behind the face (required)',
+        fix="give the housing's depth in metres, e.g. 0.02",
+    )
+    can_wall_m: float = setting(
+        0.0,
+        kind="number",
+        ge=0,
+        le=10,
+        unit="m",
+        doc='baffle = "can": wall thickness of the housing around the modelled face (line_length_m across)',
+        fix="give the wall thickness in metres, >= 0",
+    )
 
 
 @dataclass(frozen=True)
@@ -345,6 +373,23 @@ class FitConfig:
                     f"= {show(getattr(m, key))} is a profile of the disc model only; fix: use one of "
                     f'{", ".join(PROFILES)}, or model = "disc"',
                 )
+        if m.model != "disc" and (m.baffle != "rigid" or m.can_depth_m is not None or m.can_wall_m != 0):
+            raise self.error(
+                "model.baffle",
+                f'= {show(m.baffle)} (with can_depth_m / can_wall_m) is for model = "disc" only: the line model '
+                'is a line of cells in free space; fix: remove them or use model = "disc"',
+            )
+        if m.baffle == "can" and m.can_depth_m is None:
+            raise self.error(
+                "model.can_depth_m",
+                'is required with baffle = "can" (the housing\'s depth behind the face, m); fix: give e.g. '
+                'can_depth_m = 0.02, or baffle = "none"',
+            )
+        if m.baffle != "can" and (m.can_depth_m is not None or m.can_wall_m != 0):
+            raise self.error(
+                "model.can_depth_m",
+                f'and can_wall_m are for baffle = "can", not {show(m.baffle)}; fix: remove them or set baffle = "can"',
+            )
         if d.lobe_mask_deg and d.lobe is None:
             raise self.error(
                 "data.lobe_mask_deg", 'is given but there is no lobe file; fix: remove it or give lobe = "..."'
@@ -881,6 +926,9 @@ def _fit_disc(cfg: FitConfig, lobe, wave, f: float, c: float, ppw: float, opts, 
             n_basis=m.n_basis,
             fit_diameter=m.fit_diameter,
             diameter_m=m.diameter_m,
+            baffle=m.baffle,
+            can_depth_m=m.can_depth_m,
+            can_wall_m=m.can_wall_m,
         )
     except ValueError as e:
         raise cfg.error("model", str(e)) from None
@@ -955,7 +1003,7 @@ def run_fit(cfg: FitConfig, *, out: str | Path | None = None, quick: bool = Fals
         lobe,
         wave,
         provenance=prov,
-        field_image=cfg.output.field_image and not quick and m.model == "line",  # fit.report draws a line's field
+        field_image=cfg.output.field_image and not quick,  # a line on the 2-D lattice, a disc on the rz lattice
         budget=budget,
     )
     if verbose:

@@ -50,6 +50,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..transforms import logit
+
 DiscProfile = Literal["uniform", "free", "smooth", "rim_taper"]
 DISC_PROFILES = ("uniform", "free", "smooth", "rim_taper")
 AxisLayout = Literal["face", "node"]
@@ -74,7 +76,14 @@ def ring_edges(n_rings: int, dr_m: float, axis: AxisLayout = "face") -> np.ndarr
 def area_fraction(edges_m, radius_m):
     """Fraction of each ring's area inside radius `radius_m` (jnp; differentiable in the radius)."""
     r_in, r_out = edges_m[:, 0], edges_m[:, 1]
-    return jnp.clip((radius_m**2 - r_in**2) / (r_out**2 - r_in**2), 0.0, 1.0)
+    return _clip01((radius_m**2 - r_in**2) / (r_out**2 - r_in**2))
+
+
+def _clip01(x):
+    """clip(x, 0, 1) differentiated through a select, not `jnp.clip`: JAX differentiates clip by
+    equality of its operand with its result, which XLA can break by a one-ulp recomputation in
+    another fusion, silently dropping the gradient under `jit` (see `lattice/geometry.py`)."""
+    return jnp.where(x < 0, 0.0, jnp.where(x > 1, 1.0, x))
 
 
 def rim_fraction(edges_m, radius_m):
@@ -120,7 +129,7 @@ def _even_chebyshev(u, n: int, first: int = 1):
 
 def smooth_step(t):
     """Raised-cosine step: 0 for t <= 0, sin^2(pi t / 2) on [0, 1], 1 for t >= 1 (C1)."""
-    t = jnp.clip(t, 0.0, 1.0)
+    t = _clip01(t)
     return jnp.sin(0.5 * math.pi * t) ** 2
 
 
@@ -133,8 +142,10 @@ class DiscSpec:
     `frequency_hz`, the weight and lag profiles ("symmetric" is accepted as "free": one value per
     ring is already symmetric), `n_basis` (smooth profiles), whether the diameter is fitted and
     its initial (or fixed) value `diameter_m` (default: 0.97 x the modelled disc, 2 n_cells dx),
-    `rim_width_m` (fixes a rim taper's width), the lattice layout at the axis (`axis`) and how the
-    rim ring is weighted (`rim`, see `rim_fraction`)."""
+    `rim_width_m` (fixes a rim taper's width), the lattice layout at the axis (`axis`), how the
+    rim ring is weighted (`rim`, see `rim_fraction`) and what surrounds the face (`baffle`:
+    "rigid", "none" or "can"; the transfer, `fit.transfer_disc.disc_transfer`, models it; here it
+    is recorded for reports)."""
 
     n_cells: int
     dx_m: float
@@ -147,6 +158,7 @@ class DiscSpec:
     rim_width_m: float | None = None
     axis: AxisLayout = "face"
     rim: Literal["moments", "area"] = "moments"
+    baffle: Literal["rigid", "none", "can"] = "rigid"
 
     kind = "disc"  # model family, for reports (a class attribute, not a field)
     symmetric = True  # a disc is symmetric about its axis (ModelSpec's field, for reports)
@@ -173,6 +185,8 @@ class DiscSpec:
         if self.rim_width_m is not None and not self.rim_width_m > 0:
             raise ValueError(f"rim_width_m = {self.rim_width_m} m must be > 0 (or None: fitted)")
         ring_edges(self.n_cells, self.dx_m, self.axis)  # checks the layout
+        if self.baffle not in ("rigid", "none", "can"):
+            raise ValueError(f"baffle = {self.baffle!r}; allowed: 'rigid', 'none', 'can'")
         if self.rim not in ("moments", "area"):
             raise ValueError(f"rim = {self.rim!r}; allowed: 'moments' (exact area and second moment), 'area'")
 
@@ -243,7 +257,8 @@ class DiscSpec:
 
     def _rim_width(self, p, radius):
         if self.rim_width_m is not None:
-            return jnp.minimum(jnp.asarray(self.rim_width_m), radius)
+            b = jnp.asarray(self.rim_width_m)
+            return jnp.where(b <= radius, b, radius)  # min(b, radius) by a select (see `_clip01`)
         return radius * jax.nn.sigmoid(p[1])
 
     # -- parameters -------------------------------------------------------------------------
@@ -257,12 +272,12 @@ class DiscSpec:
                 v = jnp.zeros(n)
                 if profile == "rim_taper" and n == 2:
                     f = DEFAULT_RIM_WIDTH_FRACTION
-                    v = v.at[1].set(math.log(f / (1 - f)))
+                    v = v.at[1].set(logit(f))
                 p[key] = v
         if self.fit_diameter:
             d0 = self.diameter_m or 0.97 * self.d_max_m
             frac = min(max(d0 / self.d_max_m, 1e-3), 1 - 1e-3)
-            p["diam"] = jnp.asarray(math.log(frac / (1 - frac)))
+            p["diam"] = jnp.asarray(logit(frac))
         return p
 
     def radius_m(self, params: dict):
@@ -330,7 +345,7 @@ class DiscSpec:
                 raise ValueError(
                     f"diameter_m = {diameter_m} m must lie inside the modelled disc ({self.d_max_m:.6g} m)"
                 )
-            p["diam"] = jnp.asarray(math.log(frac / (1 - frac)))
+            p["diam"] = jnp.asarray(logit(frac))
         for key, profile, v in (("w", self.weights, w), ("lag", self.lags, lag)):
             n = self._n_params(profile)
             if n:
@@ -405,7 +420,7 @@ class DiscSpec:
             out[key] = jnp.asarray(np.linalg.lstsq(E, (v - v[0])[inside], rcond=None)[0])
         if self.fit_diameter:
             frac = min(max(2 * a / self.d_max_m, 1e-3), 1 - 1e-3)
-            out["diam"] = jnp.asarray(math.log(frac / (1 - frac)))
+            out["diam"] = jnp.asarray(logit(frac))
         for key in ("gain_db", "phase0"):
             if key in template:
                 out[key] = jnp.asarray(template[key])

@@ -25,6 +25,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..transforms import logit
+
 Profile = Literal["uniform", "free", "symmetric", "smooth"]
 PROFILES = ("uniform", "free", "symmetric", "smooth")
 
@@ -119,7 +121,7 @@ class ModelSpec:
         if self.fit_diameter:
             d0 = self.diameter_m or 0.97 * self.d_max_m
             frac = min(max(d0 / self.d_max_m, 1e-3), 1 - 1e-3)
-            p["diam"] = jnp.asarray(math.log(frac / (1 - frac)))
+            p["diam"] = jnp.asarray(logit(frac))
         return p
 
     def physical(self, params: dict) -> dict:
@@ -204,7 +206,7 @@ class ModelSpec:
                 out[key] = jnp.asarray(np.linalg.lstsq(E, v, rcond=None)[0])
         if self.fit_diameter:
             frac = min(max((diameter_m or 0.97 * self.d_max_m) / self.d_max_m, 1e-3), 1 - 1e-3)
-            out["diam"] = jnp.asarray(math.log(frac / (1 - frac)))
+            out["diam"] = jnp.asarray(logit(frac))
         for key in ("gain_db", "phase0"):
             if key in template:
                 out[key] = jnp.asarray(template[key])

@@ -14,6 +14,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from typing import Any, cast
 
 import numpy as np
 
@@ -35,7 +36,7 @@ def beam_metrics(angle_deg, level_db) -> dict:
     lv = np.asarray(level_db, float)
     lv = lv - lv.max()
     base = lobe_metrics(a, lv)
-    out = {
+    out: dict[str, Any] = {
         "peak_angle_deg": base["peak_angle_deg"],
         "width_3db_deg": base["width_3db_deg"],
         "width_6db_deg": base["width_6db_deg"],
@@ -111,6 +112,7 @@ def _summary(r: FitResult) -> dict:
             "parameters the data cannot separate",
         },
         "model": {
+            "family": model_family(r.spec),
             "n_cells": r.spec.n_cells,
             "dx_m": r.spec.dx_m,
             "weights": r.spec.weights,
@@ -118,8 +120,15 @@ def _summary(r: FitResult) -> dict:
             "n_basis": r.spec.n_basis,
             "symmetric": r.spec.symmetric,
             "fit_diameter": r.spec.fit_diameter,
+            "baffle": getattr(r.spec, "baffle", None),  # a disc's surround; None for the line model
         },
     }
+
+
+def model_family(spec) -> str:
+    """The model family of a spec: "disc" (`fit.disc.DiscSpec`, rings on the axisymmetric
+    lattice) or "line" (`fit.model.ModelSpec`, a line of cells on the 2-D lattice)."""
+    return str(getattr(spec, "kind", "line"))
 
 
 def _flat(params: dict) -> np.ndarray:
@@ -358,7 +367,13 @@ def trace_figure(trace):
 
 
 def _field_figure(fitted: FitResult, transfer: Transfer, path: Path):
-    """Simulate the fitted transducer (a burst) and render it like the paper's Fig. 2."""
+    """Simulate the fitted transducer (a burst) and render it like the paper's Fig. 2: a line on
+    the 2-D lattice, or a disc on the rz lattice (`transfer_disc.disc_field_figure`, the meridian
+    plane mirrored about the axis)."""
+    if model_family(fitted.spec) == "disc":
+        from .transfer_disc import disc_field_figure
+
+        return disc_field_figure(fitted, cast(Any, transfer), path)
     import jax.numpy as jnp
 
     from .. import plots
@@ -424,9 +439,12 @@ def _markdown(rep: dict, fitted: FitResult, uniform: FitResult | None, budget) -
     )  # noqa: E731
     c = f["convergence"]
     stages = ", ".join(f"stage {s['stage']} {s['result_code']} in {s['n_steps']}" for s in c["stages"])
+    unit = "rings" if m["family"] == "disc" else "cells"
     lines += [
-        f"- model: {m['n_cells']} cells of {m['dx_m'] * 1e3:.3f} mm; weights {prof(m['weights'])}; lags {prof(m['lags'])}; "
-        f"diameter {'fitted' if m['fit_diameter'] else 'fixed'}; loss {f['loss']}",
+        f"- model: {m['family']} family, {m['n_cells']} {unit} of {m['dx_m'] * 1e3:.3f} mm; weights {prof(m['weights'])}; lags {prof(m['lags'])}; "
+        f"diameter {'fitted' if m['fit_diameter'] else 'fixed'}"
+        + (f"; baffle {m['baffle']}" if m.get("baffle") else "")
+        + f"; loss {f['loss']}",
         f"- convergence: **{'converged' if f['converged'] else 'NOT CONVERGED'}** — {c['reason']} ({stages} steps; "
         f"{f['wall_time_s']:.2f} s, of which compilation {_fmt(f['compile_s'], '.2f')} s)",
         f"- reduced chi-square (all data points): {f['chi2_reduced']:.3g}; variance factor of the errors: "

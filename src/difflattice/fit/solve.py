@@ -50,6 +50,7 @@ import numpy as np
 import optimistix as optx
 from jax.flatten_util import ravel_pytree
 
+from ..transforms import logit
 from .data import LobeData, WaveData
 from .model import ModelSpec, lobe_model_db, soft_floor_db, wave_model_phase
 from .transfer import Transfer
@@ -332,7 +333,7 @@ def initial_params(problem: Problem, params=None) -> dict:
     if "diam" in p and params is None:
         best: tuple[float, dict] | None = None
         for frac in np.linspace(0.5, 0.98, 25):
-            q = _with_offsets(problem, {**p, "diam": jnp.asarray(math.log(frac / (1 - frac)))})
+            q = _with_offsets(problem, {**p, "diam": jnp.asarray(logit(frac))})
             c = float(_cost(problem, q))
             if np.isfinite(c) and (best is None or c < best[0]):
                 best = (c, q)

@@ -21,6 +21,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
+from typing import Literal
 
 import jax.numpy as jnp
 import numpy as np
@@ -80,10 +81,10 @@ def free_field_transfer(
     lobe_range_m: float | None = None,
     wave_x_m=None,
     wave_z_m: float | None = None,
-    dtype: str = "float64",
+    dtype: Literal["float32", "float64"] = "float64",
     pml_cells: int = 20,
     contour_gap: int = 3,
-    dispersion: str = "continuum",
+    dispersion: Literal["lattice", "continuum"] = "continuum",
 ) -> Transfer:
     """Transfer matrices of a line of `n_cells` cells (spacing one cell) in free air.
     `contour_gap`: cells between the source cell and the Kirchhoff-Helmholtz contour.
@@ -93,6 +94,10 @@ def free_field_transfer(
     cells per wavelength the lattice's 0.4 % slower waves move the first null of a 38 mm piston
     by ~0.05 deg, several sigma of a good lobe measurement); "lattice" reproduces the lattice's
     own far field (what a direct simulation to that range would give)."""
+    if wave_x_m is not None and wave_z_m is None:
+        raise ValueError("wave_x_m needs wave_z_m, the wavefront line's distance from the face in m")
+    if lobe_angle_deg is not None and lobe_range_m is None:
+        raise ValueError("lobe_angle_deg needs lobe_range_m, the lobe's measurement range in m")
     grid0 = make_grid(
         frequency_hz=frequency_hz, cells_per_wavelength=cells_per_wavelength, c_max_m_s=c_m_s, shape=(3, 3), dtype=dtype
     )
@@ -102,6 +107,7 @@ def free_field_transfer(
     gap = contour_gap
     xs = L + gap + 4
     if wave_x_m is not None:
+        assert wave_z_m is not None  # checked above
         zc = wave_z_m / dx
         if zc < gap + 3:
             raise ValueError(f"wavefront distance z = {wave_z_m} m is too close to the face for this grid")
@@ -121,16 +127,16 @@ def free_field_transfer(
         dtype=dtype,
     )
     contour = BoxContour(xs - gap, xs + gap, yc - gap, yc + gap)
-    cells = [contour.cells]
+    parts = [contour.cells]
     if wave_x_m is not None:
         cols = xs + iz + np.arange(-1, 3)
         rows = yc + np.arange(-half, half + 1)
         block = np.stack(np.meshgrid(cols, rows, indexing="ij"), -1).reshape(-1, 2)
-        cells.append(block)
-    cells = np.concatenate(cells)
+        parts.append(block)
+    cells = np.concatenate(parts)
     sig = ToneBurst(frequency_hz, 4.0)
     src = PointSources(
-        cells=[(xs, yc)], signal=sig, weights=jnp.ones(1, grid.jnp_dtype), lags_s=jnp.zeros(1, grid.jnp_dtype)
+        cells=np.array([(xs, yc)]), signal=sig, weights=jnp.ones(1, grid.jnp_dtype), lags_s=jnp.zeros(1, grid.jnp_dtype)
     )
     reach = math.hypot(nx - xs, half) / grid.courant
     n_steps = int(reach + 10 * grid.steps_per_period)
@@ -148,6 +154,7 @@ def free_field_transfer(
     m2 = len(contour.cells)
     lobe = wave = None
     if lobe_angle_deg is not None:
+        assert lobe_range_m is not None  # checked above
         th = np.radians(np.asarray(lobe_angle_deg, float))
         r = lobe_range_m / dx
         # observation points seen from each cell: shift by -offset along y

@@ -15,7 +15,9 @@ i of T is the field of ring i alone vibrating with unit normal velocity over its
   Fraunhofer approximation.
 - `disc_transfer` (the axisymmetric lattice, one simulated response per ring, batched): lobe
   through the axisymmetric far-field transform at the data's range, wavefront on the scan line;
-  phasors divided by the drive's discrete spectrum, as `fit.transfer` does.
+  phasors divided by the drive's discrete spectrum, as `fit.transfer` does. Its `baffle` also
+  models a bare disc ("none") or one in a closed can ("can"), where the Rayleigh reference holds
+  for the baffled disc only.
 
 The rig's wavefront scan is a line through the axis at distance z: by symmetry p(x, z) =
 p(|x|, z), so a wavefront point at lateral position x is the ring field at rho = |x|; a lobe point
@@ -214,6 +216,47 @@ def _source_spectrum(sig, dt_s: float, omega: float, n_steps: int) -> complex:
     return complex(np.sum(np.asarray(sig(jnp.asarray(n * dt_s))) * np.exp(1j * omega * n)))
 
 
+@dataclass(frozen=True)
+class _HousingLayout:
+    surface: Any  # observe.farfield_rz.CylinderSurface
+    face_row: int  # the row whose low face is the disc's face plane
+    depth_m: float | None  # the housing's depth behind the face (None: no housing)
+
+
+def _housing_layout(
+    baffle: str, n_rings: int, dx: float, gap: int, pml_cells: int, can_depth_m: float | None, can_wall_m: float
+) -> _HousingLayout:
+    """Where the face and the Kirchhoff-Helmholtz cylinder go for `baffle`. "rigid": the face on
+    z = 0, the cylinder `gap` cells above it and beyond the rim, open at the baffle. Otherwise the
+    housing (depth d, outer radius R) lies behind a face at row zf, and the cylinder keeps the
+    fourth-order stencil (two cells inside each face, `surface_cells`) in the air: the lower cap
+    1 + `gap` cells below the housing's lowest row, the side `gap` rings beyond its outermost ring
+    (as the "rigid" side is `gap` rings beyond the rim); below the lower cap's outer cells lie a
+    4-cell margin and the PML."""
+    from ..observe.farfield_rz import CylinderSurface
+
+    if baffle not in ("rigid", "none", "can"):
+        raise ValueError(f"baffle = {baffle!r}; allowed: 'rigid', 'none', 'can'")
+    if baffle == "rigid":
+        return _HousingLayout(CylinderSurface(0, gap, n_rings - 1 + gap, baffled=True), 0, None)
+    if baffle == "can":
+        if can_depth_m is None or not can_depth_m > 0:
+            raise ValueError(
+                f"baffle = 'can' needs can_depth_m > 0 (the can's depth behind the face, m), got {can_depth_m}"
+            )
+        if not can_wall_m >= 0:
+            raise ValueError(f"can_wall_m = {can_wall_m} m must be >= 0")
+        depth_m = float(can_depth_m)
+        outer = n_rings + can_wall_m / dx
+    else:
+        depth_m, outer = dx, float(n_rings)  # a rigid disc one cell thick behind the face
+    depth = depth_m / dx
+    low = pml_cells + 4 + 2 + gap  # the lowest row of the cylinder (its lower cap's inner cells)
+    zf = low + 1 + gap + int(math.ceil(depth - 1e-9))  # the housing's lowest row: low + 1 + gap
+    jr = int(math.ceil(outer - 1e-9)) + gap  # rings jr, jr - 1 (the side's inner stencil) clear of the housing
+    return _HousingLayout(CylinderSurface(low, zf + gap, jr, baffled=False), zf, depth_m)
+
+
 def disc_transfer(
     *,
     frequency_hz: float,
@@ -230,12 +273,24 @@ def disc_transfer(
     surface_gap: int = 1,
     surface_order: int = 4,
     batch: int | None = None,
+    baffle: Literal["rigid", "none", "can"] = "rigid",
+    can_depth_m: float | None = None,
+    can_wall_m: float = 0.0,
 ) -> DiscTransfer:
-    """Transfer matrices of a rigidly baffled disc of `n_rings` ring cells on the axisymmetric
-    lattice at `cells_per_wavelength`: one simulated response per ring (a 4-cycle burst driving
-    the ring's face velocity alone, `solver.sources.disc_transducer` with one-hot weights; the
-    rings batched by `jax.vmap`, `batch` at a time, default all), phasors divided by the drive's
-    discrete spectrum, in pressure per unit rho c v (the units of `rayleigh_disc_transfer`).
+    """Transfer matrices of a disc of `n_rings` ring cells on the axisymmetric lattice at
+    `cells_per_wavelength`: one simulated response per ring (a 4-cycle burst driving the ring's
+    face velocity alone, `solver.sources.disc_transducer` with one-hot weights; the rings batched
+    by `jax.vmap`, `batch` at a time, default all), phasors divided by the drive's discrete
+    spectrum, in pressure per unit rho c v (the units of `rayleigh_disc_transfer`).
+
+    `baffle` (`solver.sources.disc_housing`): "rigid" (default) an infinite rigid baffle in the
+    face plane (the face on the rigid z_lo window face; nothing behind it); "none" a bare disc:
+    the modelled face (n_rings cells in radius) on a rigid disc one cell thick, in free space
+    (PML all round), so the field reaches behind the face and lobe angles beyond 90 deg are
+    modelled; "can" the face flush with the front of a closed rigid can of depth `can_depth_m`
+    (m, required) and wall `can_wall_m` (m) around the modelled face. For "none" and "can" the
+    Kirchhoff-Helmholtz cylinder closes round the housing (both caps and the side), and lobe and
+    wavefront points are measured from the face's centre as for "rigid".
 
     - lobe: the Kirchhoff-Helmholtz integral (`observe.farfield_rz.field_at_rz`, continuum
       wavenumber) over a cylinder `surface_gap` cells around the disc, closed by the baffle, at
@@ -256,10 +311,10 @@ def disc_transfer(
     from ..lattice.coefficients import Edges
     from ..lattice.grid import make_grid
     from ..lattice.medium import Medium
-    from ..observe.farfield_rz import CylinderSurface, field_at_rz, scan_line
+    from ..observe.farfield_rz import field_at_rz, scan_line
     from ..solver.loop import simulate
     from ..solver.sensors import Sensors
-    from ..solver.sources import ToneBurst, disc_transducer
+    from ..solver.sources import ToneBurst, disc_housing, disc_transducer
 
     if wave_method not in ("transform", "lattice"):
         raise ValueError(f"wave_method = {wave_method!r}; allowed: 'transform', 'lattice'")
@@ -275,12 +330,14 @@ def disc_transfer(
     if wave_x_m is not None and not z_line > 0:
         raise ValueError(f"wave_z_m = {wave_z_m} must be > 0 m (in front of the face)")
     dx = c_m_s / (frequency_hz * cells_per_wavelength)
-    surf = CylinderSurface(0, surface_gap, n_rings - 1 + surface_gap, baffled=True)
+    layout = _housing_layout(baffle, n_rings, dx, surface_gap, pml_cells, can_depth_m, can_wall_m)
+    surf, zf = layout.surface, layout.face_row
+    z_face = zf * dx  # the face plane in grid coordinates, m (0: the baffle)
     margin = 4
     nz = surf.iz1 + 2 + margin + pml_cells
     nr = surf.jr + 2 + margin + pml_cells
     if wave_x_m is not None and wave_method == "lattice":
-        nz = max(nz, int(math.ceil(z_line / dx)) + 3 + margin + pml_cells)
+        nz = max(nz, int(math.ceil((z_face + z_line) / dx)) + 3 + margin + pml_cells)
         nr = max(nr, int(math.ceil(np.max(np.abs(wave_x_m)) / dx)) + 3 + margin + pml_cells)
     grid = make_grid(
         frequency_hz=frequency_hz,
@@ -293,17 +350,23 @@ def disc_transfer(
     cells = [surface_cells(surf, surface_order)]
     sampler = None
     if wave_x_m is not None and wave_method == "lattice":
-        sampler = scan_line(grid, np.asarray(wave_x_m, float), z_line)
+        sampler = scan_line(grid, np.asarray(wave_x_m, float), z_face + z_line)
         cells.append(sampler.cells)
     m_surf = len(cells[0])
     sensors = Sensors(phasor_cells=cast(Any, np.concatenate(cells)))  # concrete cells: data, not traced
     sig = ToneBurst(frequency_hz, 4.0)
     n_steps = int(math.hypot(nz, nr) / grid.courant + 10 * grid.steps_per_period)
-    medium = Medium(c_m_s, density_kg_m3(20.0))  # uniform air: the transfer does not depend on rho
-    edges = Edges.axisymmetric("rigid", "pml", "pml", thickness_cells=pml_cells)
+    housing = disc_housing(
+        grid, radius_m=n_rings * dx, z_m=z_face, baffle=baffle, depth_m=layout.depth_m, wall_m=can_wall_m
+    )
+    # air (the transfer does not depend on rho), rigid where the housing is
+    medium = Medium(c_m_s, density_kg_m3(20.0), rigid=housing)
+    edges = Edges.axisymmetric("rigid" if baffle == "rigid" else "pml", "pml", "pml", thickness_cells=pml_cells)
 
     def one(w):
-        src = disc_transducer(grid, radius_m=n_rings * dx, n_rings=n_rings, weights=w, signal=sig)
+        src = disc_transducer(
+            grid, radius_m=n_rings * dx, z_m=z_face, n_rings=n_rings, weights=w, signal=sig, baffle=baffle
+        )
         return simulate(grid, medium, src, sensors, n_steps=n_steps, edges=edges).phasors
 
     run = jax.jit(jax.vmap(one))
@@ -320,9 +383,12 @@ def disc_transfer(
     if lobe_angle_deg is not None:
         rho, z = lobe_points(lobe_angle_deg, lobe_range_m)
         front = z >= -1e-12 * np.max(np.hypot(rho, z))  # 0 behind the baffle; its plane (90 deg) is the grazing limit
+        if baffle != "rigid":  # no baffle: the field reaches round the housing
+            front = np.ones_like(front)
         lobe = np.zeros((len(rho), n_rings), complex)
         if front.any():
-            pts = np.stack([np.maximum(z[front], 0.0), rho[front]], 1) / dx
+            zz = z[front] if baffle != "rigid" else np.maximum(z[front], 0.0)
+            pts = np.stack([z_face + zz, rho[front]], 1) / dx
             n_phi = 2 * int(math.ceil(k * r_src + 32))  # far points: the phase varies by k r' sin t over the ring
             lobe[front] = np.asarray(field_at_rz(pairs, surf, grid, pts, dispersion="continuum", n_phi=n_phi)).T
     if wave_x_m is not None:
@@ -330,8 +396,8 @@ def disc_transfer(
         if sampler is not None:
             wave = np.asarray(sampler(jnp.asarray(ph[:, m_surf:]))).T
         else:
-            pts = np.stack([np.full_like(x, z_line), np.abs(x)], 1) / dx
-            d_min = max(z_line / dx - surf.iz1 - 1, 1.0)
+            pts = np.stack([np.full_like(x, z_face + z_line), np.abs(x)], 1) / dx
+            d_min = max((z_face + z_line) / dx - surf.iz1 - 1, 1.0)
             n_phi = 2 * int(math.ceil(k * r_src + 12 * r_src / d_min + 32))  # near: also the 1/R peak of width ~ d / r'
             wave = np.asarray(field_at_rz(pairs, surf, grid, pts, dispersion="continuum", n_phi=n_phi)).T
     info = {
@@ -348,6 +414,10 @@ def disc_transfer(
         "farfield_dispersion": "continuum",
         "n_rings": n_rings,
         "batch": b,
+        "baffle": baffle,
+        "can_depth_m": layout.depth_m if baffle == "can" else None,
+        "can_wall_m": can_wall_m if baffle == "can" else None,
+        "face_row": zf,
     }
     return DiscTransfer(
         grid=grid, n_cells=n_rings, ring_edges_m=ring_edges(n_rings, dx, "face"), lobe=lobe, wave=wave, info=info
@@ -367,14 +437,19 @@ def disc_field_figure(fitted, transfer: DiscTransfer, path):
     from ..lattice.medium import Medium
     from ..solver.loop import simulate
     from ..solver.sensors import Sensors
-    from ..solver.sources import ToneBurst, disc_transducer
+    from ..solver.sources import ToneBurst, disc_housing, disc_transducer
 
     g0 = transfer.grid
     if g0 is None:
         raise ValueError("disc_field_figure needs a lattice transfer (disc_transfer), not the Rayleigh reference")
     n = fitted.spec.n_cells
     pml = 20
-    nz, nr = int(4.5 * n) + pml, int(1.6 * n) + pml
+    info = transfer.info
+    baffle = info.get("baffle", "rigid")
+    depth_m = info.get("can_depth_m") or g0.dx_m
+    wall_m = info.get("can_wall_m") or 0.0
+    back = 0 if baffle == "rigid" else pml + 4 + int(math.ceil(depth_m / g0.dx_m - 1e-9)) + int(0.5 * n)
+    nz, nr = int(4.5 * n) + pml + back, int(1.6 * n + wall_m / g0.dx_m) + pml
     grid = make_grid(
         frequency_hz=g0.frequency_hz,
         cells_per_wavelength=g0.cells_per_wavelength,
@@ -384,22 +459,26 @@ def disc_field_figure(fitted, transfer: DiscTransfer, path):
         kind="rz",
     )
     ph = fitted.physical
+    z_face = back * grid.dx_m
     src = disc_transducer(
         grid,
         radius_m=n * grid.dx_m,
+        z_m=z_face,
         n_rings=n,
         signal=ToneBurst(g0.frequency_hz, 8.0),
         weights=jnp.asarray(ph["weights"], jnp.float32),
         lags_s=jnp.asarray(ph["lags_s"], jnp.float32),
+        baffle=baffle,
     )
-    steps = int((nz - pml - 10) / grid.courant)
+    housing = disc_housing(grid, radius_m=n * grid.dx_m, z_m=z_face, baffle=baffle, depth_m=depth_m, wall_m=wall_m)
+    steps = int((nz - back - pml - 10) / grid.courant)
     res = simulate(
         grid,
-        Medium(g0.c_max_m_s, density_kg_m3(20.0)),
+        Medium(g0.c_max_m_s, density_kg_m3(20.0), rigid=housing),
         src,
         Sensors(),
         n_steps=steps,
-        edges=Edges.axisymmetric("rigid", "pml", "pml", thickness_cells=pml),
+        edges=Edges.axisymmetric("rigid" if baffle == "rigid" else "pml", "pml", "pml", thickness_cells=pml),
     )
     p = np.asarray(res.final.pressure)
     full = np.concatenate([p[:, ::-1], p], axis=1)  # x = -r .. r: the scan plane through the axis
@@ -413,7 +492,11 @@ def disc_field_figure(fitted, transfer: DiscTransfer, path):
         step=steps,
         dt_s=grid.dt_s,
         sources=[mirrored],
-        title="fitted disc, meridian plane (8-cycle burst)",
+        obstacles=None
+        if housing is None
+        else np.concatenate([np.asarray(housing)[:, ::-1], np.asarray(housing)], axis=1),
+        title=f"fitted disc ({'rigid baffle' if baffle == 'rigid' else baffle if baffle == 'can' else 'no baffle'}), "
+        "meridian plane (8-cycle burst)",
     )
     return plots.save(fig, path)
 
@@ -446,12 +529,17 @@ def disc_setup(
     fit_diameter: bool = True,
     diameter_m: float | None = None,
     rim_width_m: float | None = None,
+    baffle: str = "rigid",
+    can_depth_m: float | None = None,
+    can_wall_m: float = 0.0,
 ) -> DiscSetup:
     """The disc model of a transducer face `face_diameter_m` across (the modelled disc: the fitted
     diameter lies inside it) for the data `lobe` / `wave` (`fit.data.LobeData` / `WaveData`;
     the lobe modelled at `lobe_range_m`, default the data's range), with its transfer from the
-    axisymmetric lattice at `cells_per_wavelength`. Raises ValueError for a face of fewer than 2
-    rings or a bad profile (the message names the value)."""
+    axisymmetric lattice at `cells_per_wavelength`, the face in `baffle` ("rigid", "none" or "can"
+    with `can_depth_m` and `can_wall_m` in metres; see `disc_transfer`). Raises ValueError for a
+    face of fewer than 2 rings, a bad profile or baffle (the message names the value)."""
+    _housing_layout(baffle, 2, 1.0, 1, 0, can_depth_m, can_wall_m)  # checks the baffle before any simulation
 
     def n_rings(ppw: float) -> int:
         return int(round(0.5 * face_diameter_m * ppw * frequency_hz / c_m_s))
@@ -466,6 +554,9 @@ def disc_setup(
             lobe_range_m=None if lobe is None else (lobe_range_m or lobe.range_m),
             wave_x_m=None if wave is None else wave.x_m,
             wave_z_m=None if wave is None else wave.z_m,
+            baffle=cast(Any, baffle),
+            can_depth_m=can_depth_m,
+            can_wall_m=can_wall_m,
         )
 
     n = n_rings(cells_per_wavelength)
@@ -485,9 +576,15 @@ def disc_setup(
         fit_diameter=fit_diameter,
         diameter_m=diameter_m,
         rim_width_m=rim_width_m,
+        baffle=cast(Any, baffle),
     )
     uniform = DiscSpec(
-        n_cells=n, dx_m=dx, frequency_hz=frequency_hz, fit_diameter=False, diameter_m=diameter_m or 0.97 * 2 * n * dx
+        n_cells=n,
+        dx_m=dx,
+        frequency_hz=frequency_hz,
+        fit_diameter=False,
+        diameter_m=diameter_m or 0.97 * 2 * n * dx,
+        baffle=cast(Any, baffle),
     )
     return DiscSetup(
         spec=spec, transfer=make_transfer(cells_per_wavelength), uniform_spec=uniform, make_transfer=make_transfer

@@ -65,6 +65,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
 
+from ..transforms import sigmoid
 from .data import LobeData, WaveData
 from .model import PROFILES, ModelSpec
 from .solve import FitOptions, FitResult, _flat_jacobian, fit
@@ -833,7 +834,7 @@ def error_budget(
         sd_raw = math.sqrt(max(float(cov[j, j]), 0.0) * max(vf, 1.0)) if cov is not None else 0.0
         d_raw = float(params["diam"])
         if hi - e.value < margin:
-            lim = min(e.value - 2 * e.total, hi * _sigmoid(d_raw - 2 * sd_raw))
+            lim = min(e.value - 2 * e.total, hi * sigmoid(d_raw - 2 * sd_raw))
             est["diameter_mm"] = dataclasses.replace(
                 e,
                 status="at_bound",
@@ -843,7 +844,7 @@ def error_budget(
                 note=f"at the upper bound, the modelled line's {hi:.4g} mm: lengthen model.line_length_m",
             )
         elif e.value - lo < margin:
-            lim = max(e.value + 2 * e.total, hi * _sigmoid(d_raw + 2 * sd_raw))
+            lim = max(e.value + 2 * e.total, hi * sigmoid(d_raw + 2 * sd_raw))
             est["diameter_mm"] = dataclasses.replace(
                 e,
                 status="at_bound",
@@ -907,10 +908,6 @@ def error_budget(
         aliases=aliases,
         notes=notes,
     )
-
-
-def _sigmoid(x: float) -> float:
-    return 1.0 / (1.0 + math.exp(-x))
 
 
 def _describe(keys: Sequence[str]) -> str:

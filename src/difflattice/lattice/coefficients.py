@@ -33,7 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .grid import Grid, check_courant
+from .grid import Grid, GridKind, check_courant
 from .medium import Medium
 
 EdgeKind = Literal["pml", "mur", "sponge", "rigid", "soft", "axis"]
@@ -461,7 +461,7 @@ def _with_outer_cells(interior_faces, ones, axis, *, high: bool):
     return jnp.concatenate(parts, axis=axis)
 
 
-def _check_speed(c, kind: str = "2d") -> None:
+def _check_speed(c, kind: GridKind = "2d") -> None:
     try:
         cmax = float(jnp.max(c))
     except Exception:  # traced: checked at run time by the solver
@@ -473,7 +473,7 @@ def _pml(grid: Grid, edges: Edges, dtype) -> PML:
     L = edges.thickness_cells
     m = edges.pml_order
     smax = (m + 1) * grid.courant * math.log(1 / edges.pml_r0) / (2 * L)
-    out = {}
+    out: dict[str, Array] = {}
     ndim = len(grid.shape)
     ny = grid.shape[1]
     for axis, n in enumerate(grid.shape):
@@ -486,12 +486,11 @@ def _pml(grid: Grid, edges: Edges, dtype) -> PML:
             shape = _axis_shape(axis, ndim)
             out[f"a{key}_{where}"] = jnp.asarray(av.reshape(shape), dtype)
             out[f"b{key}_{where}"] = jnp.asarray(bv.reshape(shape), dtype)
-    if grid.kind == "rz" and edges.y_hi == "pml":
-        out.update(_radial_pml(ny, L, m, smax, dtype))
-    return PML(**out)
+    radial = _radial_pml(ny, L, m, smax, dtype) if grid.kind == "rz" and edges.y_hi == "pml" else None
+    return PML(**out, radial=radial)
 
 
-def _radial_pml(ny: int, L: int, m: float, smax: float, dtype) -> dict:
+def _radial_pml(ny: int, L: int, m: float, smax: float, dtype) -> RadialPML:
     """The `RadialPML` of an rz grid's r_hi layer. The layer starts at r0 = ny - L; sigma(r) =
     smax ((r - r0) / L)^m, sigma_bar(r) = (1/r) int sigma = smax L ((r - r0) / L)^(m+1) / ((m+1) r)."""
     r0 = ny - L
@@ -500,11 +499,9 @@ def _radial_pml(ny: int, L: int, m: float, smax: float, dtype) -> dict:
     sig = smax * d**m
     sbar = smax * L * d ** (m + 1) / ((m + 1) * rc)
     row = lambda a: jnp.asarray(np.asarray(a, float).reshape(1, -1), dtype)
-    return {
-        "radial": RadialPML(
-            decay=row((1 - sbar / 2) / (1 + sbar / 2)), drive=row((sig - sbar) / (4 * rc * (1 + sbar / 2))), width=L
-        )
-    }
+    return RadialPML(
+        decay=row((1 - sbar / 2) / (1 + sbar / 2)), drive=row((sig - sbar) / (4 * rc * (1 + sbar / 2))), width=L
+    )
 
 
 def _axis_shape(axis: int, ndim: int) -> tuple[int, ...]:
@@ -515,7 +512,7 @@ def _axis_shape(axis: int, ndim: int) -> tuple[int, ...]:
 def _sponge(grid: Grid, edges: Edges, dtype):
     L = edges.thickness_cells
     ndim = len(grid.shape)
-    sigma = 0.0
+    sigma = np.zeros((1,) * ndim)  # broadcasts up to the grid's shape
     for axis, n in enumerate(grid.shape):
         key = "xyz"[axis]
         d = edges.layer_depth(n, f"{key}_lo", f"{key}_hi", faces=False)

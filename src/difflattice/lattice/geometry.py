@@ -6,6 +6,19 @@ across the boundary, ``smoothstep(clip(0.5 - sdf / dx, 0, 1))`` (an estimate of 
 fraction with a continuous derivative), so occupancy is differentiable in the shape parameters
 and Taylor tests see no kinks.
 
+**Gradients under `jax.jit`.** Every min, max, clip and hypot on the way from a shape parameter to
+the occupancy is written as a `jnp.where` select on a comparison (`_min2`, `_max2`, `_clip`,
+`_norm`, `_min_axis0`), never as `jnp.minimum` / `jnp.maximum` / `jnp.clip` / `jnp.min` /
+`jnp.hypot`. JAX differentiates those by *equality* of an operand with the op's result
+(``eq(x, max(x, y))``); compiled by XLA on a CPU with FMA, the operand is recomputed in another
+fusion with a different contraction (``a - t b`` as one fused multiply-add in one place and a
+rounded product in the other), the equality fails by one ulp in many cells and their gradient is
+silently dropped (`--xla_cpu_max_isa=SSE4_2`, no FMA, hides it). Shape gradients of a cone and a
+dish on an rz grid came out 0.56x to -4x the true value under `jit` (eager was right, and so were
+NumPy coordinates, which XLA folds differently; tests/core/test_rz_geometry_jit_gradient.py). A
+select keeps the comparison's boolean as the residual, so a one-ulp difference can only move a
+cell across an exact tie, where either side's derivative is a valid one.
+
 The paper's scenes are built from these primitives in `scenes.py`.
 """
 
@@ -19,6 +32,36 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 from .grid import Grid
+
+
+def _min2(a, b):
+    """min(a, b) differentiated by a select (see the module docstring: not `jnp.minimum`)."""
+    return jnp.where(a <= b, a, b)
+
+
+def _max2(a, b):
+    """max(a, b) differentiated by a select (not `jnp.maximum`)."""
+    return jnp.where(a >= b, a, b)
+
+
+def _clip(x, lo, hi):
+    """clip(x, lo, hi) differentiated by selects (not `jnp.clip`): gradient 1 inside, 0 outside."""
+    return jnp.where(x < lo, lo, jnp.where(x > hi, hi, x))
+
+
+def _norm(x, y):
+    """sqrt(x^2 + y^2) with gradient 0 (not NaN) at the origin (not `jnp.hypot`, whose max/min
+    pair loses gradients under jit). Lengths here are metres, far from overflow."""
+    s = x * x + y * y
+    pos = s > 0
+    return jnp.where(pos, jnp.sqrt(jnp.where(pos, s, 1.0)), 0.0)
+
+
+def _min_axis0(d):
+    """Minimum over axis 0 as a gather at the argmin (not `jnp.min`): the gradient goes to the
+    nearest piece only, whatever the rounding of the other pieces."""
+    i = jnp.argmin(d, axis=0)
+    return jnp.take_along_axis(d, i[None], axis=0)[0]
 
 
 class Shape(eqx.Module):
@@ -36,7 +79,7 @@ class Circle(Shape):
 
     def sdf(self, x, y):
         c = jnp.asarray(self.centre_m)
-        return jnp.hypot(x - c[0], y - c[1]) - self.radius_m
+        return _norm(x - c[0], y - c[1]) - self.radius_m
 
 
 class Segment(Shape):
@@ -60,8 +103,8 @@ class Box(Shape):
         lo, hi = jnp.asarray(self.lo_m), jnp.asarray(self.hi_m)
         c, h = 0.5 * (lo + hi), 0.5 * (hi - lo)
         qx, qy = jnp.abs(x - c[0]) - h[0], jnp.abs(y - c[1]) - h[1]
-        outside = jnp.hypot(jnp.maximum(qx, 0), jnp.maximum(qy, 0))
-        return outside + jnp.minimum(jnp.maximum(qx, qy), 0)
+        outside = _norm(_max2(qx, 0.0), _max2(qy, 0.0))
+        return outside + _min2(_max2(qx, qy), 0.0)
 
 
 class Polygon(Shape):
@@ -72,7 +115,7 @@ class Polygon(Shape):
     def sdf(self, x, y):
         v = jnp.asarray(self.vertices_m)
         a, b = v, jnp.roll(v, -1, axis=0)
-        d = jnp.min(jnp.stack([_segment_distance(x, y, a[i], b[i]) for i in range(v.shape[0])]), axis=0)
+        d = _min_axis0(jnp.stack([_segment_distance(x, y, a[i], b[i]) for i in range(v.shape[0])]))
         # even-odd rule for inside
         inside = jnp.zeros(jnp.shape(x), bool)
         for i in range(v.shape[0]):
@@ -91,7 +134,7 @@ class Polyline(Shape):
 
     def sdf(self, x, y):
         p = jnp.asarray(self.points_m)
-        d = jnp.min(jnp.stack([_segment_distance(x, y, p[i], p[i + 1]) for i in range(p.shape[0] - 1)]), axis=0)
+        d = _min_axis0(jnp.stack([_segment_distance(x, y, p[i], p[i + 1]) for i in range(p.shape[0] - 1)]))
         return d - 0.5 * self.thickness_m
 
 
@@ -101,7 +144,7 @@ class Union(Shape):
     shapes: tuple[Shape, ...]
 
     def sdf(self, x, y):
-        return jnp.min(jnp.stack([s.sdf(x, y) for s in self.shapes]), axis=0)
+        return _min_axis0(jnp.stack([s.sdf(x, y) for s in self.shapes]))
 
 
 class Difference(Shape):
@@ -111,14 +154,14 @@ class Difference(Shape):
     cut: Shape
 
     def sdf(self, x, y):
-        return jnp.maximum(self.base.sdf(x, y), -self.cut.sdf(x, y))
+        return _max2(self.base.sdf(x, y), -self.cut.sdf(x, y))
 
 
 def _segment_distance(x, y, a, b):
     abx, aby = b[0] - a[0], b[1] - a[1]
     apx, apy = x - a[0], y - a[1]
-    t = jnp.clip((apx * abx + apy * aby) / (abx * abx + aby * aby + 1e-30), 0.0, 1.0)
-    return jnp.hypot(apx - t * abx, apy - t * aby)
+    t = _clip((apx * abx + apy * aby) / (abx * abx + aby * aby + 1e-30), 0.0, 1.0)
+    return _norm(apx - t * abx, apy - t * aby)
 
 
 def rasterise(
@@ -138,14 +181,14 @@ def rasterise(
     if mode == "hard":
         return (d < 0).astype(dt)
     if mode == "smooth":
-        u = jnp.clip(0.5 - d, 0.0, 1.0)
+        u = _clip(0.5 - d, 0.0, 1.0)
         return (u * u * (3 - 2 * u)).astype(dt)
     raise ValueError(f"rasterise mode = {mode!r}; allowed: 'hard', 'smooth'")
 
 
 def union_occupancy(occupancies: Sequence[Array]) -> Array:
     """Combine occupancies (probabilistic union, differentiable)."""
-    free = 1.0
+    free = jnp.asarray(1.0)
     for o in occupancies:
         free = free * (1 - o)
     return 1 - free
@@ -188,8 +231,8 @@ def polyline_distance(x, y, points):
     bx, by = b[:, 0].reshape(ax.shape), b[:, 1].reshape(ax.shape)
     abx, aby = bx - ax, by - ay
     apx, apy = x - ax, y - ay
-    t = jnp.clip((apx * abx + apy * aby) / (abx * abx + aby * aby + 1e-30), 0.0, 1.0)
-    return jnp.min(jnp.hypot(apx - t * abx, apy - t * aby), axis=0)
+    t = _clip((apx * abx + apy * aby) / (abx * abx + aby * aby + 1e-30), 0.0, 1.0)
+    return _min_axis0(_norm(apx - t * abx, apy - t * aby))
 
 
 class HornWalls(Shape):
@@ -229,7 +272,7 @@ class HornWalls(Shape):
 
     def sdf(self, x, y):
         up, lo = self.centre_lines()
-        d = jnp.minimum(polyline_distance(x, y, up), polyline_distance(x, y, lo))
+        d = _min2(polyline_distance(x, y, up), polyline_distance(x, y, lo))
         return d - 0.5 * self.wall_m
 
 

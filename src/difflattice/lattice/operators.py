@@ -128,12 +128,13 @@ def stencil(lat: Lattice, q):
         if b is None and a_hi is None and not radial:
             term = hi + lo - 2 * q
         else:
-            c_hi = c_lo = 1
+            c_hi: jax.Array | float = 1
+            c_lo: jax.Array | float = 1
             if b is not None:  # the cell's high and low faces
                 c_hi, c_lo = _along(b, axis, slice(1, None)), _along(b, axis, slice(None, -1))
             if a_hi is not None:
                 c_hi, c_lo = a_hi * c_hi, a_lo * c_lo
-            if radial:  # ring faces: area over ring volume
+            if axis == 1 and m is not None:  # ring faces: area over ring volume
                 c_hi, c_lo = m.hi * c_hi, m.lo * c_lo
             term = c_hi * (hi - q) - c_lo * (q - lo)
         total = term if total is None else total + term

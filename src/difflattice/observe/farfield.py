@@ -16,6 +16,7 @@ follows the lattice dispersion relation, so the transform continues the lattice'
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import Literal
 
 import equinox as eqx
@@ -98,14 +99,15 @@ def far_field(
     phasors: Complex[Array, " two_m"],
     contour: BoxContour,
     grid: Grid,
-    angles_deg: Float[Array, " a"],
+    angles_deg: Sequence[float] | Float[np.ndarray, " a"],
     range_m: float,
     centre_cells: tuple[float, float],
     **kwargs,
 ) -> Complex[Array, " a"]:
     """Complex pressure at `range_m` from `centre_cells` at `angles_deg` (0 = +x, towards +y), from
-    contour phasors ordered as `contour.cells` (inner ring then outer ring). Keyword arguments go
-    to `field_at`."""
+    contour phasors ordered as `contour.cells` (inner ring then outer ring). The angles are host
+    values (a tuple or NumPy array, never traced: they set the propagation kernel). Keyword
+    arguments go to `field_at`."""
     theta = np.radians(np.asarray(angles_deg, dtype=float))
     r = grid.m_to_cells(range_m)
     obs = np.stack([centre_cells[0] + r * np.cos(theta), centre_cells[1] + r * np.sin(theta)], 1)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 
-def lobe_metrics(angles_deg, level_db) -> dict:
+def lobe_metrics(angles_deg, level_db) -> dict[str, float | None]:
     """Metrics of a lobe pattern in dB re its maximum, on the side of positive angles from the
     peak: -3 dB and -6 dB full widths (deg), first null angle (deg from the peak, the first local
     minimum), first side-lobe level (dB) and its angle."""
@@ -14,7 +14,7 @@ def lobe_metrics(angles_deg, level_db) -> dict:
     lv = np.asarray(level_db, float)
     lv = lv - lv.max()
     i0 = int(np.argmax(lv))
-    out = {"peak_angle_deg": float(a[i0])}
+    out: dict[str, float | None] = {"peak_angle_deg": float(a[i0])}
 
     def width(th):
         def side(direction):

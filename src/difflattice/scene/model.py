@@ -15,18 +15,19 @@ import tomllib
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple, NoReturn
 
 import numpy as np
 
 if TYPE_CHECKING:
     from ..lattice.coefficients import Edges
+    from ..lattice.geometry3d import Shape3D
     from ..lattice.grid import Grid
-    from ..lattice.medium import Medium
+    from ..lattice.medium import Material, Medium
     from ..observe.farfield import BoxContour
     from ..observe.farfield_rz import CylinderSurface
     from ..solver.sensors import Sensors
-    from ..solver.sources import PointSources
+    from ..solver.sources import PointSources, Signal
 
 from .schema import ARRAY_SECTIONS, SCHEMA, ConfigError, fail, validate_section
 from .schema import schema_markdown as _schema_markdown
@@ -60,7 +61,7 @@ def render_stride(cells_per_wavelength: float, override: int | None = None) -> i
     return max(1, int(cells_per_wavelength / MIN_PIXELS_PER_WAVELENGTH + 1e-9))
 
 
-def _fail(path, key, msg):
+def _fail(path, key, msg) -> NoReturn:
     fail(path, key, msg, SceneError)
 
 
@@ -68,13 +69,33 @@ def _validate_table(path, section: str, table: dict, where: str) -> dict:
     return validate_section(path, section, table, where, SceneError)
 
 
+class SceneTooLargeError(SceneError):
+    """A 3-D scene whose run would not fit in the available memory; the message gives the estimate
+    (`solver.estimate`) and the fix. Raised before any grid-sized array is built."""
+
+
+class Receiver(NamedTuple):
+    """A transducer that also receives (`receive = true`): its A-scan is
+    `solver.sensors.received_signal` of the probe columns `start:stop` (its cells) with its
+    weights and lags. `gate_start_step`: the echo window's first step (0: none given)."""
+
+    name: str
+    source: int
+    start: int
+    stop: int
+    gate_start_step: int
+
+
 class BuiltScene(NamedTuple):
     """What `Scene.build()` gives: the solver's objects plus what the scene asks to observe.
 
     - `grid`, `medium`, `sources`, `sensors`, `edges`, `n_steps`: the arguments of `simulate`;
-    - `contour`: the far-field contour (None when the scene has no `[farfield]`);
+    - `contour`: the far-field contour (None when the scene has no `[farfield]`; always on 3d);
     - `farfield_source`: index of the transducer whose lobe is computed;
-    - `show_steps`: steps at which field images are wanted; `render_every`: render stride, cells.
+    - `show_steps`: steps at which field images are wanted; `render_every`: render stride, cells;
+    - `receivers` (3d): the transducers whose received signal (A-scan) is recorded;
+    - `estimate_bytes` (3d): the run's memory estimate, checked against the available memory
+      before the medium maps were built (None on 2d and rz grids).
     """
 
     grid: Grid
@@ -87,6 +108,15 @@ class BuiltScene(NamedTuple):
     farfield_source: int
     show_steps: list[int]
     render_every: int
+    receivers: tuple[Receiver, ...] = ()
+    estimate_bytes: int | None = None
+
+
+_SIDES_2D = ("x_lo", "x_hi", "y_lo", "y_hi")
+_NO_CELLS = np.zeros((0, 2), np.int32)
+_SIDES_3D = _SIDES_2D + ("z_lo", "z_hi")
+_TRANSDUCER_KEYS_3D = ("axis", "ring_edges_m", "fit_report", "gate_start_s")
+_OBJECT_KEYS_3D = ("size_m", "angles_deg", "axis", "length_m", "point_m", "normal", "parts")
 
 
 @dataclass
@@ -106,99 +136,50 @@ class Scene:
     raw: dict = field(default_factory=dict)
 
     # ---------------------------------------------------------------------------------------
-    def build(self) -> BuiltScene:
-        """Build the solver's objects (`BuiltScene`) for `simulate`."""
+    def build(self, *, available_bytes: int | None = None) -> BuiltScene:
+        """Build the solver's objects (`BuiltScene`) for `simulate`. A 3-D scene is first
+        estimated (`solver.estimate`) and refused (`SceneTooLargeError`) when its run would not
+        fit in `available_bytes` (default: the memory available on this machine). Each lattice
+        kind imports only its own pieces (a 2-D scene builds nothing 3-D, and vice versa)."""
+        if self.grid["kind"] == "3d":
+            return self._build_3d(available_bytes)
+        return self._build_plane()
+
+    def _build_plane(self) -> BuiltScene:
+        """The 2-D and r-z lattices."""
         from ..lattice import geometry as geo
         from ..lattice.coefficients import Edges
-        from ..lattice.grid import make_grid
-        from ..lattice.medium import Medium, air, material, warn_if_under_resolved
         from ..observe.farfield import box_around
         from ..observe.farfield_rz import cylinder_around
         from ..solver.sensors import Sensors, probe_cells
-        from ..solver.sources import ContinuousWave, ToneBurst, disc_housing, disc_transducer, line_transducer
+        from ..solver.sources import disc_housing, disc_transducer, line_transducer
 
         p = self.path
         med = self.medium
-        bg = (
-            air(med["temperature_c"])
-            if med["background"] == "air"
-            else _material(p, "medium.background", med["background"], material)
-        )
-        if bg.kind != "fluid":
-            _fail(p, "medium.background", f"must be a fluid material, got {bg.name} ({bg.kind})")
-        mats = [bg] + [
-            _material(p, f"objects[{i}].material", o["material"], material) for i, o in enumerate(self.objects)
-        ]
-        if med["boundary_model"] == "speed_zero":
-            for i, m in enumerate(mats[1 : 1 + len(self.objects)]):
-                given = "material" in (self.raw.get("objects", [{}] * len(self.objects))[i] or {})
-                if m.kind == "fluid" or (given and m.kind == "rigid"):
-                    warnings.warn(
-                        f"{p}: [objects[{i}].material] = {m.name!r} is ignored under "
-                        f'boundary_model = "speed_zero": every object is a speed-zero '
-                        f"(pressure-release, R = -1) region, its speed "
-                        f"{'and density ' if m.kind == 'fluid' else ''}not used. Use "
-                        f'material = "soft" to say so, or boundary_model = "conservative" to '
-                        f"simulate {m.name!r}.",
-                        UserWarning,
-                        stacklevel=2,
-                    )
-            mats = [bg]
-        c_max = max(m.speed_m_s for m in mats if m.kind == "fluid")
-        g = self.grid
-        if (g["size_m"] is None) == (g["shape"] is None):
-            _fail(p, "grid", "give exactly one of size_m = [width, height] (m) or shape = [nx, ny] (cells)")
-        try:
-            grid = make_grid(
-                frequency_hz=g["frequency_hz"],
-                cells_per_wavelength=g["cells_per_wavelength"],
-                c_max_m_s=c_max,
-                shape=tuple(g["shape"]) if g["shape"] else None,
-                size_m=tuple(g["size_m"]) if g["size_m"] else None,
-                courant=g["courant"],
-                dtype=g["dtype"],
-                kind=g["kind"],
-            )
-        except ValueError as e:
-            _fail(p, "grid", str(e))
+        bg, mats = _materials(self)
+        grid = _make_grid(self, mats)
         rz = grid.kind == "rz"
+        for i, t in enumerate(self.transducers):
+            for k in _TRANSDUCER_KEYS_3D:
+                if t[k] is not None:
+                    _fail(p, f"transducers[{i}].{k}", f'is for 3d grids ([grid] kind = "3d"), not {grid.kind}')
+            if t["receive"]:
+                _fail(p, f"transducers[{i}].receive", f"is implemented for 3d grids, not {grid.kind}")
+        if self.sensors["snapshot_slices_m"] is not None:
+            _fail(p, "sensors.snapshot_slices_m", f"is for 3d grids (a {grid.kind} snapshot is the whole field)")
 
-        # every simulated fluid must be resolved: the cell is sized for the fastest one
-        fastest = max((m for m in mats if m.kind == "fluid"), key=lambda m: m.speed_m_s).name
-        seen = set()
-        for m in mats:
-            if m.kind == "fluid" and m.name not in seen:
-                seen.add(m.name)
-                warn_if_under_resolved(m.name, m.speed_m_s, grid.frequency_hz, grid.dx_m, fastest=fastest)
-
-        # medium maps
-        rigid, soft = [], []
-        speed = np.full(grid.shape, bg.speed_m_s)
-        rho = np.full(grid.shape, bg.density_kg_m3)
-        fluid_objects = False
-        for i, (o, m) in enumerate(
-            zip(self.objects, mats[1:] if med["boundary_model"] != "speed_zero" else [None] * len(self.objects))
-        ):
+        occupancies = []
+        for i, o in enumerate(self.objects):
             shape = _shape(p, f"objects[{i}]", o, geo)
             try:
-                occ = np.asarray(geo.rasterise(shape, grid, med["rasterise"]))
+                occupancies.append(np.asarray(geo.rasterise(shape, grid, med["rasterise"])))
             except ValueError as e:
                 _fail(p, "medium.rasterise", str(e))
-            if med["boundary_model"] == "speed_zero" or m.kind == "soft":
-                soft.append(occ)
-            elif m.kind == "rigid":
-                rigid.append(occ)
-            else:
-                fluid_objects = True
-                speed = speed * (1 - occ) + m.speed_m_s * occ
-                rho = rho * (1 - occ) + m.density_kg_m3 * occ
-        dt = grid.jnp_dtype
-        import jax.numpy as jnp
-
+        housings = []
         for i, t in enumerate(self.transducers):
             if t["type"] == "disc" and rz and t["baffle"] != "rigid" and t["diameter_m"] is not None:
                 try:
-                    rigid.append(
+                    housings.append(
                         np.asarray(
                             disc_housing(
                                 grid,
@@ -212,46 +193,33 @@ class Scene:
                     )
                 except ValueError as err:
                     _fail(p, f"transducers[{i}]", str(err))
+        medium = _medium(self, grid, bg, mats, occupancies, housings, lambda occs: geo.union_occupancy(occs))
 
-        def union(occs):
-            return None if not occs else jnp.asarray(np.asarray(geo.union_occupancy(occs)), dt)
-
-        try:
-            medium = Medium(
-                sound_speed_m_s=jnp.asarray(speed, dt) if fluid_objects else bg.speed_m_s,
-                density_kg_m3=jnp.asarray(rho, dt) if fluid_objects else bg.density_kg_m3,
-                rigid=union(rigid),
-                soft=union(soft),
-                boundary_model=med["boundary_model"],
-                absorption_db_per_m=float(med["absorption_db_per_m"]),
-            )
-        except ValueError as e:
-            _fail(p, "medium", str(e))
-
-        e = self.edges
+        ed = self.edges
         try:
             if rz:
-                for side in ("x_lo", "x_hi", "y_lo", "y_hi"):
-                    if e[side] is not None:
+                for side in _SIDES_2D:
+                    if ed[side] is not None:
                         _fail(
                             p,
                             f"edges.{side}",
                             "on an rz grid name the sides z_lo, z_hi and r_hi (the axis needs no edge)",
                         )
                 edges = Edges.axisymmetric(
-                    **{s: (e[s] or e["kind"]) for s in ("z_lo", "z_hi", "r_hi")}, thickness_cells=e["thickness_cells"]
+                    **{s: (ed[s] or ed["kind"]) for s in ("z_lo", "z_hi", "r_hi")},
+                    thickness_cells=ed["thickness_cells"],
                 )
             else:
                 for side in ("z_lo", "z_hi", "r_hi"):
-                    if e[side] is not None:
+                    if ed[side] is not None:
                         _fail(
                             p,
                             f"edges.{side}",
-                            'is for rz grids ([grid] kind = "rz"); a 2d grid has x_lo, x_hi, y_lo, y_hi',
+                            'is for rz and 3d grids ([grid] kind = "rz" or "3d"); a 2d grid has x_lo, x_hi, y_lo, y_hi',
                         )
                 edges = Edges(
-                    **{s: (e[s] or e["kind"]) for s in ("x_lo", "x_hi", "y_lo", "y_hi")},
-                    thickness_cells=e["thickness_cells"],
+                    **{s: (ed[s] or ed["kind"]) for s in _SIDES_2D},
+                    thickness_cells=ed["thickness_cells"],
                 )
             edges.check_kind(grid.kind)
         except ValueError as err:
@@ -262,14 +230,8 @@ class Scene:
             _fail(p, "transducers", "a scene needs at least one [[transducers]] entry")
         for i, t in enumerate(self.transducers):
             where = f"transducers[{i}]"
-            f = t["frequency_hz"] or grid.frequency_hz
+            sig = _signal(p, where, t, grid)
             try:
-                if t["signal"] == "burst":
-                    sig = ToneBurst(f, t["cycles"], t["window"], t["amplitude_pa"])
-                elif t["signal"] == "cw":
-                    sig = ContinuousWave(f, t["ramp_cycles"], t["amplitude_pa"])
-                else:
-                    _fail(p, f"{where}.signal", f"= {t['signal']!r}; allowed: burst, cw")
                 if (t["type"] == "disc") != rz:
                     _fail(
                         p,
@@ -303,10 +265,12 @@ class Scene:
                         )
                     )
                 else:
+                    if len(t["centre_m"]) != 2:
+                        _fail(p, f"{where}.centre_m", f"= {list(t['centre_m'])}: give [x_m, y_m] on a 2d grid")
                     sources.append(
                         line_transducer(
                             grid,
-                            tuple(t["centre_m"]),
+                            (t["centre_m"][0], t["centre_m"][1]),
                             n_cells=t["n_cells"],
                             diameter_m=t["diameter_m"],
                             direction_deg=t["direction_deg"],
@@ -320,9 +284,9 @@ class Scene:
                 _fail(p, where, str(err))
 
         s = self.sensors
-        probes = probe_cells(grid, s["probes_m"]) if s["probes_m"] else np.zeros((0, 2), int)
-        contour = None
-        phasor_cells = np.zeros((0, 2), int)
+        probes = probe_cells(grid, _points(p, "sensors.probes_m", s["probes_m"], 2)) if s["probes_m"] else None
+        contour: BoxContour | CylinderSurface | None = None
+        phasor_cells = None
         ff_index = 0
         if self.farfield is not None:
             ff = self.farfield
@@ -333,19 +297,22 @@ class Scene:
                 ff_index = names.index(ff["transducer"])
             if rz:
                 baffled = self.transducers[ff_index]["baffle"] == "rigid"
-                contour = cylinder_around(sources[ff_index].cells_array, ff["gap_cells"], baffled=baffled)
+                cyl = cylinder_around(sources[ff_index].cells_array, ff["gap_cells"], baffled=baffled)
+                contour, phasor_cells = cyl, cyl.cells
+                check = cyl.check_inside
             else:
-                contour = box_around(sources[ff_index].cells_array, ff["gap_cells"])
+                box = box_around(sources[ff_index].cells_array, ff["gap_cells"])
+                contour, phasor_cells = box, box.cells
+                check = box.check_inside
             L = edges.thickness_cells if edges.kinds() & {"pml", "sponge"} else 0
             try:
-                contour.check_inside(grid, margin=L)
+                check(grid, margin=L)
             except ValueError as err:
                 _fail(p, "farfield.gap_cells", str(err))
-            phasor_cells = contour.cells
         try:
             sensors = Sensors(
-                probes=probes,
-                phasor_cells=phasor_cells,
+                probes=probes if probes is not None else _NO_CELLS,
+                phasor_cells=phasor_cells if phasor_cells is not None else _NO_CELLS,
                 p_max=s["p_max"],
                 p_rms=s["p_rms"],
                 arrival_threshold_pa=s["arrival_threshold_pa"],
@@ -355,14 +322,7 @@ class Scene:
         except ValueError as err:
             _fail(p, "sensors", str(err))
 
-        r = self.run
-        if (r["n_steps"] is None) == (r["duration_s"] is None):
-            _fail(p, "run", "give exactly one of n_steps or duration_s (s)")
-        n_steps = r["n_steps"] if r["n_steps"] is not None else int(math.ceil(grid.s_to_steps(r["duration_s"])))
-        if n_steps < 1:
-            _fail(p, "run", f"n_steps = {n_steps} must be >= 1")
-        if r["checkpoint"] not in ("none", "sqrt"):
-            _fail(p, "run.checkpoint", f"= {r['checkpoint']!r}; allowed: none, sqrt")
+        n_steps = _n_steps(self, grid)
         return BuiltScene(
             grid,
             medium,
@@ -374,6 +334,148 @@ class Scene:
             ff_index,
             self.show_steps(grid, n_steps),
             self.render_every(grid),
+        )
+
+    # ---------------------------------------------------------------------------------------
+    def _build_3d(self, available_bytes: int | None) -> BuiltScene:
+        """The 3-D lattice: grid, edges, sources and sensors first, then the memory estimate
+        (refused before any grid-sized array exists), then the medium maps."""
+        from ..lattice import geometry3d as g3
+        from ..lattice.coefficients import Edges
+        from ..solver.estimate import RunFeatures, RunTooLargeError, check_fits, memory_breakdown
+        from ..solver.sensors import Sensors, probe_cells
+        from ..solver.sources import disc_transducer_3d
+
+        p = self.path
+        med = self.medium
+        bg, mats = _materials(self)
+        grid = _make_grid(self, mats)
+        if self.farfield is not None:
+            _fail(
+                p,
+                "farfield",
+                "is for 2d and rz scenes; on a 3d grid record probes (or use observe.farfield3d from Python)",
+            )
+        o = self.output
+        if o["show_steps"] or o["show_times_s"]:
+            _fail(
+                p,
+                "output.show_steps",
+                "field moments are for 2d and rz scenes; on a 3d grid use [sensors] snapshot_every_steps "
+                "(slices every that many steps)",
+            )
+
+        ed = self.edges
+        if ed["r_hi"] is not None:
+            _fail(p, "edges.r_hi", "is for rz grids; a 3d grid has x_lo, x_hi, y_lo, y_hi, z_lo, z_hi")
+        try:
+            edges = Edges(
+                **{s: (ed[s] or ed["kind"]) for s in _SIDES_3D}, thickness_cells=ed["thickness_cells"]
+            ).for_rank(3)
+            edges.check_kind("3d")
+        except ValueError as err:
+            _fail(p, "edges", str(err))
+        n_steps = _n_steps(self, grid)
+
+        # sources (small: the disc's cells) and sensors before anything grid-sized
+        if not self.transducers:
+            _fail(p, "transducers", "a scene needs at least one [[transducers]] entry")
+        sources = []
+        for i, t in enumerate(self.transducers):
+            where = f"transducers[{i}]"
+            if t["type"] != "disc":
+                _fail(p, f"{where}.type", f'= {t["type"]!r} is a 2d transducer: a 3d grid takes type = "disc"')
+            raw = _raw_item(self.raw, "transducers", i)
+            if "baffle" in raw and t["baffle"] != "none":
+                _fail(
+                    p,
+                    f"{where}.baffle",
+                    f"= {t['baffle']!r}: a 3d disc is a bare source; give a baffle as an object (e.g. a box "
+                    'behind the face) and baffle = "none"',
+                )
+            if t["injection"] not in ("soft", "hard"):
+                _fail(p, f"{where}.injection", f"= {t['injection']!r}; allowed: soft, hard")
+            centre = _vector(p, f"{where}.centre_m", t["centre_m"])
+            axis = _vector(p, f"{where}.axis", t["axis"] if t["axis"] is not None else [1.0, 0.0, 0.0])
+            rings, diameter = _rings_3d(self, where, t)
+            sig = _signal(p, where, t, grid)
+            try:
+                sources.append(
+                    disc_transducer_3d(
+                        grid, centre, axis, diameter_m=diameter, rings=rings, signal=sig, injection=t["injection"]
+                    )
+                )
+            except (ValueError, TypeError) as err:
+                _fail(p, where, str(err))
+
+        s = self.sensors
+        columns = [probe_cells(grid, _points(p, "sensors.probes_m", s["probes_m"], 3))] if s["probes_m"] else []
+        n_cols = sum(len(c) for c in columns)
+        receivers = []
+        for i, (t, src) in enumerate(zip(self.transducers, sources)):
+            if not t["receive"]:
+                if t["gate_start_s"] is not None:
+                    _fail(p, f"transducers[{i}].gate_start_s", "needs receive = true (the A-scan it gates)")
+                continue
+            cells = np.asarray(src.cells_array)
+            gate = 0 if t["gate_start_s"] is None else int(round(grid.s_to_steps(t["gate_start_s"])))
+            receivers.append(Receiver(t["name"], i, n_cols, n_cols + len(cells), gate))
+            columns.append(cells)
+            n_cols += len(cells)
+        planes = _slice_planes(self, grid, sources)
+        try:
+            sensors = Sensors(
+                probes=np.concatenate(columns) if columns else _NO_CELLS,
+                p_max=s["p_max"],
+                p_rms=s["p_rms"],
+                arrival_threshold_pa=s["arrival_threshold_pa"],
+                snapshot_every=s["snapshot_every_steps"],
+                snapshot_slices=planes,
+            )
+            sensors.check_inside(grid)
+        except ValueError as err:
+            _fail(p, "sensors", str(err))
+
+        # the estimate, before the medium maps (the largest arrays a build makes) exist
+        shape = tuple(grid.shape)
+        n_snap = 0 if s["snapshot_every_steps"] is None else -(-n_steps // min(s["snapshot_every_steps"], n_steps))
+        features = RunFeatures(
+            pml=edges.uses_pml,
+            heterogeneous=bool(self.objects),
+            soft=any(m.kind == "soft" for m in mats[1:]) or med["boundary_model"] == "speed_zero",
+            absorption=med["absorption_db_per_m"] > 0,
+            n_probes=n_cols,
+            snapshot_cells=sum(math.prod(shape) // shape[a] for a, _ in planes),
+            n_snapshots=n_snap,
+            field_stats=int(s["p_max"]) + int(s["p_rms"]) + int(s["arrival_threshold_pa"] is not None),
+        )
+        nbytes = sum(memory_breakdown(shape, n_steps, grid.dtype, features).values())
+        try:
+            check_fits(shape, n_steps, nbytes, available=available_bytes)
+        except RunTooLargeError as err:
+            raise SceneTooLargeError(f"{p}: [grid] {' '.join(str(err).split())}") from None
+
+        occupancies = []
+        for i, ob in enumerate(self.objects):
+            solid = shape3d(p, f"objects[{i}]", ob)
+            try:
+                occupancies.append(g3.rasterise3d(solid, grid, med["rasterise"]))
+            except ValueError as e:
+                _fail(p, "medium.rasterise", str(e))
+        medium = _medium(self, grid, bg, mats, occupancies, [], _union3d)
+        return BuiltScene(
+            grid,
+            medium,
+            tuple(sources),
+            sensors,
+            edges,
+            n_steps,
+            None,
+            0,
+            [],
+            self.render_every(grid),
+            tuple(receivers),
+            int(nbytes),
         )
 
     # ---------------------------------------------------------------------------------------
@@ -409,11 +511,201 @@ class Scene:
             _fail(self.path, "output.render_every_cells", str(e))
 
 
-def _material(path, key, name, lookup):
+# ------------------------------------------------------------------------------------------
+# pieces shared by the lattice kinds
+
+
+def _materials(scene: Scene) -> tuple[Material, list[Material]]:
+    """(background, [background, one material per object]); under speed_zero only the background
+    (every object is a speed-zero region), warning about materials that are then ignored."""
+    from ..lattice.medium import air, material
+
+    p, med = scene.path, scene.medium
+    if med["background"] == "air":
+        bg = air(med["temperature_c"])
+    else:
+        bg = _material(p, "medium.background", med["background"], material)
+    if bg.kind != "fluid":
+        _fail(p, "medium.background", f"must be a fluid material, got {bg.name} ({bg.kind})")
+    mats = [bg] + [_material(p, f"objects[{i}].material", o["material"], material) for i, o in enumerate(scene.objects)]
+    if med["boundary_model"] == "speed_zero":
+        for i, m in enumerate(mats[1:]):
+            given = "material" in _raw_item(scene.raw, "objects", i)
+            if m.kind == "fluid" or (given and m.kind == "rigid"):
+                warnings.warn(
+                    f"{p}: [objects[{i}].material] = {m.name!r} is ignored under "
+                    f'boundary_model = "speed_zero": every object is a speed-zero '
+                    f"(pressure-release, R = -1) region, its speed "
+                    f"{'and density ' if m.kind == 'fluid' else ''}not used. Use "
+                    f'material = "soft" to say so, or boundary_model = "conservative" to '
+                    f"simulate {m.name!r}.",
+                    UserWarning,
+                    stacklevel=3,
+                )
+        mats = [bg]
+    return bg, mats
+
+
+def _make_grid(scene: Scene, mats: list[Material]) -> Grid:
+    """The grid, its cell sized for the fastest simulated fluid; the courant default and limit of
+    the lattice kind (refused above it naming `[grid.courant]`); warns for every under-resolved
+    fluid."""
+    from ..lattice.grid import DEFAULT_COURANT_3D, PAPER_COURANT, make_grid, stability_limit
+    from ..lattice.medium import warn_if_under_resolved
+
+    p, g = scene.path, scene.grid
+    kind = g["kind"]
+    ndim = 3 if kind == "3d" else 2
+    if (g["size_m"] is None) == (g["shape"] is None):
+        dims = "[x, y, z]" if ndim == 3 else "[width, height]"
+        cells = "[nx, ny, nz]" if ndim == 3 else "[nx, ny]"
+        _fail(p, "grid", f"give exactly one of size_m = {dims} (m) or shape = {cells} (cells)")
+    for key in ("size_m", "shape"):
+        if g[key] is not None and len(g[key]) != ndim:
+            _fail(p, f"grid.{key}", f"= {list(g[key])}: a {kind} grid needs {ndim} entries")
+    default = DEFAULT_COURANT_3D if kind == "3d" else PAPER_COURANT
+    courant = default if g["courant"] is None else float(g["courant"])
+    limit = stability_limit(kind)
+    if courant > limit:
+        formula = "1/sqrt(3)" if kind == "3d" else "1/sqrt(2)"
+        name = {"2d": "2-D", "rz": "rz", "3d": "3-D"}[kind]
+        _fail(
+            p,
+            "grid.courant",
+            f"= {courant:g} cells/step exceeds the {name} stability limit {formula} = {limit:.4f} (the leapfrog "
+            f"would grow without bound): set courant = {default} (the default) or less",
+        )
+    fluids = [m for m in mats if m.kind == "fluid"]
+    fastest = max(fluids, key=lambda m: m.speed_m_s)
+    try:
+        grid = make_grid(
+            frequency_hz=g["frequency_hz"],
+            cells_per_wavelength=g["cells_per_wavelength"],
+            c_max_m_s=fastest.speed_m_s,
+            shape=tuple(g["shape"]) if g["shape"] else None,
+            size_m=tuple(g["size_m"]) if g["size_m"] else None,
+            courant=courant,
+            dtype=g["dtype"],
+            kind=kind,
+        )
+    except ValueError as e:
+        _fail(p, "grid", str(e))
+    # every simulated fluid must be resolved: the cell is sized for the fastest one
+    seen = set()
+    for m in fluids:
+        if m.name not in seen:
+            seen.add(m.name)
+            warn_if_under_resolved(m.name, m.speed_m_s, grid.frequency_hz, grid.dx_m, fastest=fastest.name)
+    return grid
+
+
+def _medium(scene: Scene, grid: Grid, bg: Material, mats: list[Material], occupancies, extra_rigid, union) -> Medium:
+    """The `Medium`: each object's occupancy goes to the rigid or soft map or, for a fluid
+    material, into the speed and density maps; `union` combines several occupancies."""
+    import jax.numpy as jnp
+
+    from ..lattice.medium import Medium
+
+    p, med = scene.path, scene.medium
+    speed_zero = med["boundary_model"] == "speed_zero"
+    rigid, soft = list(extra_rigid), []
+    speed = np.full(grid.shape, bg.speed_m_s)
+    rho = np.full(grid.shape, bg.density_kg_m3)
+    fluid_objects = False
+    for i, occ in enumerate(occupancies):
+        m = None if speed_zero else mats[1 + i]
+        if m is None or m.kind == "soft":
+            soft.append(occ)
+        elif m.kind == "rigid":
+            rigid.append(occ)
+        else:
+            fluid_objects = True
+            o = np.asarray(occ)
+            speed = speed * (1 - o) + m.speed_m_s * o
+            rho = rho * (1 - o) + m.density_kg_m3 * o
+    dt = grid.jnp_dtype
+
+    def combined(occs):
+        return None if not occs else jnp.asarray(union(occs), dt)
+
+    try:
+        return Medium(
+            sound_speed_m_s=jnp.asarray(speed, dt) if fluid_objects else bg.speed_m_s,
+            density_kg_m3=jnp.asarray(rho, dt) if fluid_objects else bg.density_kg_m3,
+            rigid=combined(rigid),
+            soft=combined(soft),
+            boundary_model=med["boundary_model"],
+            absorption_db_per_m=float(med["absorption_db_per_m"]),
+        )
+    except ValueError as e:
+        _fail(p, "medium", str(e))
+
+
+def _union3d(occs):
+    """Union of 3-D occupancies: one is kept as it is (bitwise), several combine as
+    1 - prod(1 - o) (the 2-D `union_occupancy`, without its no-op for a single one)."""
+    if len(occs) == 1:
+        return occs[0]
+    free = 1 - occs[0]
+    for o in occs[1:]:
+        free = free * (1 - o)
+    return 1 - free
+
+
+def _signal(path, where: str, t: dict, grid: Grid) -> Signal:
+    from ..solver.sources import ContinuousWave, ToneBurst
+
+    f = t["frequency_hz"] or grid.frequency_hz
+    try:
+        if t["signal"] == "burst":
+            return ToneBurst(f, t["cycles"], t["window"], t["amplitude_pa"])
+        return ContinuousWave(f, t["ramp_cycles"], t["amplitude_pa"])
+    except (ValueError, TypeError) as err:
+        _fail(path, where, str(err))
+
+
+def _n_steps(scene: Scene, grid: Grid) -> int:
+    p, r = scene.path, scene.run
+    if (r["n_steps"] is None) == (r["duration_s"] is None):
+        _fail(p, "run", "give exactly one of n_steps or duration_s (s)")
+    n_steps = r["n_steps"] if r["n_steps"] is not None else int(math.ceil(grid.s_to_steps(r["duration_s"])))
+    if n_steps < 1:
+        _fail(p, "run", f"n_steps = {n_steps} must be >= 1")
+    return n_steps
+
+
+def _raw_item(raw: dict, section: str, i: int) -> dict:
+    items = raw.get(section) or []
+    item = items[i] if i < len(items) else {}
+    return item if isinstance(item, dict) else {}
+
+
+def _points(path, key: str, points, ndim: int) -> np.ndarray:
+    """Points [[x, y(, z)], ...] in metres as an (n, ndim) array, each checked for its length."""
+    for j, pt in enumerate(points):
+        if not isinstance(pt, (list, tuple)) or len(pt) != ndim:
+            _fail(path, f"{key}[{j}]", f"= {pt!r}: give {ndim} coordinates in metres")
+    try:
+        return np.asarray(points, dtype=float).reshape(-1, ndim)
+    except (TypeError, ValueError) as e:
+        _fail(path, key, f"not numbers: {e}")
+
+
+def _vector(path, key: str, v) -> tuple[float, float, float]:
+    if v is None or len(v) != 3:
+        _fail(path, key, f"= {v!r}: give 3 numbers [x, y, z]")
+    return (float(v[0]), float(v[1]), float(v[2]))
+
+
+def _material(path, key, name, lookup) -> Material:
     try:
         return lookup(name)
     except ValueError as e:
         _fail(path, key, str(e))
+
+
+# ------------------------------------------------------------------------------------------
+# 2-D shapes
 
 
 def _shape(path, where, o: dict, geo):
@@ -426,11 +718,18 @@ def _shape(path, where, o: dict, geo):
         "polyline": ("points_m", "thickness_m"),
     }
     if kind not in need:
-        _fail(path, f"{where}.shape", f"= {kind!r}; allowed: {', '.join(need)}")
+        extra = ' (3-D shapes need [grid] kind = "3d")' if kind in _SHAPES_3D else ""
+        _fail(path, f"{where}.shape", f"= {kind!r}; allowed: {', '.join(need)}{extra}")
+    for k in _OBJECT_KEYS_3D:
+        if o.get(k) is not None:
+            _fail(path, f"{where}.{k}", 'is for 3d objects ([grid] kind = "3d")')
     for k in need[kind]:
         if o.get(k) is None:
             _fail(path, f"{where}.{k}", f"is required for shape = {kind!r}")
-    a = lambda k: np.asarray(o[k], dtype=float)
+
+    def a(k):
+        return np.asarray(o[k], dtype=float)
+
     try:
         s = {
             "segment": lambda: geo.Segment(a("a_m"), a("b_m"), a("thickness_m")),
@@ -447,6 +746,148 @@ def _shape(path, where, o: dict, geo):
     return s
 
 
+# ------------------------------------------------------------------------------------------
+# 3-D shapes, discs and slices
+
+_SHAPES_3D = {
+    "box": (),
+    "sphere": ("centre_m", "radius_m"),
+    "cylinder": ("centre_m", "axis", "radius_m", "length_m"),
+    "halfspace": ("point_m", "normal"),
+    "slab": ("point_m", "normal", "thickness_m"),
+    "union": ("parts",),
+    "intersection": ("parts",),
+}
+_VECTORS_3D = ("centre_m", "size_m", "angles_deg", "axis", "point_m", "normal", "lo_m", "hi_m")
+
+
+def shape3d(path, where: str, o: dict):
+    """The `lattice.geometry3d` solid of a validated `[[objects]]` table on a 3-D grid (box by
+    lo_m/hi_m or centre_m/size_m/angles_deg, sphere, cylinder, halfspace, slab, union and
+    intersection of `parts`, each with an optional `cut`); parameters as float arrays."""
+    import jax.numpy as jnp
+
+    from ..lattice import geometry3d as g3
+
+    kind = o["shape"]
+    if kind not in _SHAPES_3D:
+        _fail(path, f"{where}.shape", f"= {kind!r}; allowed on a 3d grid: {', '.join(_SHAPES_3D)}")
+    need = _SHAPES_3D[kind]
+    if kind == "box":
+        need = ("lo_m", "hi_m") if o.get("centre_m") is None and o.get("size_m") is None else ("centre_m", "size_m")
+    for k in need:
+        if o.get(k) is None:
+            extra = " (or centre_m and size_m)" if k in ("lo_m", "hi_m") else ""
+            _fail(path, f"{where}.{k}", f"is required for shape = {kind!r}{extra}")
+    for k in _VECTORS_3D:
+        if o.get(k) is not None:
+            _vector(path, f"{where}.{k}", o[k])
+    for k in ("a_m", "b_m", "vertices_m", "points_m"):
+        if o.get(k) is not None:
+            _fail(path, f"{where}.{k}", "is for 2d objects; see the 3d shapes' keys in docs/scene-files.md")
+
+    def a(k):
+        return jnp.asarray(o[k], dtype=float)
+
+    s: Shape3D
+    if kind == "box":
+        if "lo_m" in need:
+            lo, hi = np.asarray(o["lo_m"], float), np.asarray(o["hi_m"], float)
+            if np.any(hi <= lo):
+                _fail(path, f"{where}.hi_m", f"= {list(o['hi_m'])} must exceed lo_m = {list(o['lo_m'])} on every axis")
+            s = g3.OrientedBox(jnp.asarray(0.5 * (lo + hi)), jnp.asarray(hi - lo))
+        else:
+            angles = o["angles_deg"] if o.get("angles_deg") is not None else [0.0, 0.0, 0.0]
+            s = g3.OrientedBox(a("centre_m"), a("size_m"), jnp.asarray(angles, dtype=float))
+    elif kind == "sphere":
+        s = g3.Sphere(a("centre_m"), a("radius_m"))
+    elif kind == "cylinder":
+        s = g3.Cylinder(a("centre_m"), a("axis"), a("radius_m"), a("length_m"))
+    elif kind == "halfspace":
+        s = g3.HalfSpace(a("point_m"), a("normal"))
+    elif kind == "slab":
+        s = g3.Slab(a("point_m"), a("normal"), a("thickness_m"))
+    else:
+        parts = o["parts"]
+        if not isinstance(parts, (list, tuple)) or not parts:
+            _fail(path, f"{where}.parts", 'give a list of inline tables, e.g. [{ shape = "halfspace", ... }, ...]')
+        solids = []
+        for j, part in enumerate(parts):
+            w = f"{where}.parts[{j}]"
+            if not isinstance(part, dict):
+                _fail(path, w, f"= {part!r} must be an inline table {{ shape = ..., ... }}")
+            solids.append(shape3d(path, w, _validate_table(path, "objects", part, w)))
+        s = g3.Union3D(tuple(solids)) if kind == "union" else g3.Intersection3D(tuple(solids))
+    if o.get("cut"):
+        w = f"{where}.cut"
+        s = g3.Difference3D(s, shape3d(path, w, _validate_table(path, "objects", o["cut"], w)))
+    return s
+
+
+def _rings_3d(scene: Scene, where: str, t: dict) -> tuple[dict | None, float | None]:
+    """(rings dict for `disc_transducer_3d` or None, diameter in m or None) of a 3-D disc: from
+    `fit_report` (`rings_from_fit_report`), or `ring_edges_m` with per-ring weights and lags."""
+    from ..solver.sources import rings_from_fit_report
+
+    p = scene.path
+    diameter = t["diameter_m"]
+    if t["fit_report"] is not None:
+        if t["ring_edges_m"] is not None or t["weights"] is not None or t["lags_s"] is not None:
+            _fail(p, f"{where}.fit_report", "gives the rings: leave out ring_edges_m, weights and lags_s")
+        report = Path(p).parent / t["fit_report"]
+        try:
+            rings = rings_from_fit_report(report)
+        except OSError as e:
+            _fail(p, f"{where}.fit_report", f"= {t['fit_report']!r}: cannot read {report} ({e.strerror})")
+        except (ValueError, KeyError) as e:
+            _fail(p, f"{where}.fit_report", f"= {t['fit_report']!r}: {e}")
+        d = rings.pop("diameter_m", None)
+        return rings, diameter if diameter is not None else d
+    if t["ring_edges_m"] is not None:
+        if t["weights"] is None:
+            _fail(p, f"{where}.weights", "is required with ring_edges_m (one weight per ring)")
+        edges = t["ring_edges_m"]
+        if not all(isinstance(e, (list, tuple)) and len(e) == 2 for e in edges):
+            _fail(p, f"{where}.ring_edges_m", "give [[inner, outer], ...] radii in metres, one pair per ring")
+        rings = {"ring_edges_m": [list(e) for e in edges], "weights": list(t["weights"])}
+        if t["lags_s"] is not None:
+            rings["lags_s"] = list(t["lags_s"])
+        return rings, diameter
+    if t["weights"] is not None or t["lags_s"] is not None:
+        _fail(
+            p,
+            f"{where}.weights",
+            "a 3d disc's weights and lags_s are per ring: give ring_edges_m = [[r0, r1], ...] with them",
+        )
+    if diameter is None:
+        _fail(p, f"{where}.diameter_m", "is required for a disc (its diameter, m), or give ring_edges_m or fit_report")
+    return None, diameter
+
+
+def _slice_planes(scene: Scene, grid: Grid, sources) -> tuple[tuple[int, int], ...]:
+    """The (axis, index) planes of `[sensors] snapshot_slices_m`, default the three planes
+    through the first transducer's centre (the cell nearest its mean cell)."""
+    sl = scene.sensors["snapshot_slices_m"]
+    if sl is None:
+        c = np.rint(np.asarray(sources[0].cells_array, float).mean(axis=0)).astype(int)
+        return tuple((a, int(c[a])) for a in range(3))
+    planes = []
+    for j, item in enumerate(sl):
+        key = f"sensors.snapshot_slices_m[{j}]"
+        if not (isinstance(item, (list, tuple)) and len(item) == 2 and item[0] in ("x", "y", "z")):
+            _fail(scene.path, key, f'= {item!r}: give ["x", position_m] (axis x, y or z and a position in metres)')
+        if isinstance(item[1], bool) or not isinstance(item[1], (int, float)):
+            _fail(scene.path, key, f"= {item!r}: the position must be a number of metres")
+        a = "xyz".index(item[0])
+        i = int(round(float(item[1]) / grid.dx_m))
+        if not 0 <= i < grid.shape[a]:
+            _fail(scene.path, key, f"= {item!r} lies outside the grid (0 .. {grid.size_m[a]:.4g} m along {item[0]})")
+        planes.append((a, i))
+    if not planes:
+        _fail(scene.path, "sensors.snapshot_slices_m", "is empty: give at least one plane, or leave it out")
+    return tuple(planes)
+
+
 def parse_scene(data: dict, path: str = "<scene>") -> Scene:
     """Validate a scene given as a dict (e.g. parsed TOML)."""
     allowed = set(SCHEMA)
@@ -455,7 +896,7 @@ def parse_scene(data: dict, path: str = "<scene>") -> Scene:
             _fail(path, key, f"unknown section; allowed: {', '.join(SCHEMA)}")
     if "grid" not in data:
         _fail(path, "grid", "section is required (frequency_hz, size_m or shape, ...)")
-    sec = {}
+    sec: dict[str, Any] = {}
     for name in SCHEMA:
         if name in ARRAY_SECTIONS:
             items = data.get(name, [])

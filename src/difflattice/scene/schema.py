@@ -11,7 +11,7 @@ from the one place that knows the rule.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any, ClassVar, NoReturn
 
 from ..config import REQUIRED, ConfigError, Section, markdown_table, parse_section, setting, specs
 
@@ -26,9 +26,10 @@ class GridSection(Section):
     kind: str = setting(
         "2d",
         kind="str",
-        choices=("2d", "rz"),
-        doc="lattice kind: 2d (a plane, the paper's model) or rz (axisymmetric: axis 0 = z along the axis, "
-        "axis 1 = r; objects are bodies of revolution, transducers are discs)",
+        choices=("2d", "rz", "3d"),
+        doc="lattice kind: 2d (a plane, the paper's model), rz (axisymmetric: axis 0 = z along the axis, "
+        "axis 1 = r; objects are bodies of revolution, transducers are discs) or 3d (a volume of cubic "
+        "cells: 3-D solids, disc transducers at any position and orientation)",
     )
     frequency_hz: float = setting(kind="number", gt=0, unit="Hz", doc="drive frequency the scales are built for")
     cells_per_wavelength: float = setting(
@@ -39,12 +40,22 @@ class GridSection(Section):
         kind="list",
         items="number",
         unit="m",
-        doc="[width, height] of the window (rz: [z length, radius]; or give shape)",
+        doc="[width, height] of the window (rz: [z length, radius]; 3d: [x, y, z] sizes; or give shape)",
     )
     shape: tuple | None = setting(
-        None, kind="list", items="int", unit="cells", doc="[nx, ny] cells (rz: [nz, nr]; or give size_m)"
+        None,
+        kind="list",
+        items="int",
+        unit="cells",
+        doc="[nx, ny] cells (rz: [nz, nr]; 3d: [nx, ny, nz]; or give size_m)",
     )
-    courant: float = setting(0.707, kind="number", gt=0, doc="fastest medium's speed in cells/step, <= 0.7071")
+    courant: float | None = setting(
+        None,
+        kind="number",
+        gt=0,
+        doc="fastest medium's speed in cells/step (default 0.707 in 2d and rz, at most 1/sqrt(2) = 0.7071; "
+        "0.577 in 3d, at most 1/sqrt(3) = 0.5774)",
+    )
     dtype: str = setting("float32", kind="str", doc="float32 or float64")
 
 
@@ -74,28 +85,42 @@ class EdgesSection(Section):
     x_hi: str | None = setting(None, kind="str", doc="override for the right side")
     y_lo: str | None = setting(None, kind="str", doc="override for the bottom side")
     y_hi: str | None = setting(None, kind="str", doc="override for the top side")
-    z_lo: str | None = setting(None, kind="str", doc="rz: override for the z = 0 side (rigid: a baffle)")
-    z_hi: str | None = setting(None, kind="str", doc="rz: override for the far z side")
+    z_lo: str | None = setting(
+        None, kind="str", doc="rz: override for the z = 0 side (rigid: a baffle); 3d: for the low z side"
+    )
+    z_hi: str | None = setting(None, kind="str", doc="rz: override for the far z side; 3d: for the high z side")
     r_hi: str | None = setting(None, kind="str", doc="rz: override for the outer radius (the axis needs no edge)")
     thickness_cells: int = setting(20, kind="int", ge=1, unit="cells", doc="PML or sponge thickness")
 
 
 @dataclass(frozen=True)
 class TransducerSection(Section):
-    """One line transducer (`[[transducers]]`, one table each)."""
+    """One transducer (`[[transducers]]`, one table each): a line (2d) or a disc (rz, 3d)."""
 
     SECTION: ClassVar[str] = "transducers"
     name: str = setting("transducer", kind="str", doc="label")
     type: str = setting(
-        "line", kind="str", choices=("line", "disc"), doc="line (2d: a line of cells) or disc (rz: rings of cells)"
+        "line",
+        kind="str",
+        choices=("line", "disc"),
+        doc="line (2d: a line of cells) or disc (rz: rings of cells; 3d: a flat disc at any position and "
+        "orientation, its cells weighted by the area they hold)",
     )
-    centre_m: tuple = setting(kind="list", items="number", unit="m", doc="[x, y] of the face centre (rz: [z, 0])")
+    centre_m: tuple = setting(
+        kind="list", items="number", unit="m", doc="[x, y] of the face centre (rz: [z, 0]; 3d: [x, y, z])"
+    )
+    axis: tuple | None = setting(
+        None,
+        kind="list",
+        items="number",
+        doc="3d disc: the direction its face points to, [x, y, z] (any length; default [1, 0, 0])",
+    )
     baffle: str = setting(
         "rigid",
         kind="str",
         choices=("rigid", "none", "can"),
-        doc="disc: rigid (infinite baffle: the face on the rigid z_lo side, z = 0), none (a bare disc) or can "
-        "(a rigid can of depth can_depth_m behind the face)",
+        doc="rz disc: rigid (infinite baffle: the face on the rigid z_lo side, z = 0), none (a bare disc) or "
+        "can (a rigid can of depth can_depth_m behind the face); a 3d disc is bare (give a baffle as an object)",
     )
     can_depth_m: float | None = setting(None, kind="number", gt=0, unit="m", doc="disc with baffle = can: its depth")
     can_wall_m: float = setting(0.0, kind="number", ge=0, unit="m", doc="disc with baffle = can: wall thickness")
@@ -114,9 +139,41 @@ class TransducerSection(Section):
     amplitude_pa: float = setting(1.0, kind="number", unit="Pa", doc="source amplitude")
     injection: str = setting("soft", kind="str", doc="soft (add to P) or hard (set P)")
     weights: tuple | None = setting(
-        None, kind="list", items="number", doc="per-cell amplitude weights (n_cells values)"
+        None,
+        kind="list",
+        items="number",
+        doc="amplitude weights: per cell of a line (n_cells values), per ring of a disc (rz: rings one cell "
+        "wide; 3d: the rings of ring_edges_m)",
     )
-    lags_s: tuple | None = setting(None, kind="list", items="number", unit="s", doc="per-cell delays (n_cells values)")
+    lags_s: tuple | None = setting(
+        None, kind="list", items="number", unit="s", doc="delays, per cell (line) or per ring (disc), as weights"
+    )
+    ring_edges_m: tuple | None = setting(
+        None,
+        kind="list",
+        items="any",
+        unit="m",
+        doc="3d disc: inner and outer radius of each ring, [[r0, r1], ...] (with weights and lags_s per ring)",
+    )
+    fit_report: str | None = setting(
+        None,
+        kind="str",
+        doc="3d disc: take the rings (edges, weights, lags) and the diameter from a disc fit's report.json "
+        "(path relative to the scene file)",
+    )
+    receive: bool = setting(
+        False,
+        kind="bool",
+        doc="3d: also record what this transducer receives, the pulse-echo A-scan (reciprocity: the weighted sum "
+        "of the pressure over its cells)",
+    )
+    gate_start_s: float | None = setting(
+        None,
+        kind="number",
+        ge=0,
+        unit="s",
+        doc="receive: the echo window starts here (before it: the transmit and its ring-down); marks the A-scan",
+    )
 
 
 @dataclass(frozen=True)
@@ -124,15 +181,57 @@ class ObjectSection(Section):
     """One object (`[[objects]]`, one table each): a shape and its material."""
 
     SECTION: ClassVar[str] = "objects"
-    shape: str = setting(kind="str", doc="segment, box, circle, polygon or polyline")
+    shape: str = setting(
+        kind="str",
+        doc="2d/rz: segment, box, circle, polygon or polyline; 3d: box, sphere, cylinder, halfspace, slab, "
+        "union or intersection",
+    )
     material: str = setting("rigid", kind="str", doc="material name (rigid, soft, pine, ...)")
     a_m: tuple | None = setting(None, kind="list", items="number", unit="m", doc="segment start [x, y]")
     b_m: tuple | None = setting(None, kind="list", items="number", unit="m", doc="segment end [x, y]")
-    thickness_m: float | None = setting(None, kind="number", gt=0, unit="m", doc="wall thickness of segment/polyline")
-    lo_m: tuple | None = setting(None, kind="list", items="number", unit="m", doc="box lower-left corner [x, y]")
-    hi_m: tuple | None = setting(None, kind="list", items="number", unit="m", doc="box upper-right corner [x, y]")
-    centre_m: tuple | None = setting(None, kind="list", items="number", unit="m", doc="circle centre [x, y]")
-    radius_m: float | None = setting(None, kind="number", gt=0, unit="m", doc="circle radius")
+    thickness_m: float | None = setting(
+        None, kind="number", gt=0, unit="m", doc="wall thickness of segment/polyline (3d: of a slab)"
+    )
+    lo_m: tuple | None = setting(
+        None, kind="list", items="number", unit="m", doc="box lower-left corner [x, y] (3d: [x, y, z])"
+    )
+    hi_m: tuple | None = setting(
+        None, kind="list", items="number", unit="m", doc="box upper-right corner [x, y] (3d: [x, y, z])"
+    )
+    centre_m: tuple | None = setting(
+        None,
+        kind="list",
+        items="number",
+        unit="m",
+        doc="circle centre [x, y]; 3d: centre [x, y, z] of a sphere, cylinder or turned box",
+    )
+    radius_m: float | None = setting(None, kind="number", gt=0, unit="m", doc="circle, sphere or cylinder radius")
+    size_m: tuple | None = setting(
+        None, kind="list", items="number", unit="m", doc="3d box: edge lengths [x, y, z] (with centre_m)"
+    )
+    angles_deg: tuple | None = setting(
+        None,
+        kind="list",
+        items="number",
+        unit="deg",
+        doc="3d box: [yaw about z, pitch about the new y, roll about the new x] (default [0, 0, 0])",
+    )
+    axis: tuple | None = setting(
+        None, kind="list", items="number", doc="3d cylinder: axis direction [x, y, z] (any length)"
+    )
+    length_m: float | None = setting(None, kind="number", gt=0, unit="m", doc="3d cylinder: length (capped ends)")
+    point_m: tuple | None = setting(
+        None, kind="list", items="number", unit="m", doc="3d halfspace or slab: a point [x, y, z] of its plane"
+    )
+    normal: tuple | None = setting(
+        None,
+        kind="list",
+        items="number",
+        doc="3d halfspace or slab: plane normal [x, y, z] (a halfspace is solid opposite to it)",
+    )
+    parts: tuple | None = setting(
+        None, kind="list", items="any", doc="3d union or intersection: the shapes, inline tables with these keys"
+    )
     vertices_m: tuple | None = setting(None, kind="list", items="any", unit="m", doc="polygon vertices [[x, y], ...]")
     points_m: tuple | None = setting(None, kind="list", items="any", unit="m", doc="polyline points [[x, y], ...]")
     cut: dict | None = setting(None, kind="table", doc="a shape (same keys) removed from this one, e.g. a gap")
@@ -143,7 +242,9 @@ class SensorsSection(Section):
     """What is recorded during the run."""
 
     SECTION: ClassVar[str] = "sensors"
-    probes_m: tuple = setting([], kind="list", items="any", unit="m", doc="points [[x, y], ...] recorded every step")
+    probes_m: tuple = setting(
+        [], kind="list", items="any", unit="m", doc="points [[x, y], ...] recorded every step (3d: [[x, y, z], ...])"
+    )
     p_max: bool = setting(True, kind="bool", doc="record the peak |p| map")
     p_rms: bool = setting(False, kind="bool", doc="record the RMS map")
     arrival_threshold_pa: float | None = setting(
@@ -151,6 +252,14 @@ class SensorsSection(Section):
     )
     snapshot_every_steps: int | None = setting(
         None, kind="int", ge=1, unit="steps", doc="keep the field every that many steps"
+    )
+    snapshot_slices_m: tuple | None = setting(
+        None,
+        kind="list",
+        items="any",
+        unit="m",
+        doc='3d: the planes a snapshot keeps, [["x", 0.02], ["z", 0.015]] (axis, position; default: the three '
+        "planes through the first transducer's centre)",
     )
 
 
@@ -261,7 +370,7 @@ def validate_section(path, section: str, table: Any, where: str, error: type[Con
     return {s.name: _plain(getattr(obj, s.name)) for s in specs(cls)}
 
 
-def fail(path, key, msg, error=ConfigError):
+def fail(path, key, msg, error: type[ConfigError] = ConfigError) -> NoReturn:
     """Raise `error` for `[key]` of the file at `path`."""
     raise error(f"{path}: [{key}] {msg}")
 

@@ -24,16 +24,18 @@ from .sources import (
     ring_radii_m,
     rings_from_fit_report,
 )
-from .stepper import State, Stepper
+from .stepper import LeapfrogState, StaggeredState, State, Stepper
 
 __all__ = [
     "INSTABILITY_MESSAGE",
     "SPEED_MESSAGE",
     "SPEED_MESSAGE_3D",
     "ContinuousWave",
+    "LeapfrogState",
     "PointSources",
     "Result",
     "Sensors",
+    "StaggeredState",
     "State",
     "Stepper",
     "ToneBurst",

@@ -132,7 +132,9 @@ def memory_breakdown(grid_shape, n_steps: int, dtype: str, features=None) -> dic
     return parts
 
 
-def estimate_run(grid_shape, n_steps: int, dtype: str = "float32", features=None) -> tuple[int, float]:
+def estimate_run(
+    grid_shape, n_steps: int, dtype: Literal["float32", "float64"] = "float32", features=None
+) -> tuple[int, float]:
     """(bytes, seconds) of a run of `n_steps` steps on a grid of `grid_shape` cells in `dtype`
     with `features` (a `RunFeatures` or a dict of its fields); see the module docstring."""
     f = _features(features)
@@ -238,7 +240,7 @@ def _device_key(ndim: int, stepper: str, dtype: str, heterogeneous: bool) -> str
 def measure_mlups(
     ndim: int,
     stepper: Literal["leapfrog", "pml"] = "pml",
-    dtype: str = "float32",
+    dtype: Literal["float32", "float64"] = "float32",
     *,
     heterogeneous: bool = False,
     refresh: bool = False,
@@ -252,6 +254,8 @@ def measure_mlups(
         raise ValueError(f"ndim = {ndim}: 2 or 3")
     if stepper not in ("leapfrog", "pml"):
         raise ValueError(f"stepper = {stepper!r}; allowed: 'leapfrog', 'pml'")
+    if dtype not in ("float32", "float64"):
+        raise ValueError(f"dtype = {dtype!r}; allowed: 'float32', 'float64'")
     key = _device_key(ndim, stepper, dtype, heterogeneous)
     path = _cache_path()
     cache: dict = {}
@@ -278,7 +282,7 @@ def measure_mlups(
     return mlups
 
 
-def _time_run(ndim: int, stepper: str, dtype: str, heterogeneous: bool = False) -> float:
+def _time_run(ndim: int, stepper: str, dtype: Literal["float32", "float64"], heterogeneous: bool = False) -> float:
     """MLUPS of the slowest of 3 timed runs (after a compile run) of a homogeneous scene or one
     with a rigid wall as cut cells (K and face-conductance maps)."""
     import jax
@@ -289,7 +293,7 @@ def _time_run(ndim: int, stepper: str, dtype: str, heterogeneous: bool = False) 
     from .loop import run
     from .stepper import Stepper
 
-    if dtype == "float64" and not jax.config.jax_enable_x64:
+    if dtype == "float64" and not jax.config.read("jax_enable_x64"):
         raise ValueError("measure_mlups(dtype='float64') needs jax_enable_x64 (set it in your script)")
     shape = (160, 160, 160) if ndim == 3 else (840, 630)
     n_steps = 10 if ndim == 3 else 100

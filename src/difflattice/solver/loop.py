@@ -142,9 +142,9 @@ def run(
     sens = stepper.sensors
     chunk = _chunking(n_steps, sens, checkpoint)
     n_chunks, rem = divmod(n_steps, chunk)
-    state = stepper.init() if state is None else state
+    final: State = stepper.init() if state is None else state
     constrain = _constrainer(stepper.grid.shape, sharding)
-    state = constrain(state)
+    final = constrain(final)
 
     def one(st, _):
         st, ys = stepper.step(st)
@@ -163,31 +163,31 @@ def run(
         snap = sens.snapshot_of(p) if sens.snapshot_every is not None else None
         return st, (ys, peak, snap)
 
-    state, (ys, peaks, snaps) = jax.lax.scan(outer, state, None, length=n_chunks)
+    final, (ys, peaks, snaps) = jax.lax.scan(outer, final, None, length=n_chunks)
     steps = [chunk * (i + 1) for i in range(n_chunks)]
     if ys is not None:
         ys = ys.reshape(n_chunks * chunk, -1)
     if rem:
-        state, ys_r = chunk_scan(state, rem)
-        peaks = jnp.concatenate([peaks, jnp.max(jnp.abs(state.pressure))[None]])
+        final, ys_r = chunk_scan(final, rem)
+        peaks = jnp.concatenate([peaks, jnp.max(jnp.abs(final.pressure))[None]])
         steps.append(n_steps)
         if ys is not None:
             ys = jnp.concatenate([ys, ys_r.reshape(rem, -1)], axis=0)
         if snaps is not None and sens.snapshot_every is not None:
-            last = sens.snapshot_of(state.pressure)
+            last = sens.snapshot_of(final.pressure)
             snaps = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b[None]], axis=0), snaps, last)
 
     phasors = None
-    if state.phasor_re is not None:
-        phasors = jax.lax.complex(state.phasor_re, state.phasor_im)
-    p_rms = None if state.p_sq is None else jnp.sqrt(state.p_sq / n_steps)
+    if final.phasor_re is not None and final.phasor_im is not None:
+        phasors = jax.lax.complex(final.phasor_re, final.phasor_im)
+    p_rms = None if final.p_sq is None else jnp.sqrt(final.p_sq / n_steps)
     return Result(
-        final=state,
+        final=final,
         probes=ys,
         phasors=phasors,
-        p_max=state.p_max,
+        p_max=final.p_max,
         p_rms=p_rms,
-        arrival=state.arrival,
+        arrival=final.arrival,
         snapshots=snaps,
         peak_history=peaks,
         n_steps=n_steps,
@@ -325,7 +325,7 @@ def _simulate(
     sharding,
     adjoint,
     throw: bool,
-    backend: str = "auto",
+    backend: Literal["auto", "jax", "native"] = "auto",
 ) -> Result:
     lat = stepper.lattice
     if jnp.ndim(lat.c) != 0 or isinstance(lat.c, jax.core.Tracer):

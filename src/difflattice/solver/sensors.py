@@ -18,10 +18,9 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import numpy as np
-from jaxtyping import Array, Int
 
 from ..lattice.grid import Grid
-from .sources import as_cells
+from .sources import Cells, as_cells
 
 
 class Sensors(eqx.Module):
@@ -44,8 +43,8 @@ class Sensors(eqx.Module):
       (nx ny nz values per snapshot).
     """
 
-    probes: Int[Array, "n d"] = eqx.field(default=(), converter=as_cells)
-    phasor_cells: Int[Array, "m d"] = eqx.field(default=(), converter=as_cells)
+    probes: Cells = eqx.field(default=(), converter=as_cells)
+    phasor_cells: Cells = eqx.field(default=(), converter=as_cells)
     phasor_frequency_hz: float | None = eqx.field(static=True, default=None)
     phasor_from_step: int = eqx.field(static=True, default=0)
     p_max: bool = eqx.field(static=True, default=False)

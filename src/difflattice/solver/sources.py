@@ -94,6 +94,11 @@ class ContinuousWave(eqx.Module):
 Signal = ToneBurst | ContinuousWave
 
 
+# (n, d) int32 cell indices: NumPy when concrete (new positions are data, not a recompile), a JAX
+# array when traced (`as_cells`)
+Cells = Int[Array, "n d"] | Int[np.ndarray, "n d"]
+
+
 class PointSources(eqx.Module):
     """A set of source cells sharing one drive signal.
 
@@ -106,7 +111,7 @@ class PointSources(eqx.Module):
       or "velocity" (a vibrating low z face of each cell; see the module docstring).
     """
 
-    cells: Int[Array, "n d"] = eqx.field(converter=lambda c: as_cells(c))
+    cells: Cells = eqx.field(converter=lambda c: as_cells(c))
     signal: Signal
     weights: Float[Array, " n"]
     lags_s: Float[Array, " n"]
@@ -152,7 +157,7 @@ class PointSources(eqx.Module):
 INJECTIONS = ("soft", "hard", "velocity")
 
 
-def as_cells(cells) -> Int[Array, "n d"]:
+def as_cells(cells) -> Cells:
     """Cell indices as an (n, 2) or, on a 3-D grid, (n, 3) int32 array: NumPy when given concrete
     values (traced by `eqx.filter_jit` as data, so new positions do not recompile), left alone
     when traced. An empty set is (0, 2) (no cell to index on any grid)."""
@@ -224,6 +229,7 @@ def line_transducer(
     if (n_cells is None) == (diameter_m is None):
         raise ValueError("give exactly one of n_cells or diameter_m")
     if n_cells is None:
+        assert diameter_m is not None  # exactly one of the two is given (checked above)
         n_cells = max(1, int(round(diameter_m / grid.dx_m)))
     cells = line_cells(grid, centre_m, n_cells, direction_deg)
     dtype = grid.jnp_dtype

@@ -14,8 +14,10 @@ plane or rz scene compiles exactly its 2-D arithmetic (no z term, no z field).
 
 from __future__ import annotations
 
+import abc
 import math
 from collections.abc import Sequence
+from typing import TypeVar, overload
 
 import equinox as eqx
 import jax
@@ -32,30 +34,55 @@ from .sources import PointSources
 
 
 class State(eqx.Module):
-    """The carried state after step `n` (fields not used by a scene are None)."""
+    """The carried state after step `n`: the step count and the sensors' running records (None
+    where the sensors do not ask for them). Each stepper carries its own fields on top:
+    `LeapfrogState` or `StaggeredState` (`Stepper.init` gives the right one)."""
 
     n: Int[Array, ""]
-    p: Float[Array, "nx ny"] | None  # leapfrog: P(n)
-    p_prev: Float[Array, "nx ny"] | None  # P(n-1): leapfrog, or staggered with absorption
-    px: Float[Array, "nx ny"] | None  # staggered split pressure
-    py: Float[Array, "nx ny"] | None
-    wx: Float[Array, "nx1 ny"] | None  # staggered face fluxes
-    wy: Float[Array, "nx ny1"] | None
-    src_acc: tuple[Float[Array, " k"], ...] | None  # staggered soft-source running sums
-    c_r: Float[Array, "nx w"] | None  # rz r_hi PML: the ring metric's correction (outer rings)
     phasor_re: Float[Array, " m"] | None
     phasor_im: Float[Array, " m"] | None
-    p_max: Float[Array, "nx ny"] | None
-    p_sq: Float[Array, "nx ny"] | None
-    arrival: Int[Array, "nx ny"] | None
-    pz: Float[Array, "nx ny nz"] | None = None  # 3-D staggered only
+    p_max: Float[Array, "*grid"] | None
+    p_sq: Float[Array, "*grid"] | None
+    arrival: Int[Array, "*grid"] | None
+
+    @property
+    @abc.abstractmethod
+    def pressure(self) -> Float[Array, "*grid"]:
+        """The pressure field P(n) in Pa."""
+
+
+class LeapfrogState(State):
+    """The leapfrog stepper's state: P(n) and P(n-1)."""
+
+    p: Float[Array, "*grid"]
+    p_prev: Float[Array, "*grid"]
+
+    @property
+    def pressure(self) -> Float[Array, "*grid"]:
+        return self.p
+
+
+class StaggeredState(State):
+    """The staggered split-field stepper's state: the split pressures (P = px + py (+ pz)), the
+    face fluxes, the soft sources' running sums, P(n-1) where absorption needs it and the rz r_hi
+    PML's ring correction `c_r` (None where unused; `pz`, `wz` on 3-D grids only)."""
+
+    px: Float[Array, "*grid"]
+    py: Float[Array, "*grid"]
+    wx: Float[Array, "*xfaces"]
+    wy: Float[Array, "*yfaces"]
+    src_acc: tuple[Float[Array, " k"], ...]
+    p_prev: Float[Array, "*grid"] | None = None
+    c_r: Float[Array, "nx w"] | None = None
+    pz: Float[Array, "nx ny nz"] | None = None
     wz: Float[Array, "nx ny nz1"] | None = None
 
     @property
-    def pressure(self) -> Float[Array, "nx ny"]:
-        if self.p is not None:
-            return self.p
+    def pressure(self) -> Float[Array, "*grid"]:
         return self.px + self.py if self.pz is None else self.px + self.py + self.pz
+
+
+S = TypeVar("S", bound=State)
 
 
 # ------------------------------------------------------------------------------------------
@@ -87,7 +114,7 @@ class Stepper(eqx.Module):
         if isinstance(sources, PointSources):
             sources = (sources,)
         sources = tuple(sources)
-        if grid.dtype == "float64" and not jax.config.jax_enable_x64:
+        if grid.dtype == "float64" and not jax.config.read("jax_enable_x64"):
             raise ValueError(
                 "grid.dtype is float64 but JAX runs in 32-bit mode: call "
                 "jax.config.update('jax_enable_x64', True) first (or use dtype='float32')"
@@ -120,38 +147,46 @@ class Stepper(eqx.Module):
         return cls(grid, lat, sources, sensors, staggered=edges.uses_pml)
 
     # -- state ---------------------------------------------------------------------------
-    def init(self) -> State:
+    def init(self) -> LeapfrogState | StaggeredState:
+        """The state at rest (step 0): a `StaggeredState` for a PML scene, else a `LeapfrogState`."""
         shape = tuple(self.grid.shape)
-        nx = shape[0]
         dt = self.grid.jnp_dtype
         z = jnp.zeros(shape, dt)
         sens = self.sensors
         m = sens.n_phasors
+        n = jnp.asarray(0, jnp.int32)
+        phasor_re = jnp.zeros(m, dt) if m else None
+        phasor_im = jnp.zeros(m, dt) if m else None
+        p_max = z if sens.p_max else None
+        p_sq = z if sens.p_rms else None
+        arrival = jnp.full(shape, -1, jnp.int32) if sens.arrival_threshold_pa else None
+        if not self.staggered:
+            return LeapfrogState(
+                n=n, phasor_re=phasor_re, phasor_im=phasor_im, p_max=p_max, p_sq=p_sq, arrival=arrival, p=z, p_prev=z
+            )
         lat = self.lattice
-        need_prev = (not self.staggered) or lat.eta > 0
         rad = None if lat.pml is None else lat.pml.radial
 
-        def faces(axis):
+        def faces(axis: int) -> Float[Array, "*faces"]:
             return jnp.zeros(tuple(n + 1 if a == axis else n for a, n in enumerate(shape)), dt)
 
-        stag3 = self.staggered and len(shape) == 3
-        return State(
-            n=jnp.asarray(0, jnp.int32),
-            p=None if self.staggered else z,
-            p_prev=z if need_prev else None,
-            px=z if self.staggered else None,
-            py=z if self.staggered else None,
-            pz=z if stag3 else None,
-            wx=faces(0) if self.staggered else None,
-            wy=faces(1) if self.staggered else None,
-            wz=faces(2) if stag3 else None,
-            src_acc=tuple(jnp.zeros(s.n_cells, dt) for s in self.sources if s.adds) if self.staggered else None,
-            c_r=None if rad is None else jnp.zeros((nx, rad.width), dt),
-            phasor_re=jnp.zeros(m, dt) if m else None,
-            phasor_im=jnp.zeros(m, dt) if m else None,
-            p_max=z if sens.p_max else None,
-            p_sq=z if sens.p_rms else None,
-            arrival=jnp.full(shape, -1, jnp.int32) if sens.arrival_threshold_pa else None,
+        in_3d = len(shape) == 3
+        return StaggeredState(
+            px=z,
+            py=z,
+            pz=z if in_3d else None,
+            wx=faces(0),
+            wy=faces(1),
+            wz=faces(2) if in_3d else None,
+            src_acc=tuple(jnp.zeros(s.n_cells, dt) for s in self.sources if s.adds),
+            p_prev=z if lat.eta > 0 else None,
+            c_r=None if rad is None else jnp.zeros((shape[0], rad.width), dt),
+            n=n,
+            phasor_re=phasor_re,
+            phasor_im=phasor_im,
+            p_max=p_max,
+            p_sq=p_sq,
+            arrival=arrival,
         )
 
     def _source_values(self, n_next):
@@ -159,21 +194,36 @@ class Stepper(eqx.Module):
         t = n_next.astype(dt) * self.grid.dt_s
         return [source_injection(s, t, self.grid, self.lattice).astype(dt) for s in self.sources]
 
+    @overload
+    def step(self, state: LeapfrogState) -> tuple[LeapfrogState, Float[Array, " n_probes"] | None]: ...
+    @overload
+    def step(self, state: StaggeredState) -> tuple[StaggeredState, Float[Array, " n_probes"] | None]: ...
+    @overload
+    def step(self, state: State) -> tuple[State, Float[Array, " n_probes"] | None]: ...
     def step(self, state: State) -> tuple[State, Float[Array, " n_probes"] | None]:
-        """Advance one step; returns the new state and the probe pressures at the new step."""
+        """Advance one step; returns the new state and the probe pressures at the new step.
+
+        `state` is this stepper's kind (`init()`'s type); the other stepper's state raises."""
         n_next = state.n + 1
         values = self._source_values(n_next)
-        if self.staggered:
-            state, p_new = self._step_staggered(state, values)
+        new: State
+        if isinstance(state, StaggeredState) and self.staggered:
+            new, p_new = self._step_staggered(state, values)
+        elif isinstance(state, LeapfrogState) and not self.staggered:
+            new, p_new = self._step_leapfrog(state, values)
         else:
-            state, p_new = self._step_leapfrog(state, values)
-        state = self._record(state, p_new, n_next)
+            want = "StaggeredState" if self.staggered else "LeapfrogState"
+            raise ValueError(
+                f"this stepper carries a {want}, got a {type(state).__name__}: start from "
+                "stepper.init() (or the final state of a run of the same scene)"
+            )
+        new = self._record(new, p_new, n_next)
         probes = None
         if self.sensors.n_probes:
             probes = p_new[cell_index(self.sensors.probes)]
-        return state, probes
+        return new, probes
 
-    def _step_leapfrog(self, state: State, values):
+    def _step_leapfrog(self, state: LeapfrogState, values) -> tuple[LeapfrogState, Float[Array, "*grid"]]:
         lat = self.lattice
         p, p_prev = state.p, state.p_prev
         p_eff = p if lat.eta == 0 else (1 + lat.eta) * p - lat.eta * p_prev
@@ -216,14 +266,27 @@ class Stepper(eqx.Module):
             p_new = p_new.at[:, -1].set(p[:, -2] + k_of((slice(None), -1)) * (p_new[:, -2] - p[:, -1]))
         return p_new
 
-    def _step_staggered(self, state: State, values):
+    def _step_staggered(self, state: StaggeredState, values) -> tuple[StaggeredState, Float[Array, "*grid"]]:
         lat = self.lattice
         pml = lat.pml
+        if pml is None:
+            raise ValueError("the staggered stepper needs PML factors (build it with Stepper.build)")
         ndim = len(self.grid.shape)
-        parts = (state.px, state.py, state.pz)[:ndim]
-        fluxes = (state.wx, state.wy, state.wz)[:ndim]
-        p = parts[0] + parts[1] if ndim == 2 else parts[0] + parts[1] + parts[2]
-        p_eff = p if lat.eta == 0 else (1 + lat.eta) * p - lat.eta * state.p_prev
+        if ndim == 3:
+            if state.pz is None or state.wz is None:
+                raise ValueError("a 3-D staggered state needs pz and wz: start from stepper.init()")
+            parts = [state.px, state.py, state.pz]
+            fluxes = [state.wx, state.wy, state.wz]
+        else:
+            parts = [state.px, state.py]
+            fluxes = [state.wx, state.wy]
+        p = sum(parts[1:], parts[0])
+        if lat.eta == 0:
+            p_eff = p
+        elif state.p_prev is None:
+            raise ValueError("absorption (eta > 0) needs P(n-1) in the state: start from stepper.init()")
+        else:
+            p_eff = (1 + lat.eta) * p - lat.eta * state.p_prev
         q = p_eff if lat.q_scale is None else lat.q_scale * p_eff
         rad = pml.radial
         new_w = []
@@ -235,6 +298,8 @@ class Stepper(eqx.Module):
         for axis in range(ndim):
             div = divergence(lat, new_w[axis], axis)
             if axis == 1 and rad is not None:  # cylindrical stretching of the ring metric in the r_hi layer
+                if state.c_r is None:
+                    raise ValueError("an rz r_hi PML needs the ring correction c_r: start from stepper.init()")
                 wy = new_w[1]
                 w = rad.width
                 w_sum = wy[:, -w:] + wy[:, -w - 1 : -1] + state.wy[:, -w:] + state.wy[:, -w - 1 : -1]
@@ -245,7 +310,8 @@ class Stepper(eqx.Module):
             a, b = pml.factors(axis, "cell")
             new_p.append(a * parts[axis] + b * (lat.K * div))
         if lat.keep is not None:
-            new_p = [lat.keep * pa for pa in new_p]
+            keep = lat.keep
+            new_p = [keep * pa for pa in new_p]
         share = 1.0 / ndim  # each source value is split evenly over the pressure parts
         acc = list(state.src_acc)
         i_soft = 0
@@ -277,9 +343,10 @@ class Stepper(eqx.Module):
         )
         return new, new_p[0] + new_p[1] + new_p[2]
 
-    def _record(self, state: State, p_new, n_next) -> State:
+    def _record(self, state: S, p_new: Float[Array, "*grid"], n_next: Int[Array, ""]) -> S:
+        """Add the new step's pressure `p_new` to the sensors' running records."""
         sens = self.sensors
-        updates = {}
+        updates: dict[str, Array] = {}
         if sens.n_phasors:
             c = sens.phasor_cells
             f = sens.phasor_frequency_hz or self.grid.frequency_hz
@@ -288,19 +355,30 @@ class Stepper(eqx.Module):
             vals = p_new[cell_index(c)]
             if sens.phasor_from_step:
                 vals = jnp.where(n_next > sens.phasor_from_step, vals, 0.0)
-            updates["phasor_re"] = state.phasor_re + vals * jnp.cos(ang)
-            updates["phasor_im"] = state.phasor_im + vals * jnp.sin(ang)
+            updates["phasor_re"] = _carried(state.phasor_re, "phasors") + vals * jnp.cos(ang)
+            updates["phasor_im"] = _carried(state.phasor_im, "phasors") + vals * jnp.sin(ang)
         if sens.p_max:
-            updates["p_max"] = jnp.maximum(state.p_max, jnp.abs(p_new))
+            updates["p_max"] = jnp.maximum(_carried(state.p_max, "p_max"), jnp.abs(p_new))
         if sens.p_rms:
-            updates["p_sq"] = state.p_sq + p_new * p_new
+            updates["p_sq"] = _carried(state.p_sq, "p_rms") + p_new * p_new
         if sens.arrival_threshold_pa:
-            hit = (state.arrival < 0) & (jnp.abs(p_new) > sens.arrival_threshold_pa)
-            updates["arrival"] = jnp.where(hit, n_next, state.arrival)
+            arrival = _carried(state.arrival, "arrival")
+            hit = (arrival < 0) & (jnp.abs(p_new) > sens.arrival_threshold_pa)
+            updates["arrival"] = jnp.where(hit, n_next, arrival)
         if not updates:
             return state
         keys = tuple(updates)
         return eqx.tree_at(lambda s: tuple(getattr(s, k) for k in keys), state, tuple(updates[k] for k in keys))
+
+
+def _carried(record: Array | None, name: str) -> Array:
+    """The state's running record `name`, which the sensors ask for (a clear error if absent)."""
+    if record is None:
+        raise ValueError(
+            f"the sensors record {name} but the start state carries no {name} record: start from "
+            "stepper.init() of this scene (or the final state of a run with the same sensors)"
+        )
+    return record
 
 
 def source_injection(src: PointSources, t_s, grid: Grid, lat: Lattice):
@@ -308,7 +386,9 @@ def source_injection(src: PointSources, t_s, grid: Grid, lat: Lattice):
     `PointSources.injected`); velocity sources scale by the lattice speed at their cells."""
     c = None
     if src.injection == "velocity":
-        c = lat.c if jnp.ndim(lat.c) == 0 else lat.c[cell_index(src.cells)]
+        c = lat.c
+        if not isinstance(c, float) and jnp.ndim(c) != 0:
+            c = c[cell_index(src.cells)]
     return src.injected(t_s, grid.dt_s, c)
 
 

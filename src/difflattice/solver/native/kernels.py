@@ -21,7 +21,7 @@ import numpy as np
 
 from ...lattice.coefficients import Lattice
 from ...lattice.operators import _face_coefficients
-from ..stepper import State, Stepper
+from ..stepper import LeapfrogState, StaggeredState, State, Stepper
 
 # Lattice fields the kernels implement; a field added to `Lattice` later is refused (the JAX loop
 # runs) until the kernels learn it
@@ -128,7 +128,7 @@ def unsupported(stepper: Stepper, state: State | None, sharding) -> str | None:
     metric = getattr(lat, "metric", None)
     if metric is not None and not all(_broadcasts(jnp.shape(v), (nx, ny)) for v in (metric.lo, metric.hi)):
         return "an rz metric that is not a row, column or full layout"
-    if state is not None and stepper.staggered != (state.px is not None):
+    if state is not None and stepper.staggered != isinstance(state, StaggeredState):
         return "a start state of the other stepper"
     return None
 
@@ -284,7 +284,7 @@ class _Chunk:
         n0 = jnp.asarray(st.n, jnp.int32)
         rec_shape = jax.ShapeDtypeStruct((length, self.n_probes), self.dt)
         stat_shapes = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in stats]
-        if not self.stepper.staggered:
+        if isinstance(st, LeapfrogState):
             args = [
                 st.p,
                 st.p_prev,
@@ -312,10 +312,10 @@ class _Chunk:
             p, p_prev, rec, *stats_out = out
             st = eqx.tree_at(lambda s: (s.p, s.p_prev), st, (p, p_prev))
         else:
+            assert isinstance(st, StaggeredState)  # unsupported() refuses the other stepper's state
             acc = self._acc_in(st)
             p_prev = _absent(self.dt) if st.p_prev is None else st.p_prev
-            c_r = getattr(st, "c_r", None)
-            c_r = _absent(self.dt) if c_r is None else c_r
+            c_r = _absent(self.dt) if st.c_r is None else st.c_r
             args = [
                 st.px,
                 st.py,
@@ -338,7 +338,6 @@ class _Chunk:
                 c_r,
                 *self.radial,
             ]
-            assert st.px is not None and st.py is not None and st.wx is not None and st.wy is not None
             fields = (st.px, st.py, st.wx, st.wy, p_prev, acc)
             shapes = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in fields]
             out = jax.ffi.ffi_call(
@@ -348,12 +347,13 @@ class _Chunk:
                 vmap_method="sequential",
             )(*args, n_steps=np.int64(length), **self.attrs)
             px, py, wx, wy, p_prev, acc, rec, *stats_out, c_r = out
-            if getattr(st, "c_r", None) is not None:
+            has_acc, has_prev, new_acc = bool(st.src_acc), st.p_prev is not None, self._acc_out(st, acc)
+            if st.c_r is not None:
                 st = eqx.tree_at(lambda s: s.c_r, st, c_r)
             st = eqx.tree_at(lambda s: (s.px, s.py, s.wx, s.wy), st, (px, py, wx, wy))
-            if st.src_acc:
-                st = eqx.tree_at(lambda s: s.src_acc, st, self._acc_out(st, acc))
-            if st.p_prev is not None:
+            if has_acc:
+                st = eqx.tree_at(lambda s: s.src_acc, st, new_acc)
+            if has_prev:
                 st = eqx.tree_at(lambda s: s.p_prev, st, p_prev)
         names = ("phasor_re", "phasor_im", "p_max", "p_sq", "arrival")
         present = tuple(k for k in names if getattr(st, k) is not None)
@@ -363,7 +363,7 @@ class _Chunk:
         st = eqx.tree_at(lambda s: s.n, st, st.n + length)
         return st, (rec if self.n_probes else None)
 
-    def _acc_in(self, st: State):
+    def _acc_in(self, st: StaggeredState):
         """The soft sources' running sums, one slot per source cell (hard cells: unused zeros)."""
         parts, i_soft = [], 0
         sums = st.src_acc or ()
@@ -375,7 +375,7 @@ class _Chunk:
                 parts.append(jnp.zeros(s.n_cells, self.dt))
         return jnp.concatenate(parts) if parts else jnp.zeros((0,), self.dt)
 
-    def _acc_out(self, st: State, acc):
+    def _acc_out(self, st: StaggeredState, acc):
         if st.src_acc is None:
             return None
         out, start = [], 0

@@ -3,15 +3,11 @@
 the cylindrical layer); the adjoint wave equation (`adjoint="lattice"`) = JAX's reverse mode;
 checkpointed = plain; a grid split across two devices = one device."""
 
-import os
-import subprocess
-import sys
-import textwrap
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from two_devices import assert_two_devices_match
 
 from difflattice.lattice import Edges
 from difflattice.lattice.grid import make_grid
@@ -138,35 +134,25 @@ def test_point_source_gradient_on_the_axis():
     assert np.isfinite(float(g[0])) and abs(float(jv - g[0])) <= 1e-9 * abs(float(g[0]))
 
 
-SHARDING_SCRIPT = textwrap.dedent(
-    """
-    import jax, jax.numpy as jnp, numpy as np
-    jax.config.update("jax_enable_x64", True)
-    assert len(jax.devices()) == 2, jax.devices()
-    from difflattice.lattice import Edges
-    from difflattice.lattice.grid import make_grid
-    from difflattice.lattice.medium import Medium
-    from difflattice.solver import simulate, grid_sharding
-    from difflattice.solver.sensors import Sensors
-    from difflattice.solver.sources import ToneBurst, disc_transducer
+SHARDING_SCENE = """
+from difflattice.lattice import Edges
+from difflattice.lattice.grid import make_grid
+from difflattice.lattice.medium import Medium
+from difflattice.solver import simulate, grid_sharding
+from difflattice.solver.sensors import Sensors
+from difflattice.solver.sources import ToneBurst, disc_transducer
 
+def cases():
     g = make_grid(frequency_hz=50e3, cells_per_wavelength=10, c_max_m_s=343.0, shape=(64, 40), dtype="float64", kind="rz")
     src = disc_transducer(g, radius_m=6.4 * g.dx_m, signal=ToneBurst(50e3, 3))
     sens = Sensors(probes=[(40, 0), (30, 20)], p_max=True, phasor_cells=[(35, 5), (20, 25)])
     for edges in (Edges.axisymmetric("rigid", "pml", "pml", thickness_cells=8), Edges.axisymmetric("rigid", "rigid", "rigid")):
-        a = simulate(g, Medium(343.0, 1.2), src, sens, n_steps=140, edges=edges)
-        b = simulate(g, Medium(343.0, 1.2), src, sens, n_steps=140, edges=edges, sharding=grid_sharding())
-        scale = float(jnp.abs(a.probes).max())
-        assert scale > 1e-3
-        for u, v in ((a.probes, b.probes), (a.p_max, b.p_max), (a.phasors, b.phasors), (a.final.pressure, b.final.pressure)):
-            err = float(jnp.abs(u - v).max())
-            assert err <= 1e-12 * scale, err
-    print("OK")
-    """
-)
+        yield (
+            simulate(g, Medium(343.0, 1.2), src, sens, n_steps=140, edges=edges),
+            simulate(g, Medium(343.0, 1.2), src, sens, n_steps=140, edges=edges, sharding=grid_sharding()),
+        )
+"""
 
 
 def test_two_device_sharding_matches_one_device():
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu")
-    r = subprocess.run([sys.executable, "-c", SHARDING_SCRIPT], env=env, capture_output=True, text=True, timeout=600)
-    assert r.returncode == 0 and "OK" in r.stdout, r.stderr[-3000:]
+    assert_two_devices_match(SHARDING_SCENE)

@@ -809,6 +809,7 @@ PISTON_SETTLE_PERIODS = 20
 PISTON_RECORD_PERIODS = 10
 
 _PISTON_COLUMNS = [
+    ("stencil", "stencil", "s"),
     ("cells_per_wavelength", "cells/λ", "g"),
     ("frequency_khz", "kHz", "g"),
     ("wall_time_s", "time (s)", ".2f"),
@@ -821,10 +822,13 @@ _PISTON_COLUMNS = [
 ]
 
 
-def piston_courant(cells_per_wavelength: float) -> float:
+def piston_courant(cells_per_wavelength: float, stencil: str = "standard") -> float:
     """The lattice speed giving a whole number of steps per period just below the stability limit
-    (cells/step): the steady-state phasors then have no DFT leakage."""
-    return cells_per_wavelength / math.ceil(cells_per_wavelength * math.sqrt(2.0) - 1e-9)
+    of `stencil` (cells/step): the steady-state phasors then have no DFT leakage."""
+    from ..lattice.grid import stability_limit
+
+    limit = stability_limit("rz", stencil)  # type: ignore[arg-type]
+    return cells_per_wavelength / math.ceil(cells_per_wavelength / limit - 1e-9)
 
 
 def run_piston(
@@ -839,6 +843,8 @@ def run_piston(
     dtype: str = "float64",
     pml_cells: int = 20,
     repeats: int = 1,
+    stencil: str = "standard",
+    backend: str = "auto",
 ) -> dict:
     """One continuous-wave run of a baffled piston (face at z = 0 on the rigid z_lo window face,
     PML on the outer radius and z_hi) until steady, then phasors over whole periods. Returns the
@@ -862,7 +868,7 @@ def run_piston(
     lam = c_m_s / frequency_hz
     dx = lam / ppw
     a_cells = radius_m / dx
-    courant = piston_courant(ppw)
+    courant = piston_courant(ppw, stencil)
     spp = int(round(ppw / courant))
     gap = max(3, math.ceil(ppw / 2))  # the far-field cylinder: half a wavelength around the face
     z_far = 5 * radius_m**2 / lam if on_axis else line_z_m
@@ -876,6 +882,7 @@ def run_piston(
         courant=courant,
         dtype=dtype,
         kind="rz",
+        stencil=stencil,  # type: ignore[arg-type]
     )
     src = disc_transducer(grid, radius_m=radius_m, signal=ContinuousWave(frequency_hz, 3.0, 1.0))
     surface = CylinderSurface(0, gap, math.ceil(a_cells) + gap, baffled=True)
@@ -899,7 +906,7 @@ def run_piston(
         sensors,
         Edges.axisymmetric("rigid", "pml", "pml", thickness_cells=pml_cells),
     )
-    f = jax.jit(lambda s: run(s, n_steps))
+    f = jax.jit(lambda s: run(s, n_steps, backend=backend))
     times = []
     for _ in range(repeats + 1):  # the first run compiles
         t0 = time.perf_counter()
@@ -913,6 +920,7 @@ def run_piston(
         start += len(c)
     out = {
         "cells_per_wavelength": ppw,
+        "stencil": stencil,
         "frequency_hz": frequency_hz,
         "radius_m": radius_m,
         "c_m_s": c_m_s,
@@ -976,7 +984,9 @@ def piston_errors(raw: dict, *, line_half_m: float = PISTON_LINE_HALF_M) -> dict
     lam = 2 * math.pi / k
     dx = raw["dx_m"]
     row = {
+        "stencil": raw.get("stencil", "standard"),
         "cells_per_wavelength": raw["cells_per_wavelength"],
+        "courant": raw["courant"],
         "frequency_khz": raw["frequency_hz"] / 1e3,
         "grid_shape": raw["grid_shape"],
         "n_steps": raw["n_steps"],
@@ -989,7 +999,7 @@ def piston_errors(raw: dict, *, line_half_m: float = PISTON_LINE_HALF_M) -> dict
         sel = (z >= lo) & (z <= hi)
         omega = 2 * math.pi / raw["steps_per_period"]
         ex = np.abs(an.piston_on_axis(z, a, k))
-        lk = np.abs(an.piston_on_axis_lattice(z, a, omega, raw["courant"], dx))
+        lk = np.abs(an.piston_on_axis_lattice(z, a, omega, raw["courant"], dx, raw.get("stencil", "standard")))
         row["axis_rms_error"] = float(np.sqrt(np.mean(((np.abs(p) - ex)[sel] / 2) ** 2)))
         row["axis_max_error"] = float(np.abs((np.abs(p) - ex)[sel] / 2).max())
         row["axis_rms_error_lattice_k"] = float(np.sqrt(np.mean(((np.abs(p) - lk)[sel] / 2) ** 2)))
@@ -997,7 +1007,10 @@ def piston_errors(raw: dict, *, line_half_m: float = PISTON_LINE_HALF_M) -> dict
         sim = _extrema(z, np.abs(p), lo, hi)
         for key, ref_curve in (
             ("", np.abs(an.piston_on_axis(zf, a, k))),
-            ("_lattice_k", np.abs(an.piston_on_axis_lattice(zf, a, omega, raw["courant"], dx))),
+            (
+                "_lattice_k",
+                np.abs(an.piston_on_axis_lattice(zf, a, omega, raw["courant"], dx, raw.get("stencil", "standard"))),
+            ),
         ):
             ref = _extrema(zf, ref_curve, lo, hi)
             errs = []
@@ -1048,18 +1061,32 @@ def piston_sweep(
     *,
     dtype: str = "float64",
     repeats: int = 1,
+    stencils=("standard", "isotropic"),
+    backend: str = "jax",
 ) -> dict:
-    """The piston case over a sweep of resolutions: the on-axis field at the first frequency, the
-    lobe and the scan line at each."""
+    """The piston case over a sweep of resolutions and stencils: the on-axis field at the first
+    frequency, the lobe and the scan line at each. `backend` "jax" (default) times both stencils on
+    the same (XLA) loop, a like-for-like error-against-run-time comparison; "auto" runs the
+    standard stencil on the native CPU kernels where they apply."""
     rows = []
     show = RowPrinter(_PISTON_COLUMNS)
-    for ppw in cells_per_wavelength:
-        for i, f in enumerate(frequencies_hz):
-            raw = run_piston(float(ppw), frequency_hz=f, on_axis=(i == 0), dtype=dtype, repeats=repeats)
-            row = piston_errors(raw)
-            row["dtype"] = dtype
-            rows.append(row)
-            show(row)
+    for stencil in stencils:
+        for ppw in cells_per_wavelength:
+            for i, f in enumerate(frequencies_hz):
+                raw = run_piston(
+                    float(ppw),
+                    frequency_hz=f,
+                    on_axis=(i == 0),
+                    dtype=dtype,
+                    repeats=repeats,
+                    stencil=stencil,
+                    backend=backend,
+                )
+                row = piston_errors(raw)
+                row["dtype"] = dtype
+                row["backend"] = backend
+                rows.append(row)
+                show(row)
     return {
         "case": f"baffled circular piston, {2e3 * PISTON_RADIUS_M:.1f} mm, continuous wave, rz lattice; references: "
         "exact on-axis field, 2 J1(x)/x, Rayleigh integral at z = 16.5 mm",
@@ -1082,13 +1109,28 @@ def write_piston(results: dict, out_dir: str | Path) -> None:
         ("sidelobe_error_db", "|side-lobe error| (dB)"),
         ("line_phase_rms_deg", "line phase RMS (deg)"),
     ]
-    fig, axes = plt.subplots(1, 4, figsize=(18, 4.2))
+    fig, axes = plt.subplots(1, 5, figsize=(22, 4.2))
+    keys.insert(1, ("axis_extrema_error_cells", "on-axis extrema error (cells)"))
+    styles = {
+        ("standard", 50.0): "-o",
+        ("standard", 40.0): "--s",
+        ("isotropic", 50.0): "-^",
+        ("isotropic", 40.0): "--v",
+    }
     for ax, (k, lab) in zip(axes, keys):
-        for f, style in ((50.0, "-o"), (40.0, "--s")):
-            rs = [r for r in results["rows"] if r["frequency_khz"] == f and r.get(k) is not None]
+        for (st, f), style in styles.items():
+            rs = [
+                r
+                for r in results["rows"]
+                if r["frequency_khz"] == f and r.get("stencil", "standard") == st and r.get(k) is not None
+            ]
             if rs:
                 ax.loglog(
-                    [r["wall_time_s"] for r in rs], [max(abs(r[k]), 1e-6) for r in rs], style, label=f"{f:g} kHz", ms=4
+                    [r["wall_time_s"] for r in rs],
+                    [max(abs(r[k]), 1e-6) for r in rs],
+                    style,
+                    label=f"{st}, {f:g} kHz",
+                    ms=4,
                 )
                 for r in rs:
                     ax.annotate(
@@ -1107,13 +1149,15 @@ def write_piston(results: dict, out_dir: str | Path) -> None:
     plots.save(fig, out / "accuracy_piston.png")
     fmt = lambda v, f: "—" if v is None else format(v, f)
     lines = [
-        "| cells/λ | kHz | grid | steps | time (s) | axis RMS (re 2ρcU) | axis RMS, lattice k | extrema (cells) "
-        "| extrema, lattice k | null (deg) | side lobe (dB) | line phase RMS (deg) | centred | line amp RMS (dB) | all points |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| stencil | cells/λ | courant | kHz | grid | steps | time (s) | axis RMS (re 2ρcU) | axis RMS, lattice k "
+        "| extrema (cells) | extrema, lattice k | null (deg) | side lobe (dB) | line phase RMS (deg) | centred "
+        "| line amp RMS (dB) | all points |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in results["rows"]:
         lines.append(
-            f"| {r['cells_per_wavelength']:g} | {r['frequency_khz']:g} | {r['grid_shape'][0]} x {r['grid_shape'][1]} "
+            f"| {r.get('stencil', 'standard')} | {r['cells_per_wavelength']:g} | {r.get('courant', float('nan')):.3f} "
+            f"| {r['frequency_khz']:g} | {r['grid_shape'][0]} x {r['grid_shape'][1]} "
             f"| {r['n_steps']} | {r['wall_time_s']:.2f} | {fmt(r.get('axis_rms_error'), '.4f')} "
             f"| {fmt(r.get('axis_rms_error_lattice_k'), '.4f')} | {fmt(r.get('axis_extrema_error_cells'), '.2f')} "
             f"| {fmt(r.get('axis_extrema_error_cells_lattice_k'), '.2f')} | {r['null_error_deg']:+.4f} "

@@ -1068,6 +1068,9 @@ def piston_sweep(
     frequency, the lobe and the scan line at each. `backend` "jax" (default) times both stencils on
     the same (XLA) loop, a like-for-like error-against-run-time comparison; "auto" runs the
     standard stencil on the native CPU kernels where they apply."""
+    import os
+
+    load_start = os.getloadavg()
     rows = []
     show = RowPrinter(_PISTON_COLUMNS)
     for stencil in stencils:
@@ -1091,6 +1094,8 @@ def piston_sweep(
         "case": f"baffled circular piston, {2e3 * PISTON_RADIUS_M:.1f} mm, continuous wave, rz lattice; references: "
         "exact on-axis field, 2 J1(x)/x, Rayleigh integral at z = 16.5 mm",
         "rows": rows,
+        "loadavg_start": load_start,
+        "loadavg_end": os.getloadavg(),
     }
 
 

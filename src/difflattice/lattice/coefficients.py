@@ -405,7 +405,7 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
         a = _close_cells(a, closed)
     # the isotropic stencil's sqrt(3)/2 holds for uniform face conductances (one density, no
     # obstacles); otherwise its bound is the standard stencil's (`speed_limit`)
-    uniform_faces = medium.rigid is None and medium.soft is None and jnp.ndim(medium.density_kg_m3) == 0
+    uniform_faces = medium.rigid is None and medium.soft is None and _uniform(medium.density_kg_m3)
     if grid.stencil == "isotropic" and not uniform_faces:
         _check_speed(c, grid.kind, "standard", why=ISOTROPIC_WITH_FACES)
     mur = tuple(getattr(edges, s) == "mur" for s in sides)
@@ -481,6 +481,16 @@ ISOTROPIC_WITH_FACES = (
     "operator; next to cut cells the filter's 2/3 reduction of the checkerboard is lost: c^2 rho = 4.23 "
     "measured at sqrt(3)/2), so lower `courant` to <= 1/sqrt(2) for this scene, or use stencil='standard'"
 )
+
+
+def _uniform(v) -> bool:
+    """A scalar, or a concrete array of one value (a traced one counts as varying)."""
+    if jnp.ndim(v) == 0:
+        return True
+    try:
+        return float(jnp.max(v) - jnp.min(v)) == 0.0
+    except Exception:  # traced
+        return False
 
 
 def speed_limit(lat: Lattice, kind: GridKind) -> float:

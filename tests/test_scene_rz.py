@@ -68,3 +68,19 @@ def test_rz_scene_mismatches_are_refused(edit, match):
     edit(d)
     with pytest.raises(SceneError, match=match):
         parse_scene(d, "bad").build()
+
+
+def test_scene_file_chooses_the_isotropic_stencil():
+    """`[grid] stencil = "isotropic"`: the built lattice uses it and accepts a courant up to
+    sqrt(3)/2 in air; above it, or on a 3-D grid, the key is named in the refusal."""
+    from difflattice.lattice.coefficients import build_lattice
+
+    built = parse_scene(_data(stencil="isotropic", courant=0.85), "iso").build()
+    assert built.grid.stencil == "isotropic"
+    assert build_lattice(built.grid, built.medium, built.edges).stencil == "isotropic"
+    std = parse_scene(_data(), "std").build()
+    assert build_lattice(std.grid, std.medium, std.edges).stencil == "standard"
+    with pytest.raises(SceneError, match=r"grid\.courant.*sqrt\(3\)/2"):
+        parse_scene(_data(stencil="isotropic", courant=0.87), "iso").build()
+    with pytest.raises(SceneError, match=r"grid\.stencil"):
+        parse_scene(_data(stencil="nine"), "iso").build()

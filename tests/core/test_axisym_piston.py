@@ -66,3 +66,53 @@ def test_scan_line_at_16_5_mm(which, piston_50k, piston_40k):
     assert r["line_phase_rms_deg"] < 2.0, r
     assert r["line_amp_rms_db"] < 0.3, r
     assert r["line_complex_error"] < 0.03, r  # ~ the phase error in radians, relative to the line's peak
+
+
+@pytest.fixture(scope="module")
+def piston_50k_isotropic():
+    return piston_errors(run_piston(20.0, frequency_hz=50e3, on_axis=True, repeats=0, stencil="isotropic"))
+
+
+def test_isotropic_stencil_meets_every_criterion_with_the_physical_k(piston_50k_isotropic):
+    """The isotropic (9-point) stencil (`Grid.stencil`), courant 20/24 = 0.833: its phase speed is
+    the same in every direction to O((k dx)^4), so the face's plane wave and the rim's edge wave
+    no longer drift apart. What its dispersion relation predicts for the two-ray extrema with the
+    physical k (`analytic.lattice_wavenumber(..., stencil="isotropic")`, evaluated in the test
+    below): 0.20 cell at the broad maximum; the issue's 0.5 cell is asserted against the exact
+    formula itself, with the issue's other criteria (RMS 1 %, null 0.1 deg, side lobe 0.3 dB,
+    line phase 2 deg and amplitude 0.3 dB)."""
+    r = piston_50k_isotropic
+    assert r["stencil"] == "isotropic"
+    assert r["axis_extrema_error_cells"] < 0.5, r["axis_extrema"]
+    assert r["axis_rms_error"] < 0.01, r
+    assert abs(r["null_error_deg"]) < 0.1 and abs(r["sidelobe_error_db"]) < 0.3, r
+    assert r["line_phase_rms_deg"] < 2.0 and r["line_amp_rms_db"] < 0.3, r
+    # and it is the stencil that does it: against its own lattice two-ray field the truncation
+    # error is left (second order, smaller than the standard stencil's 0.1 %)
+    assert r["axis_rms_error_lattice_k"] < 0.003, r
+
+
+def test_two_ray_extrema_shift_predicted_by_the_dispersion_relations():
+    """The extrema shift is the dispersion relation's, computed without the lattice: the path
+    difference phase error k_edge R - k_axis z over d(phase)/dz at each extremum, in cells, at 20
+    cells per wavelength: standard stencil (courant 20/29) ~2 cells, isotropic (20/24) ~0.2."""
+    import math
+
+    from difflattice.observe.analytic import lattice_wavenumber
+
+    a, lam = 19.2e-3, 343.0 / 50e3
+    worst = {}
+    for stencil, spp in (("standard", 29), ("isotropic", 24)):
+        c, om, h, kp = 20 / spp, 2 * math.pi / spp, lam / 20, 2 * math.pi / lam
+        errs = []
+        for m in range(1, 8):  # extrema where the path difference is m half wavelengths
+            d = m * lam / 2
+            z = (a * a - d * d) / (2 * d)
+            if not a * a / (4 * lam) <= z <= 5 * a * a / lam:
+                continue
+            R = math.hypot(z, a)
+            ka = float(lattice_wavenumber(om, c, 0.0, stencil=stencil)) / h
+            ke = float(lattice_wavenumber(om, c, math.atan2(a, z), stencil=stencil)) / h
+            errs.append(abs(((ke - kp) * R - (ka - kp) * z) / (kp * (z / R - 1))) / h)
+        worst[stencil] = max(errs)
+    assert 1.5 < worst["standard"] < 2.5 and worst["isotropic"] < 0.3, worst

@@ -30,10 +30,14 @@ import json
 import math
 import time
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
 from ..observe.analytic import phase_error_rad
+
+Dtype = Literal["float32", "float64"]
+Backend = Literal["auto", "jax", "native"]
 
 F_HZ, C_M_S, FACE_M, Z_M = 50e3, 343.0, 0.0357, 0.0165
 
@@ -115,6 +119,13 @@ def reference(angles_deg, x_m, *, length_m: float = FACE_M, range_m: float = 1.0
     return lobe, wave
 
 
+def _present(block):
+    """A transfer block the sweep asked for (the transfer returns None for blocks not requested)."""
+    if block is None:
+        raise ValueError("the transfer has no lobe or wavefront block: request both (lobe_range_m, wave_z_m)")
+    return block
+
+
 def _metrics(angles, x_m, lobe, wave, ref_lobe, ref_wave) -> dict:
     from ..observe.observables import lobe_metrics
 
@@ -122,6 +133,8 @@ def _metrics(angles, x_m, lobe, wave, ref_lobe, ref_wave) -> dict:
     rd = 20 * np.log10(np.abs(ref_lobe) / np.abs(ref_lobe).max())
     main = rd > -20
     m, r = lobe_metrics(angles, ld), lobe_metrics(angles, rd)
+    if m["first_null_deg"] is None or r["first_null_deg"] is None:
+        raise ValueError("no first null in the lobe or its reference: widen the angle range past the first null")
     ph = np.unwrap(np.angle(wave))
     rph = np.unwrap(np.angle(ref_wave))
     c = len(x_m) // 2
@@ -189,7 +202,7 @@ def sweep(cells_per_wavelength=(6, 8, 10, 14, 20, 28, 40), dtypes=("float32", "f
                     "n_cells": n,
                     "wall_time_s": float(np.median(times[1:])),
                     "simulation_s": T.info["simulation_s"],
-                    **_metrics(angles, x_m, T.lobe @ a, T.wave @ a, ref_lobe, ref_wave),
+                    **_metrics(angles, x_m, _present(T.lobe) @ a, _present(T.wave) @ a, ref_lobe, ref_wave),
                 }
                 rows.append(row)
                 show(row)
@@ -382,7 +395,7 @@ def _distances(cells, src, img):
 
 def run_wall(
     cells_per_wavelength: float,
-    dtype: str = "float32",
+    dtype: Dtype = "float32",
     *,
     wall: str = "rigid",
     repeats: int = 1,
@@ -414,12 +427,17 @@ def run_wall(
     occ = np.zeros((nx, ny))
     occ[lay["wall_cell"] :, :] = 1.0
     dt = grid.jnp_dtype
+    wall_map = jnp.asarray(occ, dt)
     medium = Medium(
-        sound_speed_m_s=C_M_S, density_kg_m3=1.2, boundary_model="conservative", **{wall: jnp.asarray(occ, dt)}
+        sound_speed_m_s=C_M_S,
+        density_kg_m3=1.2,
+        boundary_model="conservative",
+        rigid=wall_map if wall == "rigid" else None,
+        soft=wall_map if wall == "soft" else None,
     )
     edges = Edges(x_lo="pml", x_hi="rigid", y_lo="pml", y_hi="pml", thickness_cells=lay["pml_cells"])
     sig = ToneBurst(F_HZ, BURST_CYCLES, "hann", 1.0)
-    src = PointSources(cells=[lay["source"]], signal=sig, weights=jnp.ones(1, dt), lags_s=jnp.zeros(1, dt))
+    src = PointSources(cells=np.asarray([lay["source"]]), signal=sig, weights=jnp.ones(1, dt), lags_s=jnp.zeros(1, dt))
     line, probe = lay["line"], lay["probe"]
     sensors = Sensors(probes=probe, phasor_cells=line)
     stepper = Stepper.build(grid, medium, (src,), sensors, edges)
@@ -548,7 +566,7 @@ EDGE_REFERENCE_HALF_WAVELENGTHS = 9.0
 2 x 9 - 3 = 15 wavelengths of travel, later than the record."""
 
 
-def _edge_run(ppw: float, half_cells: int, edges, dtype: str, probes_rel, n_steps: int, repeats: int):
+def _edge_run(ppw: float, half_cells: int, edges, dtype: Dtype, probes_rel, n_steps: int, repeats: int):
     import jax
     import jax.numpy as jnp
 
@@ -565,7 +583,9 @@ def _edge_run(ppw: float, half_cells: int, edges, dtype: str, probes_rel, n_step
     grid = make_grid(frequency_hz=F_HZ, cells_per_wavelength=ppw, c_max_m_s=C_M_S, shape=(n, n), dtype=dtype)
     dt = grid.jnp_dtype
     sig = ToneBurst(F_HZ, BURST_CYCLES, "hann", 1.0)
-    src = PointSources(cells=[(centre, centre)], signal=sig, weights=jnp.ones(1, dt), lags_s=jnp.zeros(1, dt))
+    src = PointSources(
+        cells=np.asarray([(centre, centre)]), signal=sig, weights=jnp.ones(1, dt), lags_s=jnp.zeros(1, dt)
+    )
     probes = np.asarray(probes_rel) + centre
     stepper = Stepper.build(grid, Medium(sound_speed_m_s=C_M_S), (src,), Sensors(probes=probes), edges)
     f = jax.jit(lambda s: run(s, n_steps))
@@ -581,7 +601,7 @@ def _edge_run(ppw: float, half_cells: int, edges, dtype: str, probes_rel, n_step
 def edge_sweep(
     cells_per_wavelength=(10, 20),
     thicknesses_cells=(5, 10, 20, 40),
-    dtype: str = "float32",
+    dtype: Dtype = "float32",
     *,
     repeats: int = 1,
     kinds=("pml", "sponge", "mur", "rigid"),
@@ -817,6 +837,7 @@ PISTON_SETTLE_PERIODS = 20
 PISTON_RECORD_PERIODS = 10
 
 _PISTON_COLUMNS = [
+    ("stencil", "stencil", "s"),
     ("cells_per_wavelength", "cells/λ", "g"),
     ("frequency_khz", "kHz", "g"),
     ("wall_time_s", "time (s)", ".2f"),
@@ -829,10 +850,13 @@ _PISTON_COLUMNS = [
 ]
 
 
-def piston_courant(cells_per_wavelength: float) -> float:
+def piston_courant(cells_per_wavelength: float, stencil: str = "standard") -> float:
     """The lattice speed giving a whole number of steps per period just below the stability limit
-    (cells/step): the steady-state phasors then have no DFT leakage."""
-    return cells_per_wavelength / math.ceil(cells_per_wavelength * math.sqrt(2.0) - 1e-9)
+    of `stencil` (cells/step): the steady-state phasors then have no DFT leakage."""
+    from ..lattice.grid import stability_limit
+
+    limit = stability_limit("rz", stencil)  # type: ignore[arg-type]
+    return cells_per_wavelength / math.ceil(cells_per_wavelength / limit - 1e-9)
 
 
 def run_piston(
@@ -844,9 +868,11 @@ def run_piston(
     on_axis: bool = True,
     line_z_m: float = PISTON_LINE_Z_M,
     line_x_m=PISTON_LINE_X_M,
-    dtype: str = "float64",
+    dtype: Dtype = "float64",
     pml_cells: int = 20,
     repeats: int = 1,
+    stencil: str = "standard",
+    backend: Backend = "auto",
 ) -> dict:
     """One continuous-wave run of a baffled piston (face at z = 0 on the rigid z_lo window face,
     PML on the outer radius and z_hi) until steady, then phasors over whole periods. Returns the
@@ -854,6 +880,7 @@ def run_piston(
     centres from 0 to 5 a^2 / lambda, if `on_axis`), on the scan line and the far-field patterns
     (both transforms), the layout and the run time (median of `repeats` after a compiling run)."""
     import jax
+    import jax.numpy as jnp
 
     from ..lattice.coefficients import Edges
     from ..lattice.grid import make_grid
@@ -869,7 +896,7 @@ def run_piston(
     lam = c_m_s / frequency_hz
     dx = lam / ppw
     a_cells = radius_m / dx
-    courant = piston_courant(ppw)
+    courant = piston_courant(ppw, stencil)
     spp = int(round(ppw / courant))
     gap = max(3, math.ceil(ppw / 2))  # the far-field cylinder: half a wavelength around the face
     z_far = 5 * radius_m**2 / lam if on_axis else line_z_m
@@ -883,6 +910,7 @@ def run_piston(
         courant=courant,
         dtype=dtype,
         kind="rz",
+        stencil=stencil,  # type: ignore[arg-type]
     )
     src = disc_transducer(grid, radius_m=radius_m, signal=ContinuousWave(frequency_hz, 3.0, 1.0))
     surface = CylinderSurface(0, gap, math.ceil(a_cells) + gap, baffled=True)
@@ -906,7 +934,7 @@ def run_piston(
         sensors,
         Edges.axisymmetric("rigid", "pml", "pml", thickness_cells=pml_cells),
     )
-    f = jax.jit(lambda s: run(s, n_steps))
+    f = jax.jit(lambda s: run(s, n_steps, backend=backend))
     times = []
     for _ in range(repeats + 1):  # the first run compiles
         t0 = time.perf_counter()
@@ -916,10 +944,11 @@ def run_piston(
     amp = np.asarray(res.phasors) * 2 / (n_steps - n_settle)  # complex amplitude, p = Re(A exp(-i omega t))
     parts, start = {}, 0
     for name, c in groups:
-        parts[name] = amp[start : start + len(c)]
+        parts[name] = jnp.asarray(amp[start : start + len(c)])
         start += len(c)
     out = {
         "cells_per_wavelength": ppw,
+        "stencil": stencil,
         "frequency_hz": frequency_hz,
         "radius_m": radius_m,
         "c_m_s": c_m_s,
@@ -983,7 +1012,9 @@ def piston_errors(raw: dict, *, line_half_m: float = PISTON_LINE_HALF_M) -> dict
     lam = 2 * math.pi / k
     dx = raw["dx_m"]
     row = {
+        "stencil": raw.get("stencil", "standard"),
         "cells_per_wavelength": raw["cells_per_wavelength"],
+        "courant": raw["courant"],
         "frequency_khz": raw["frequency_hz"] / 1e3,
         "grid_shape": raw["grid_shape"],
         "n_steps": raw["n_steps"],
@@ -996,7 +1027,7 @@ def piston_errors(raw: dict, *, line_half_m: float = PISTON_LINE_HALF_M) -> dict
         sel = (z >= lo) & (z <= hi)
         omega = 2 * math.pi / raw["steps_per_period"]
         ex = np.abs(an.piston_on_axis(z, a, k))
-        lk = np.abs(an.piston_on_axis_lattice(z, a, omega, raw["courant"], dx))
+        lk = np.abs(an.piston_on_axis_lattice(z, a, omega, raw["courant"], dx, raw.get("stencil", "standard")))
         row["axis_rms_error"] = float(np.sqrt(np.mean(((np.abs(p) - ex)[sel] / 2) ** 2)))
         row["axis_max_error"] = float(np.abs((np.abs(p) - ex)[sel] / 2).max())
         row["axis_rms_error_lattice_k"] = float(np.sqrt(np.mean(((np.abs(p) - lk)[sel] / 2) ** 2)))
@@ -1004,7 +1035,10 @@ def piston_errors(raw: dict, *, line_half_m: float = PISTON_LINE_HALF_M) -> dict
         sim = _extrema(z, np.abs(p), lo, hi)
         for key, ref_curve in (
             ("", np.abs(an.piston_on_axis(zf, a, k))),
-            ("_lattice_k", np.abs(an.piston_on_axis_lattice(zf, a, omega, raw["courant"], dx))),
+            (
+                "_lattice_k",
+                np.abs(an.piston_on_axis_lattice(zf, a, omega, raw["courant"], dx, raw.get("stencil", "standard"))),
+            ),
         ):
             ref = _extrema(zf, ref_curve, lo, hi)
             errs = []
@@ -1053,24 +1087,43 @@ def piston_sweep(
     cells_per_wavelength=(6, 8, 10, 14, 20, 28, 40),
     frequencies_hz=(50e3, 40e3),
     *,
-    dtype: str = "float64",
+    dtype: Dtype = "float64",
     repeats: int = 1,
+    stencils=("standard", "isotropic"),
+    backend: Backend = "jax",
 ) -> dict:
-    """The piston case over a sweep of resolutions: the on-axis field at the first frequency, the
-    lobe and the scan line at each."""
+    """The piston case over a sweep of resolutions and stencils: the on-axis field at the first
+    frequency, the lobe and the scan line at each. `backend` "jax" (default) times both stencils on
+    the same (XLA) loop, a like-for-like error-against-run-time comparison; "auto" runs the
+    standard stencil on the native CPU kernels where they apply."""
+    import os
+
+    load_start = os.getloadavg()
     rows = []
     show = RowPrinter(_PISTON_COLUMNS)
-    for ppw in cells_per_wavelength:
-        for i, f in enumerate(frequencies_hz):
-            raw = run_piston(float(ppw), frequency_hz=f, on_axis=(i == 0), dtype=dtype, repeats=repeats)
-            row = piston_errors(raw)
-            row["dtype"] = dtype
-            rows.append(row)
-            show(row)
+    for stencil in stencils:
+        for ppw in cells_per_wavelength:
+            for i, f in enumerate(frequencies_hz):
+                raw = run_piston(
+                    float(ppw),
+                    frequency_hz=f,
+                    on_axis=(i == 0),
+                    dtype=dtype,
+                    repeats=repeats,
+                    stencil=stencil,
+                    backend=backend,
+                )
+                row = piston_errors(raw)
+                row["dtype"] = dtype
+                row["backend"] = backend
+                rows.append(row)
+                show(row)
     return {
         "case": f"baffled circular piston, {2e3 * PISTON_RADIUS_M:.1f} mm, continuous wave, rz lattice; references: "
         "exact on-axis field, 2 J1(x)/x, Rayleigh integral at z = 16.5 mm",
         "rows": rows,
+        "loadavg_start": load_start,
+        "loadavg_end": os.getloadavg(),
     }
 
 
@@ -1089,13 +1142,28 @@ def write_piston(results: dict, out_dir: str | Path) -> None:
         ("sidelobe_error_db", "|side-lobe error| (dB)"),
         ("line_phase_rms_deg", "line phase RMS (deg)"),
     ]
-    fig, axes = plt.subplots(1, 4, figsize=(18, 4.2))
+    fig, axes = plt.subplots(1, 5, figsize=(22, 4.2))
+    keys.insert(1, ("axis_extrema_error_cells", "on-axis extrema error (cells)"))
+    styles = {
+        ("standard", 50.0): "-o",
+        ("standard", 40.0): "--s",
+        ("isotropic", 50.0): "-^",
+        ("isotropic", 40.0): "--v",
+    }
     for ax, (k, lab) in zip(axes, keys):
-        for f, style in ((50.0, "-o"), (40.0, "--s")):
-            rs = [r for r in results["rows"] if r["frequency_khz"] == f and r.get(k) is not None]
+        for (st, f), style in styles.items():
+            rs = [
+                r
+                for r in results["rows"]
+                if r["frequency_khz"] == f and r.get("stencil", "standard") == st and r.get(k) is not None
+            ]
             if rs:
                 ax.loglog(
-                    [r["wall_time_s"] for r in rs], [max(abs(r[k]), 1e-6) for r in rs], style, label=f"{f:g} kHz", ms=4
+                    [r["wall_time_s"] for r in rs],
+                    [max(abs(r[k]), 1e-6) for r in rs],
+                    style,
+                    label=f"{st}, {f:g} kHz",
+                    ms=4,
                 )
                 for r in rs:
                     ax.annotate(
@@ -1114,13 +1182,15 @@ def write_piston(results: dict, out_dir: str | Path) -> None:
     plots.save(fig, out / "accuracy_piston.png")
     fmt = lambda v, f: "—" if v is None else format(v, f)
     lines = [
-        "| cells/λ | kHz | grid | steps | time (s) | axis RMS (re 2ρcU) | axis RMS, lattice k | extrema (cells) "
-        "| extrema, lattice k | null (deg) | side lobe (dB) | line phase RMS (deg) | centred | line amp RMS (dB) | all points |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "| stencil | cells/λ | courant | kHz | grid | steps | time (s) | axis RMS (re 2ρcU) | axis RMS, lattice k "
+        "| extrema (cells) | extrema, lattice k | null (deg) | side lobe (dB) | line phase RMS (deg) | centred "
+        "| line amp RMS (dB) | all points |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in results["rows"]:
         lines.append(
-            f"| {r['cells_per_wavelength']:g} | {r['frequency_khz']:g} | {r['grid_shape'][0]} x {r['grid_shape'][1]} "
+            f"| {r.get('stencil', 'standard')} | {r['cells_per_wavelength']:g} | {r.get('courant', float('nan')):.3f} "
+            f"| {r['frequency_khz']:g} | {r['grid_shape'][0]} x {r['grid_shape'][1]} "
             f"| {r['n_steps']} | {r['wall_time_s']:.2f} | {fmt(r.get('axis_rms_error'), '.4f')} "
             f"| {fmt(r.get('axis_rms_error_lattice_k'), '.4f')} | {fmt(r.get('axis_extrema_error_cells'), '.2f')} "
             f"| {fmt(r.get('axis_extrema_error_cells_lattice_k'), '.2f')} | {r['null_error_deg']:+.4f} "

@@ -33,7 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from .grid import Grid, GridKind, check_courant
+from .grid import Grid, GridKind, StencilKind, check_courant, stability_limit
 from .medium import Medium
 
 EdgeKind = Literal["pml", "mur", "sponge", "rigid", "soft", "axis"]
@@ -244,6 +244,8 @@ class Lattice(eqx.Module):
     ghosts: tuple[str, ...] = eqx.field(static=True)
     mur: tuple[bool, ...] = eqx.field(static=True)
     bz: Float[Array, "nx ny nz1"] | None = None  # 3-D grids only
+    stencil: str = eqx.field(static=True, default="standard")  # `Grid.stencil`: "standard" | "isotropic"
+    uniform_faces: bool = eqx.field(static=True, default=True)  # one density, no obstacles (`speed_limit`)
 
     def conductance(self, axis: int):
         """The face conductances along `axis` (None: unit conductance)."""
@@ -294,7 +296,12 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
     for name, arr in (("sound_speed_m_s", c), ("density_kg_m3", rho), ("rigid", medium.rigid), ("soft", medium.soft)):
         if arr is not None and jnp.ndim(arr) != 0 and tuple(jnp.shape(arr)) != shape:
             raise ValueError(f"medium.{name} has shape {jnp.shape(arr)}, expected the grid shape {shape}")
-    _check_speed(c, grid.kind)
+    _check_speed(c, grid.kind, grid.stencil)
+    if grid.stencil == "isotropic" and medium.boundary_model == "paper":
+        raise ValueError(
+            "stencil = 'isotropic' needs a symmetric flux form: boundary_model = 'paper' (eq. 10's per-cell "
+            "factors) has none; use Medium(..., boundary_model='conservative') or stencil='standard'"
+        )
 
     model = medium.boundary_model
     rigid = None if medium.rigid is None else jnp.clip(jnp.asarray(medium.rigid, dtype), 0, 1)
@@ -396,6 +403,11 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
         bz = closed_faces[2] if ndim == 3 else None
     elif a["ax_lo"] is not None:
         a = _close_cells(a, closed)
+    # the isotropic stencil's sqrt(3)/2 holds for uniform face conductances (one density, no
+    # obstacles); otherwise its bound is the standard stencil's (`speed_limit`)
+    uniform_faces = medium.rigid is None and medium.soft is None and _uniform(medium.density_kg_m3)
+    if grid.stencil == "isotropic" and not uniform_faces:
+        _check_speed(c, grid.kind, "standard", why=ISOTROPIC_WITH_FACES)
     mur = tuple(getattr(edges, s) == "mur" for s in sides)
     sponge = _sponge(grid, edges, dtype) if "sponge" in edges.kinds() else None
     pml = _pml(grid, edges, dtype) if edges.uses_pml else None
@@ -414,6 +426,8 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
         ghosts=ghosts,
         mur=mur,
         bz=bz,
+        stencil=grid.stencil,
+        uniform_faces=bool(uniform_faces),
         **a,
     )
 
@@ -461,12 +475,39 @@ def _with_outer_cells(interior_faces, ones, axis, *, high: bool):
     return jnp.concatenate(parts, axis=axis)
 
 
-def _check_speed(c, kind: GridKind = "2d") -> None:
+ISOTROPIC_WITH_FACES = (
+    "with obstacles or a density contrast the isotropic stencil is guaranteed "
+    "stable only up to the standard limit (its flux filter M <= diag(b) bounds it by the standard "
+    "operator; next to cut cells the filter's 2/3 reduction of the checkerboard is lost: c^2 rho = 4.23 "
+    "measured at sqrt(3)/2), so lower `courant` to <= 1/sqrt(2) for this scene, or use stencil='standard'"
+)
+
+
+def _uniform(v) -> bool:
+    """A scalar, or a concrete array of one value (a traced one counts as varying)."""
+    if jnp.ndim(v) == 0:
+        return True
+    try:
+        return float(jnp.max(v) - jnp.min(v)) == 0.0
+    except Exception:  # traced
+        return False
+
+
+def speed_limit(lat: Lattice, kind: GridKind) -> float:
+    """The largest stable lattice speed for these coefficients: `stability_limit(kind, stencil)`,
+    except that the isotropic stencil with obstacles or a density contrast keeps the standard limit."""
+    return stability_limit(kind, lat.stencil if lat.uniform_faces else "standard")  # type: ignore[arg-type]
+
+
+def _check_speed(c, kind: GridKind = "2d", stencil: StencilKind = "standard", why: str = "") -> None:
     try:
         cmax = float(jnp.max(c))
     except Exception:  # traced: checked at run time by the solver
         return
-    check_courant(cmax, what="the fastest medium's speed", kind=kind)
+    try:
+        check_courant(cmax, what="the fastest medium's speed", kind=kind, stencil=stencil)
+    except ValueError as e:
+        raise ValueError(f"{e} ({why})" if why else str(e)) from None
 
 
 def _pml(grid: Grid, edges: Edges, dtype) -> PML:

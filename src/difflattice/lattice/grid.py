@@ -47,9 +47,22 @@ DEFAULT_COURANT_3D = 0.577
 GridKind = Literal["2d", "rz", "3d"]
 GRID_KINDS = ("2d", "rz", "3d")
 
+StencilKind = Literal["standard", "isotropic"]
+STENCILS = ("standard", "isotropic")
+"""The spatial stencil (`Grid.stencil`, static). "standard": the paper's 5-point (3-D: 7-point)
+flux stencil. "isotropic" (plane and rz grids): each face flux is averaged across the face by the
+compact filter [1, 10, 1] / 12 (area-weighted on an rz grid), which makes the operator the
+Mehrstellen 9-point Laplacian ``L5 + (1/6) dx^2 dy^2``: its leading error is isotropic, so waves at
+every angle travel at one speed to O((k dx)^4), and the leapfrog is stable up to sqrt(3)/2. It
+costs one more pass over the fluxes (the native CPU kernels run the standard stencil only)."""
 
-def stability_limit(kind: GridKind = "2d") -> float:
-    """Largest stable lattice speed (cells/step) of the leapfrog on a grid of `kind`.
+MAX_COURANT_ISOTROPIC = math.sqrt(3.0) / 2.0
+"""Stability limit of the leapfrog with the isotropic (9-point) stencil, plane and rz grids."""
+
+
+def stability_limit(kind: GridKind = "2d", stencil: StencilKind = "standard") -> float:
+    """Largest stable lattice speed (cells/step) of the leapfrog on a grid of `kind` with the
+    spatial `stencil`.
 
     The leapfrog ``P(t+1) = 2 P - P(t-1) + c^2 L P`` is stable iff c^2 rho(-L) <= 4, rho the
     spectral radius of the spatial operator (cells^-2).
@@ -68,9 +81,24 @@ def stability_limit(kind: GridKind = "2d") -> float:
       the limit drops to 0.6726: that is why the axis lies on a face here.)
     - "3d": -L is the seven-point Laplacian, rho < 12 (the checkerboard (pi, pi, pi) tends to 12),
       so c <= 1/sqrt(3).
+    - stencil "isotropic" (plane, rz): -L = D^T M D with the flux filter M = 1 + d_t^2 / 12 per
+      axis (d_t the second difference across the face; 2/3 <= M <= 1); its symbol is
+      4 [sx (1 - sy / 3) + sy (1 - sx / 3)] with sx = sin^2(kx/2), sy = sin^2(ky/2), largest at the
+      checkerboard: rho < 16/3, so c <= sqrt(3)/2. On the rz grid the filter of the axial fluxes
+      across rings is the area-weighted one (the same ring metric), which keeps L similar to a
+      symmetric matrix; measured spectral radius of the actual rz operator
+      (`tests/core/test_isotropic_stencil.py`): below 16/3 for every size tried.
     """
     if kind not in GRID_KINDS:
         raise ValueError(f"grid kind = {kind!r}; allowed: {', '.join(map(repr, GRID_KINDS))}")
+    if stencil not in STENCILS:
+        raise ValueError(f"stencil = {stencil!r}; allowed: {', '.join(map(repr, STENCILS))}")
+    if stencil == "isotropic":
+        if kind == "3d":
+            raise ValueError(
+                "stencil = 'isotropic' is implemented for plane and rz grids only; use stencil='standard' on a 3-D grid"
+            )
+        return MAX_COURANT_ISOTROPIC
     return MAX_COURANT_3D if kind == "3d" else MAX_COURANT
 
 
@@ -93,6 +121,8 @@ class Grid(eqx.Module):
     - `courant`: that medium's speed in cells/step (<= 1/sqrt(2); <= 1/sqrt(3) for "3d").
     - `dtype`: "float32" or "float64".
     - `kind`: "2d" (plane), "rz" (axisymmetric ring cells; the y_lo side is the axis) or "3d".
+    - `stencil`: "standard" (the paper's 5-point flux stencil) or "isotropic" (plane and rz: the
+      9-point Mehrstellen form, direction-independent phase speed, limit sqrt(3)/2; `STENCILS`).
     """
 
     shape: tuple[int, ...] = eqx.field(static=True)
@@ -102,6 +132,7 @@ class Grid(eqx.Module):
     courant: float = eqx.field(static=True, default=PAPER_COURANT)
     dtype: Literal["float32", "float64"] = eqx.field(static=True, default="float32")
     kind: GridKind = eqx.field(static=True, default="2d")
+    stencil: StencilKind = eqx.field(static=True, default="standard")
 
     def __check_init__(self):
         if self.kind not in GRID_KINDS:
@@ -122,7 +153,10 @@ class Grid(eqx.Module):
                 "frequency_hz, cells_per_wavelength and c_max_m_s must be positive, got "
                 f"{self.frequency_hz}, {self.cells_per_wavelength}, {self.c_max_m_s}"
             )
-        check_courant(self.courant, what="grid courant (the fastest medium's speed)", kind=self.kind)
+        stability_limit(self.kind, self.stencil)  # refuses an unknown stencil or one the kind lacks
+        check_courant(
+            self.courant, what="grid courant (the fastest medium's speed)", kind=self.kind, stencil=self.stencil
+        )
         if self.dtype not in ("float32", "float64"):
             raise ValueError(f"dtype must be 'float32' or 'float64', got {self.dtype!r}")
 
@@ -133,8 +167,8 @@ class Grid(eqx.Module):
 
     @property
     def max_courant(self) -> float:
-        """The stability limit of this kind of lattice, cells/step (`stability_limit`)."""
-        return stability_limit(self.kind)
+        """The stability limit of this kind of lattice and stencil, cells/step (`stability_limit`)."""
+        return stability_limit(self.kind, self.stencil)
 
     # --- scales -------------------------------------------------------------------------
     @property
@@ -214,15 +248,17 @@ class Grid(eqx.Module):
         return tuple((np.arange(n) + o) * self.dx_m for n in self.shape)
 
 
-def check_courant(c_lattice: float, what: str = "speed", kind: GridKind = "2d") -> None:
-    """Refuse a lattice speed above `stability_limit(kind)` cells/step (unstable, not merely
-    inaccurate)."""
+def check_courant(
+    c_lattice: float, what: str = "speed", kind: GridKind = "2d", stencil: StencilKind = "standard"
+) -> None:
+    """Refuse a lattice speed above `stability_limit(kind, stencil)` cells/step (unstable, not
+    merely inaccurate)."""
     if not (c_lattice >= 0):
         raise ValueError(f"{what} = {c_lattice} cells/step: must be >= 0")
-    limit = stability_limit(kind)
+    limit = stability_limit(kind, stencil)
     if c_lattice > limit * (1 + 1e-12):
-        name = {"2d": "2-D", "rz": "rz", "3d": "3-D"}[kind]
-        formula = "1/sqrt(3)" if kind == "3d" else "1/sqrt(2)"
+        name = {"2d": "2-D", "rz": "rz", "3d": "3-D"}[kind] + (" isotropic-stencil" if stencil == "isotropic" else "")
+        formula = "1/sqrt(3)" if kind == "3d" else ("sqrt(3)/2" if stencil == "isotropic" else "1/sqrt(2)")
         usual = f"e.g. {DEFAULT_COURANT_3D}" if kind == "3d" else f"the paper uses {PAPER_COURANT}"
         raise ValueError(
             f"{what} = {c_lattice:.6f} cells/step exceeds the {name} stability limit "
@@ -241,6 +277,7 @@ def make_grid(
     courant: float | None = None,
     dtype: Literal["float32", "float64"] = "float32",
     kind: GridKind = "2d",
+    stencil: StencilKind = "standard",
 ) -> Grid:
     """Build a `Grid` from the paper's scale parameters and either `shape` (cells) or `size_m`
     (for `kind` = "rz": (length along z, radius) in metres; for "3d": three sizes). `courant`
@@ -263,4 +300,5 @@ def make_grid(
         courant=float(courant),
         dtype=dtype,
         kind=kind,
+        stencil=stencil,
     )

@@ -74,12 +74,46 @@ def _shifted(q, axis: int):
 
 def face_gradient(lat: Lattice, q, axis: int):
     """b * (q_hi - q_lo) on every face along `axis`, outer faces included (n+1 faces); the
-    window's ghost cells are zero and rigid sides are closed faces (b = 0)."""
+    window's ghost cells are zero and rigid sides are closed faces (b = 0). With the isotropic
+    stencil the face values are then averaged across the face (`_across_faces`)."""
     qp = jnp.pad(q, 1)
     inner = slice(1, -1)
     g = _along(qp, axis, slice(1, None), inner) - _along(qp, axis, slice(None, -1), inner)
     b = _face_coefficients(lat, q.shape, q.dtype)[axis]
+    if lat.stencil == "isotropic":
+        return _across_faces(lat, g, b, axis)
     return g if b is None else b * g
+
+
+def _across_faces(lat: Lattice, g, b, axis: int):
+    """The isotropic stencil's face values ``M g`` for the differences g along `axis` (plane and
+    rz grids): ``M = diag(b) + A^(-1) T / 12``, T the second difference across the faces (along
+    the other axis) with edge weights ``min(b_j, b_k) A_jk``, so M is symmetric in the face-area
+    inner product, 2/3 b <= M <= b (hence never less stable than the standard stencil on the same
+    coefficients), and a closed face (b = 0) carries nothing. A is 1 on a plane grid
+    and on the radial faces of an rz grid; for the axial faces of an rz grid A_j = j + 1/2 (the
+    ring's face area) and A_jk = j + 1 (the ring boundary between them): the finite-volume radial
+    Laplacian. The ends of the window (and the axis) add no edge: a mirror there. ``L5 + T_x T_y
+    / 6`` is the 9-point Mehrstellen Laplacian (`grid.STENCILS`)."""
+    t = 1 - axis
+    n_t = g.shape[t]
+    flux = g if b is None else b * g
+    if n_t < 2:
+        return flux
+    d = _along(g, t, slice(1, None)) - _along(g, t, slice(None, -1))
+    if b is not None:
+        if b.shape[t] > 1:
+            d = d * jnp.minimum(_along(b, t, slice(1, None)), _along(b, t, slice(None, -1)))
+        else:
+            d = d * b
+    ring = lat.metric is not None and axis == 0
+    if ring:  # edge weights: the ring boundaries' areas j + 1 between rings j and j + 1
+        d = d * jnp.asarray(np.arange(1, n_t, dtype=float).reshape(1, -1), g.dtype)
+    zero = jnp.zeros_like(_along(d, t, slice(0, 1)))
+    corr = jnp.concatenate([d, zero], axis=t) - jnp.concatenate([zero, d], axis=t)
+    if ring:
+        corr = corr / jnp.asarray((np.arange(n_t, dtype=float) + 0.5).reshape(1, -1), g.dtype)
+    return flux + corr / 12.0
 
 
 def divergence(lat: Lattice, g, axis: int):
@@ -112,7 +146,11 @@ def operator(lat: Lattice, p):
 def stencil(lat: Lattice, q):
     """L(q): the flux stencil without the factor K (symmetric unless the paper model's a-factors;
     V^(-1) times a symmetric one on an rz grid). The loop over axes unrolls at trace time: a
-    plane or rz grid compiles the 2-D arithmetic only."""
+    plane or rz grid compiles the 2-D arithmetic only. The isotropic stencil is written in flux
+    form (face values, `_across_faces`, then their divergence)."""
+    if lat.stencil == "isotropic":
+        terms = [divergence(lat, face_gradient(lat, q, axis), axis) for axis in range(q.ndim)]
+        return terms[0] + terms[1]
     if q.ndim == 3:
         neighbours = [_shifted(q, axis) for axis in range(3)]
     else:

@@ -14,25 +14,34 @@ import math
 import numpy as np
 
 
-def lattice_wavenumber(omega: float, c: float, theta_rad=0.0, iters: int = 30) -> np.ndarray:
+def lattice_wavenumber(omega: float, c: float, theta_rad=0.0, iters: int = 30, stencil: str = "standard") -> np.ndarray:
     """Wavenumber k (radians/cell) of a lattice plane wave of angular frequency `omega`
-    (radians/step) and speed `c` (cells/step) travelling at angle `theta_rad`."""
+    (radians/step) and speed `c` (cells/step) travelling at angle `theta_rad`: the root of the
+    leapfrog's dispersion relation ``sin^2(omega/2) / c^2 = sx + sy`` (stencil "standard") or
+    ``sx + sy - (2/3) sx sy`` ("isotropic"), sx = sin^2(kx/2), sy = sin^2(ky/2)."""
+    if stencil not in ("standard", "isotropic"):
+        raise ValueError(f"stencil = {stencil!r}; allowed: 'standard', 'isotropic'")
+    w = 2.0 / 3.0 if stencil == "isotropic" else 0.0
     theta = np.asarray(theta_rad, dtype=float)
     cx, sy = np.cos(theta), np.sin(theta)
     target = math.sin(omega / 2) ** 2 / c**2
     k = np.full_like(theta, omega / c, dtype=float)
     for _ in range(iters):
-        f = np.sin(k * cx / 2) ** 2 + np.sin(k * sy / 2) ** 2 - target
-        df = 0.5 * (cx * np.sin(k * cx) + sy * np.sin(k * sy))
+        a, b = np.sin(k * cx / 2) ** 2, np.sin(k * sy / 2) ** 2
+        da, db = 0.5 * cx * np.sin(k * cx), 0.5 * sy * np.sin(k * sy)
+        f = a + b - w * a * b - target
+        df = da * (1 - w * b) + db * (1 - w * a)
         k = k - f / df
     return k
 
 
-def phase_velocity_error(cells_per_wavelength: float, courant: float, theta_rad=0.0) -> np.ndarray:
+def phase_velocity_error(
+    cells_per_wavelength: float, courant: float, theta_rad=0.0, stencil: str = "standard"
+) -> np.ndarray:
     """Relative phase-velocity error (c_lattice / c - 1) of a wave at `cells_per_wavelength` in the
     medium of lattice speed `courant`, travelling at `theta_rad`."""
     omega = 2 * math.pi * courant / cells_per_wavelength
-    k = lattice_wavenumber(omega, courant, theta_rad)
+    k = lattice_wavenumber(omega, courant, theta_rad, stencil=stencil)
     return (omega / k) / courant - 1.0
 
 
@@ -190,7 +199,9 @@ def rayleigh_piston(
     return -1j * k_per_m / (2 * math.pi) * out
 
 
-def piston_on_axis_lattice(z_m, radius_m: float, omega: float, c_lattice: float, dx_m: float) -> np.ndarray:
+def piston_on_axis_lattice(
+    z_m, radius_m: float, omega: float, c_lattice: float, dx_m: float, stencil: str = "standard"
+) -> np.ndarray:
     """The on-axis field of a baffled piston as the lattice should give it: the exact two-ray form
     (the face's plane wave minus the rim's edge wave) with each ray's wavenumber from the lattice
     dispersion relation (`lattice_wavenumber`: the plane wave along the axis, the edge wave at
@@ -199,6 +210,6 @@ def piston_on_axis_lattice(z_m, radius_m: float, omega: float, c_lattice: float,
     cells/step."""
     z = np.asarray(z_m, float)
     re = np.sqrt(z * z + radius_m**2)
-    k_axis = float(lattice_wavenumber(omega, c_lattice, 0.0)) / dx_m
-    k_edge = lattice_wavenumber(omega, c_lattice, np.arctan2(radius_m, z)) / dx_m
+    k_axis = float(lattice_wavenumber(omega, c_lattice, 0.0, stencil=stencil)) / dx_m
+    k_edge = lattice_wavenumber(omega, c_lattice, np.arctan2(radius_m, z), stencil=stencil) / dx_m
     return np.exp(1j * k_axis * z) - np.exp(1j * k_edge * re)

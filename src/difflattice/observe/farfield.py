@@ -140,7 +140,7 @@ def field_at(
     centre = pts.mean(0)
     theta = np.arctan2(obs[:, 1] - centre[1], obs[:, 0] - centre[0])
     if dispersion == "lattice":
-        k = lattice_wavenumber(omega, c, theta)
+        k = lattice_wavenumber(omega, c, theta, stencil=grid.stencil)
     elif dispersion == "continuum":
         k = np.full_like(theta, omega / c)
     else:

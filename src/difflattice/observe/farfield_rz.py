@@ -112,7 +112,7 @@ def _wavenumbers(grid: Grid, theta, dispersion, frequency_hz, c_lattice):
     c = grid.courant if c_lattice is None else c_lattice
     theta = np.asarray(theta, float)
     if dispersion == "lattice":
-        return lattice_wavenumber(omega, c, theta)
+        return lattice_wavenumber(omega, c, theta, stencil=grid.stencil)
     if dispersion == "continuum":
         return np.full_like(theta, omega / c)
     raise ValueError(f"dispersion = {dispersion!r}; allowed: 'lattice', 'continuum'")

@@ -565,9 +565,12 @@ def _make_grid(scene: Scene, mats: list[Material]) -> Grid:
             _fail(p, f"grid.{key}", f"= {list(g[key])}: a {kind} grid needs {ndim} entries")
     default = DEFAULT_COURANT_3D if kind == "3d" else PAPER_COURANT
     courant = default if g["courant"] is None else float(g["courant"])
-    limit = stability_limit(kind)
+    stencil = g["stencil"]
+    if stencil == "isotropic" and kind == "3d":
+        _fail(p, "grid.stencil", '= "isotropic" is implemented for 2d and rz grids: use stencil = "standard" in 3d')
+    limit = stability_limit(kind, stencil)
     if courant > limit:
-        formula = "1/sqrt(3)" if kind == "3d" else "1/sqrt(2)"
+        formula = "1/sqrt(3)" if kind == "3d" else ("sqrt(3)/2" if stencil == "isotropic" else "1/sqrt(2)")
         name = {"2d": "2-D", "rz": "rz", "3d": "3-D"}[kind]
         _fail(
             p,
@@ -587,6 +590,7 @@ def _make_grid(scene: Scene, mats: list[Material]) -> Grid:
             courant=courant,
             dtype=g["dtype"],
             kind=kind,
+            stencil=stencil,
         )
     except ValueError as e:
         _fail(p, "grid", str(e))

@@ -57,6 +57,14 @@ class GridSection(Section):
         "0.577 in 3d, at most 1/sqrt(3) = 0.5774)",
     )
     dtype: str = setting("float32", kind="str", doc="float32 or float64")
+    stencil: str = setting(
+        "standard",
+        kind="str",
+        choices=("standard", "isotropic"),
+        doc="spatial stencil: standard (the paper's 5-point) or isotropic (2d and rz: the 9-point form whose "
+        "phase speed is the same in every direction; courant up to sqrt(3)/2 = 0.866 for one density without "
+        "obstacles, else up to 1/sqrt(2))",
+    )
 
 
 @dataclass(frozen=True)

@@ -39,6 +39,8 @@ def supports(stepper, state=None) -> str | None:
     sens = stepper.sensors
     if stepper.staggered:
         return "a PML edge (staggered split-field step)"
+    if lat.stencil != "standard":
+        return "the isotropic stencil (the hand-written coefficient cotangents are the standard stencil's)"
     if any(lat.mur):
         return "Mur edges"
     if lat.eta != 0:

@@ -19,8 +19,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Complex, Float, Int
 
-from ..lattice.coefficients import Edges
-from ..lattice.grid import Grid, stability_limit
+from ..lattice.coefficients import Edges, speed_limit
+from ..lattice.grid import Grid
 from ..lattice.medium import Medium
 from .sensors import Sensors
 from .sources import PointSources
@@ -256,7 +256,8 @@ INSTABILITY_MESSAGE = (
     "or float32 overflow from extreme source amplitudes (scale the weights or use float64)."
 )
 SPEED_MESSAGE = (
-    "difflattice: a medium speed exceeds 1/sqrt(2) cells/step, the stability limit (2-D and rz): lower the "
+    "difflattice: a medium speed exceeds the stability limit (2-D and rz: 1/sqrt(2) cells/step, sqrt(3)/2 "
+    "with the isotropic stencil): lower the "
     "grid courant or set c_max_m_s to the fastest medium's speed."
 )
 SPEED_MESSAGE_3D = (
@@ -330,7 +331,7 @@ def _simulate(
     lat = stepper.lattice
     if jnp.ndim(lat.c) != 0 or isinstance(lat.c, jax.core.Tracer):
         # speeds may be traced (e.g. fitted): check the stability limit at run time
-        limit = stability_limit(stepper.grid.kind)
+        limit = speed_limit(lat, stepper.grid.kind)
         msg = SPEED_MESSAGE_3D if stepper.grid.kind == "3d" else SPEED_MESSAGE
         stepper = eqx.error_if(stepper, jnp.max(lat.c) > limit * (1 + 1e-6), msg)
     result = run(

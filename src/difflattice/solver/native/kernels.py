@@ -43,6 +43,8 @@ KNOWN_LATTICE_FIELDS = frozenset(
         "eta",
         "ghosts",
         "mur",
+        "stencil",  # the isotropic one is declined by name below
+        "uniform_faces",  # a stability-limit fact, no term
     }
 )
 # likewise the carried state, the sensors' options and the sources' injection modes
@@ -105,6 +107,8 @@ def unsupported(stepper: Stepper, state: State | None, sharding) -> str | None:
         return f"carried state the kernels do not update ({', '.join(new_state)})"
     if any(lat.mur):
         return "Mur edges"
+    if lat.stencil != "standard":
+        return "the isotropic stencil (the kernels run the standard 5-point stencil)"
     rad = None if lat.pml is None else getattr(lat.pml, "radial", None)
     if rad is not None and not (hasattr(rad, "decay") and hasattr(rad, "drive")):
         return "an rz r_hi PML correction the kernels do not implement"

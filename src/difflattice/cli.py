@@ -196,7 +196,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         metavar="CPW",
         help="run at this resolution instead of the file's (cell and step counts scale, metres and seconds stay; "
-        "e.g. 8 for a quick 3-D look)",
+        "e.g. 8 for a quick 3-D look; default: the scene file's [grid] cells_per_wavelength)",
     )
     s.add_argument(
         "--max-memory-gib",
@@ -223,7 +223,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     d = sub.add_parser("demo", help="main job: emulated rig -> capture -> fit -> report")
     d.add_argument(
-        "--out", type=Path, default=Path("out/demo"), help="output directory (its data/ folder is emptied first)"
+        "--out",
+        type=Path,
+        default=Path("out/demo"),
+        help="output directory (the capture files it writes in data/ are replaced)",
     )
     d.add_argument("--quick", action="store_true", help="smaller scans (for tests)")
     d.add_argument(

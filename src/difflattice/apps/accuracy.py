@@ -30,11 +30,14 @@ import json
 import math
 import time
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
 from ..observe.analytic import phase_error_rad
+
+if TYPE_CHECKING:
+    from ..lattice.grid import StencilKind
 
 Dtype = Literal["float32", "float64"]
 Backend = Literal["auto", "jax", "native"]
@@ -850,12 +853,12 @@ _PISTON_COLUMNS = [
 ]
 
 
-def piston_courant(cells_per_wavelength: float, stencil: str = "standard") -> float:
+def piston_courant(cells_per_wavelength: float, stencil: StencilKind = "standard") -> float:
     """The lattice speed giving a whole number of steps per period just below the stability limit
     of `stencil` (cells/step): the steady-state phasors then have no DFT leakage."""
     from ..lattice.grid import stability_limit
 
-    limit = stability_limit("rz", stencil)  # type: ignore[arg-type]
+    limit = stability_limit("rz", stencil)
     return cells_per_wavelength / math.ceil(cells_per_wavelength / limit - 1e-9)
 
 
@@ -871,7 +874,7 @@ def run_piston(
     dtype: Dtype = "float64",
     pml_cells: int = 20,
     repeats: int = 1,
-    stencil: str = "standard",
+    stencil: StencilKind = "standard",
     backend: Backend = "auto",
 ) -> dict:
     """One continuous-wave run of a baffled piston (face at z = 0 on the rigid z_lo window face,
@@ -910,7 +913,7 @@ def run_piston(
         courant=courant,
         dtype=dtype,
         kind="rz",
-        stencil=stencil,  # type: ignore[arg-type]
+        stencil=stencil,
     )
     src = disc_transducer(grid, radius_m=radius_m, signal=ContinuousWave(frequency_hz, 3.0, 1.0))
     surface = CylinderSurface(0, gap, math.ceil(a_cells) + gap, baffled=True)

@@ -244,7 +244,7 @@ class Lattice(eqx.Module):
     ghosts: tuple[str, ...] = eqx.field(static=True)
     mur: tuple[bool, ...] = eqx.field(static=True)
     bz: Float[Array, "nx ny nz1"] | None = None  # 3-D grids only
-    stencil: str = eqx.field(static=True, default="standard")  # `Grid.stencil`: "standard" | "isotropic"
+    stencil: StencilKind = eqx.field(static=True, default="standard")  # `Grid.stencil`: "standard" | "isotropic"
     uniform_faces: bool = eqx.field(static=True, default=True)  # one density, no obstacles (`speed_limit`)
 
     def conductance(self, axis: int):
@@ -496,7 +496,7 @@ def _uniform(v) -> bool:
 def speed_limit(lat: Lattice, kind: GridKind) -> float:
     """The largest stable lattice speed for these coefficients: `stability_limit(kind, stencil)`,
     except that the isotropic stencil with obstacles or a density contrast keeps the standard limit."""
-    return stability_limit(kind, lat.stencil if lat.uniform_faces else "standard")  # type: ignore[arg-type]
+    return stability_limit(kind, lat.stencil if lat.uniform_faces else "standard")
 
 
 def _check_speed(c, kind: GridKind = "2d", stencil: StencilKind = "standard", why: str = "") -> None:

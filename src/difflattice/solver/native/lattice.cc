@@ -23,6 +23,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
+#include <limits>
 #include <thread>
 #include <vector>
 #if defined(__x86_64__) || defined(_M_X64)
@@ -377,7 +378,10 @@ void row_stats(const CellOps<T>& c, int64_t i, int64_t s, const T* p) {
 //   kAdj:  out = (2 a + L(u)) - h,  u = K a      (the adjoint step; h = -g0, q rows are u rows)
 
 enum Combine : int { kFwd = 0, kD = 1, kAdj = 2 };
-enum Faces : int { kUnit = 0, kReg = 1, kVec = 2 };  // a row's face conductances along one axis
+// a row's face conductances along one axis; kMetric: the rz ring metric alone (y only), whose two
+// factors sum to 2 inside the row (A_(j+1) + A_j = 2 V_j), so the update keeps the unit stencil's
+// form with two multiplies: qn m_hi + qs m_lo - 2 q
+enum Faces : int { kUnit = 0, kReg = 1, kVec = 2, kMetric = 3 };
 
 template <typename T>
 struct RowIO {
@@ -435,12 +439,16 @@ static void row_kernel(const RowCtx<T>& c, const RowIO<T>& io, int64_t ny) {
   const T first = edge_cell<T, BX, KREG, CMB>(c, io, 0, T(0), q0[1], c.by_first_lo, c.by_first_hi);
   const T last = edge_cell<T, BX, KREG, CMB>(c, io, ny - 1, q0[ny - 2], T(0), c.by_last_lo, c.by_last_hi);
   constexpr bool UNIT = BX == kUnit && BY == kUnit;
+  constexpr bool RING = BX == kUnit && BY == kMetric;
 #pragma GCC ivdep
   for (int64_t j = 1; j < ny - 1; ++j) {
     const T q = q0[j], e = qp[j], w = qm[j], n = q0[j + 1], s = q0[j - 1];
     T l, sum;
     if constexpr (UNIT) {
       sum = ((e + w) + n) + s;
+      l = sum - T(4) * q;
+    } else if constexpr (RING) {
+      sum = ((e + w) + cyh[j] * n) + cyl[j] * s;
       l = sum - T(4) * q;
     } else {
       T tx, ty;
@@ -454,7 +462,7 @@ static void row_kernel(const RowCtx<T>& c, const RowIO<T>& io, int64_t ny) {
       sum = l;
     }
     if constexpr (CMB == kFwd) {
-      if constexpr (UNIT && KREG) out[j] = (c0 * q - pp0[j]) + k * sum;
+      if constexpr ((UNIT || RING) && KREG) out[j] = (c0 * q - pp0[j]) + k * sum;
       else out[j] = (T(2) * q - pp0[j]) + (KREG ? k : krow[j]) * l;
     } else if constexpr (CMB == kD) {
       out[j] = (KREG ? k : krow[j]) * l;
@@ -477,6 +485,7 @@ RowFn<T> pick_row(int bx, int by, bool kreg) {
   DL_CASE(kReg, kReg, true) DL_CASE(kVec, kVec, true) DL_CASE(kUnit, kVec, true) DL_CASE(kReg, kVec, true)
   DL_CASE(kUnit, kUnit, false) DL_CASE(kReg, kUnit, false) DL_CASE(kUnit, kReg, false)
   DL_CASE(kReg, kReg, false) DL_CASE(kVec, kVec, false) DL_CASE(kUnit, kVec, false) DL_CASE(kReg, kVec, false)
+  DL_CASE(kUnit, kMetric, true) DL_CASE(kUnit, kMetric, false)
 #undef DL_CASE
   return nullptr;
 }
@@ -539,6 +548,12 @@ bool plan_rows(const LeapfrogArgs<T>& a, int cmb, RowPlan<T>& plan) {
         plan.cy_hi[i * ny + j] = by.present() ? mh * by.at(i, j + 1) : mh;
       }
   }
+  // the ring form: the metric's interior factors sum to 2 (to rounding) in one shared row
+  bool ring_form = metric && !cy_rows && cmb == kFwd && ny > 2;
+  for (int64_t j = 1; ring_form && j < ny - 1; ++j) {
+    const T d = plan.cy_lo[j] + plan.cy_hi[j] - T(2);
+    ring_form = (d < T(0) ? -d : d) <= T(8) * std::numeric_limits<T>::epsilon();
+  }
   plan.fn.resize(nx);
   plan.ctx.resize(nx);
   const bool kreg = a.K.in_register();
@@ -587,6 +602,7 @@ bool plan_rows(const LeapfrogArgs<T>& a, int cmb, RowPlan<T>& plan) {
       c.by_last_hi = c.cyh[ny - 1];
     }
     if (bxm == kVec && bym != kVec) return false;  // (by was materialised above)
+    if (ring_form && bxm == kUnit && bym == kVec) bym = kMetric;
     RowFn<T> f = cmb == kAdj ? pick_row<T, kAdj>(bxm, bym, kreg)
                              : (cmb == kD ? pick_row<T, kD>(bxm, bym, kreg) : pick_row<T, kFwd>(bxm, bym, kreg));
     if (!f) return false;

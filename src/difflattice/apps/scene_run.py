@@ -151,18 +151,7 @@ def run_scene(scene: Scene, *, progress: bool = True) -> SceneRun:
     summary = {
         "difflattice_version": __version__,
         "scene": scene.path,
-        "grid": {
-            "shape": list(grid.shape),
-            "dx_m": grid.dx_m,
-            "dt_s": grid.dt_s,
-            "kind": grid.kind,
-            "size_m": list(grid.size_m),
-            "frequency_hz": grid.frequency_hz,
-            "cells_per_wavelength": grid.cells_per_wavelength,
-            "courant": grid.courant,
-            "steps_per_period": grid.steps_per_period,
-            "dtype": grid.dtype,
-        },
+        "grid": grid.describe(),
         "medium": {
             "boundary_model": medium.boundary_model,
             "homogeneous": medium.is_homogeneous,

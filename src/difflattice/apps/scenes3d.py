@@ -640,18 +640,7 @@ def run_scene3d(
     summary = {
         "difflattice_version": __version__,
         "scene": scene.path,
-        "grid": {
-            "shape": list(shape),
-            "dx_m": grid.dx_m,
-            "dt_s": grid.dt_s,
-            "kind": grid.kind,
-            "size_m": list(grid.size_m),
-            "frequency_hz": grid.frequency_hz,
-            "cells_per_wavelength": grid.cells_per_wavelength,
-            "courant": grid.courant,
-            "steps_per_period": grid.steps_per_period,
-            "dtype": grid.dtype,
-        },
+        "grid": grid.describe(),
         "medium": {
             "boundary_model": built.medium.boundary_model,
             "homogeneous": built.medium.is_homogeneous,

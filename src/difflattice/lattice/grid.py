@@ -160,6 +160,22 @@ class Grid(eqx.Module):
         if self.dtype not in ("float32", "float64"):
             raise ValueError(f"dtype must be 'float32' or 'float64', got {self.dtype!r}")
 
+    def describe(self) -> dict:
+        """The grid's scales as plain values (SI and lattice units), for a run's summary."""
+        return {
+            "shape": list(self.shape),
+            "dx_m": self.dx_m,
+            "dt_s": self.dt_s,
+            "kind": self.kind,
+            "stencil": self.stencil,
+            "size_m": list(self.size_m),
+            "frequency_hz": self.frequency_hz,
+            "cells_per_wavelength": self.cells_per_wavelength,
+            "courant": self.courant,
+            "steps_per_period": self.steps_per_period,
+            "dtype": self.dtype,
+        }
+
     @property
     def ndim(self) -> int:
         """Number of grid axes (2 for "2d" and "rz", 3 for "3d")."""

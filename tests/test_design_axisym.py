@@ -63,6 +63,31 @@ def test_rz_bare_disc_beam_is_the_pistons(horn):
     assert abs(width - exact) <= 1.0 + 0.06 * exact, (width, exact)
 
 
+def test_isotropic_stencil_bare_disc_beam_is_the_pistons():
+    """`stencil="isotropic"` reaches the design's grid (and keeps the standard limit: rigid walls)
+    and its bare disc has the piston's -6 dB width within the tolerance of the test above."""
+    pb = horn_design(
+        limits=HORN_LIMITS,
+        face_m=0.010,
+        cells_per_wavelength=CPW,
+        angle_step_deg=1.0,
+        wall="rigid",
+        lattice="rz",
+        range_m=0.5,
+        stencil="isotropic",
+    )
+    assert pb.grid.stencil == "isotropic"
+    a = np.asarray(pb.angles_deg)
+    p = np.abs(np.asarray(pb.pattern(None)))
+    lev = 20 * np.log10(p / p[a == 0.0][0])
+    k = 2 * math.pi * pb.grid.frequency_hz / 343.2
+    x6 = brentq(lambda x: 2 * j1(x) / x - 0.5, 1e-6, 3.0)
+    exact = 2 * math.degrees(math.asin(x6 / (k * 0.005)))
+    inside = a[(lev >= -6.0) & (np.abs(a) <= 90)]
+    width = inside.max() - inside.min()
+    assert abs(width - exact) <= 1.0 + 0.06 * exact, (width, exact)
+
+
 @pytest.mark.slow
 def test_rz_horn_metrics_finite_and_shape_gradient_matches_central_differences(horn):
     """An rz horn of revolution builds (a disc of rings, grid kind "rz"), its beam measures are

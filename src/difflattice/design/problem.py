@@ -7,7 +7,8 @@ checkpointed simulation -> contour phasors -> Kirchhoff-Helmholtz far field -> b
 differentiable end to end. The grid and contour are sized from the limits, so every admissible
 design fits inside the contour, away from the absorbing layer.
 
-Build problems with `horn_design` and `reflector_design`. With ``lattice="rz"`` they build the
+Build problems with `horn_design` and `reflector_design` (`stencil`: the grid's spatial stencil,
+`Grid.stencil`; rigid walls keep the standard stability limit). With ``lattice="rz"`` they build the
 axisymmetric counterpart (issue 12): the transducer is a transparent disc of the same diameter
 (soft ring sources, each ring weighted by its covered face fraction, as the 2-D line is a
 transparent soft line), the walls are bodies of revolution (the meridian-plane shape rasterised on
@@ -186,7 +187,7 @@ class DesignProblem(eqx.Module):
         return np.asarray(r.snapshots), np.asarray(r.snapshot_steps), np.asarray(r.p_max)
 
 
-def _grid(frequency_hz, cells_per_wavelength, wall, shape, dtype, kind="2d") -> Grid:
+def _grid(frequency_hz, cells_per_wavelength, wall, shape, dtype, kind="2d", stencil="standard") -> Grid:
     """A grid whose cell size resolves air at `cells_per_wavelength`, whatever the wall material."""
     c_air = air(20.0).speed_m_s
     c_max = c_air
@@ -202,6 +203,7 @@ def _grid(frequency_hz, cells_per_wavelength, wall, shape, dtype, kind="2d") -> 
         shape=shape,
         dtype=dtype,
         kind=kind,
+        stencil=stencil,
     )
 
 
@@ -305,6 +307,7 @@ def _layout(
     wall,
     dtype,
     lattice="2d",
+    stencil="standard",
 ):
     """Grid and contour around a transducer anchored `back` cells behind and `fwd` cells before
     the walls' reach, `half` cells either side (rz: `half` rings out from the axis); returns
@@ -314,14 +317,18 @@ def _layout(
         iz_s = iz0 + gap_cells + back
         iz1 = iz_s + fwd + gap_cells
         jr = half + gap_cells
-        grid = _grid(frequency_hz, cells_per_wavelength, wall, (iz1 + 3 + pml_cells, jr + 3 + pml_cells), dtype, "rz")
+        grid = _grid(
+            frequency_hz, cells_per_wavelength, wall, (iz1 + 3 + pml_cells, jr + 3 + pml_cells), dtype, "rz", stencil
+        )
         return grid, CylinderSurface(iz0, iz1, jr, False), (iz_s, 0)
     ix0 = iy0 = pml_cells + 3
     ix_s = ix0 + gap_cells + back
     ix1 = ix_s + fwd + gap_cells
     iy_s = iy0 + gap_cells + half
     iy1 = iy_s + half + gap_cells
-    grid = _grid(frequency_hz, cells_per_wavelength, wall, (ix1 + 3 + pml_cells, iy1 + 3 + pml_cells), dtype)
+    grid = _grid(
+        frequency_hz, cells_per_wavelength, wall, (ix1 + 3 + pml_cells, iy1 + 3 + pml_cells), dtype, "2d", stencil
+    )
     return grid, BoxContour(ix0, ix1, iy0, iy1), (ix_s, iy_s)
 
 
@@ -343,6 +350,7 @@ def horn_design(
     dtype: str = "float64",
     reference: bool = True,
     lattice: str = "2d",
+    stencil: str = "standard",
 ) -> DesignProblem:
     """A horn problem: a line transducer of diameter `face_m` facing +x at the throat of any horn
     within `limits` (``lattice="rz"``: a disc of diameter `face_m` facing +z in a horn of
@@ -367,7 +375,7 @@ def horn_design(
     fwd = int(math.ceil((limits.length_max_m + limits.wall_max_m) / dx)) + 1
     half = int(math.ceil((0.5 * limits.mouth_max_m + limits.wall_max_m) / dx)) + 1
     grid, contour, anchor = _layout(
-        back, fwd, half, gap_cells, pml_cells, frequency_hz, cells_per_wavelength, wall, dtype, lattice
+        back, fwd, half, gap_cells, pml_cells, frequency_hz, cells_per_wavelength, wall, dtype, lattice, stencil
     )
     return _finish(
         "horn",
@@ -409,6 +417,7 @@ def reflector_design(
     dtype: str = "float64",
     reference: bool = True,
     lattice: str = "2d",
+    stencil: str = "standard",
 ) -> DesignProblem:
     """A reflector problem: a line transducer of diameter `face_m` at the focus of a parabolic
     mirror opening towards +x, facing the vertex (as the paper's Fig. 10); ``lattice="rz"``: a disc
@@ -435,7 +444,7 @@ def reflector_design(
     fwd = max(int(math.ceil((rim + limits.wall_max_m) / dx)) + 1, 1)
     half = int(math.ceil((0.5 * max(limits.aperture_max_m, n_cells * dx) + limits.wall_max_m) / dx)) + 1
     grid, contour, anchor = _layout(
-        back, fwd, half, gap_cells, pml_cells, frequency_hz, cells_per_wavelength, wall, dtype, lattice
+        back, fwd, half, gap_cells, pml_cells, frequency_hz, cells_per_wavelength, wall, dtype, lattice, stencil
     )
     return _finish(
         "reflector",

@@ -71,14 +71,17 @@ def test_rz_scene_mismatches_are_refused(edit, match):
 
 
 def test_scene_file_chooses_the_isotropic_stencil():
-    """`[grid] stencil = "isotropic"`: the built lattice uses it and accepts a courant up to
-    sqrt(3)/2 in air; above it, or on a 3-D grid, the key is named in the refusal."""
+    """`[grid] stencil = "isotropic"` (the default on rz grids): the built lattice uses it and
+    accepts a courant up to sqrt(3)/2 in air; above it, or on a 3-D grid, the key is named in the
+    refusal; `stencil = "standard"` chooses the paper's."""
     from difflattice.lattice.coefficients import build_lattice
 
     built = parse_scene(_data(stencil="isotropic", courant=0.85), "iso").build()
     assert built.grid.stencil == "isotropic"
     assert build_lattice(built.grid, built.medium, built.edges).stencil == "isotropic"
-    std = parse_scene(_data(), "std").build()
+    default = parse_scene(_data(), "default").build()  # rz scenes default to the isotropic stencil
+    assert build_lattice(default.grid, default.medium, default.edges).stencil == "isotropic"
+    std = parse_scene(_data(stencil="standard"), "std").build()
     assert build_lattice(std.grid, std.medium, std.edges).stencil == "standard"
     with pytest.raises(SceneError, match=r"grid\.courant.*sqrt\(3\)/2"):
         parse_scene(_data(stencil="isotropic", courant=0.87), "iso").build()

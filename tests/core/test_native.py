@@ -379,6 +379,7 @@ def test_adjoint_step_mode_is_the_transposed_operator():
         levels=np.int64(1),
         bands=np.int64(0),
         combine=np.int64(2),
+        stencil=np.int64(0),
         eta=0.0,
         threshold=0.0,
     )
@@ -404,3 +405,87 @@ def test_bench_refuses_a_busy_machine_and_computes_ratios(monkeypatch):
     ratios = {r["ratio"]: r["value"] for r in bench._ratios(rows)}
     assert ratios["native/numba-1thread"] == 1.5
     assert ratios["full/homogeneous (native)"] == 0.3
+
+
+def _iso_scene(kind, dtype):
+    """(grid, medium, sources, sensors, edges) of isotropic-stencil scenes on uniform faces."""
+    g = make_grid(
+        frequency_hz=50e3,
+        cells_per_wavelength=10,
+        c_max_m_s=343.0,
+        shape=SHAPE,
+        dtype=dtype,
+        kind="rz" if kind.startswith("rz") else "2d",
+        stencil="isotropic",
+    )
+    src = PointSources(
+        cells=[(10, j) for j in range(6)] + [(20, 30)],
+        signal=ToneBurst(50e3, 2),
+        weights=jnp.linspace(0.7, 1.3, 7),
+        lags_s=jnp.zeros(7),
+    )
+    if kind == "rz rigid":
+        return g, Medium(343.0, 1.2), src, SENS, Edges.axisymmetric("rigid", "rigid", "rigid")
+    if kind == "rz soft+sponge":
+        return g, Medium(343.0, 1.2), src, SENS, Edges.axisymmetric("soft", "sponge", "soft", thickness_cells=6)
+    if kind == "rz pml":
+        return g, Medium(343.0, 1.2), src, SENS, Edges.axisymmetric("rigid", "pml", "pml", thickness_cells=6)
+    if kind == "2d pml+absorbing":
+        return (
+            g,
+            Medium(343.0, 1.2, absorption_db_per_m=3.0),
+            src,
+            SENS,
+            Edges(x_lo="soft", y_lo="rigid", thickness_cells=6),
+        )
+    if kind == "2d mixed":  # rigid and soft window sides, viscous absorption
+        medium = Medium(343.0, 1.2, absorption_db_per_m=3.0)
+        return g, medium, src, SENS, Edges(x_lo="soft", x_hi="rigid", y_lo="rigid", y_hi="soft")
+    raise AssertionError(kind)
+
+
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+@pytest.mark.parametrize("kind", ["rz rigid", "rz soft+sponge", "rz pml", "2d mixed", "2d pml+absorbing"])
+def test_isotropic_stencil_native_equals_jax(kind, dtype):
+    """The isotropic (9-point) stencil on uniform faces runs natively and equals the XLA loop to
+    the rounding tolerance of `_compare` (the filter adds ~12 operations per cell to the 16 budgeted,
+    so the same n_steps * 16 * eps * peak bound, the differences adding linearly)."""
+    g, medium, src, sens, edges = _iso_scene(kind, dtype)
+    assert native.why_not(Stepper.build(g, medium, src, sens, edges)) is None
+    ref = simulate(g, medium, src, sens, n_steps=N, edges=edges, backend="jax", checkpoint=10)
+    got = simulate(g, medium, src, sens, n_steps=N, edges=edges, backend="native", checkpoint=10)
+    _compare(ref, got, dtype)
+
+
+def test_isotropic_stencil_threads_and_blocking_do_not_change_results(monkeypatch):
+    g, medium, src, sens, edges = _iso_scene("rz rigid", "float32")
+    st = Stepper.build(g, medium, src, sens, edges)
+    out = []
+    g, medium, src, sens, pml_edges = _iso_scene("rz pml", "float32")
+    st_pml = Stepper.build(g, medium, src, sens, pml_edges)
+    for stepper in (st, st_pml):
+        out = []
+        for threads, levels in ((1, 1), (3, 5), (2, 64)):
+            monkeypatch.setenv("DIFFLATTICE_NATIVE_THREADS", str(threads))
+            monkeypatch.setenv("DIFFLATTICE_NATIVE_LEVELS", str(levels))
+            out.append(np.asarray(run(stepper, N, backend="native").final.pressure))
+        assert all(np.array_equal(out[0], o) for o in out[1:])
+
+
+def test_isotropic_stencil_declined_natively_where_not_implemented():
+    """Obstacles keep the isotropic stencil on the XLA loop: `backend="native"` refuses with the
+    reason, `auto` runs the JAX loop."""
+    _, _, src, sens, _ = _iso_scene("rz rigid", "float32")
+    g2 = make_grid(
+        frequency_hz=50e3,
+        cells_per_wavelength=10,
+        c_max_m_s=343.0,
+        shape=SHAPE,
+        dtype="float32",
+        stencil="isotropic",
+        courant=0.7,
+    )
+    obst = Stepper.build(g2, Medium(343.0, 1.2, rigid=(X > 42).astype(jnp.float64)), src, sens, Edges.all("rigid"))
+    assert "face-conductance arrays" in (native.why_not(obst) or "")
+    with pytest.raises(ValueError, match="isotropic stencil"):
+        run(obst, 10, backend="native")

@@ -152,6 +152,8 @@ CASES = [
     ("loss", patched(solver={"loss": '"l1"'}), "[solver.loss]"),
     ("weights family", patched(model={"weights": '"gaussian"'}), "[model.weights]"),
     ("disc-only profile on a line", patched(model={"weights": '"rim_taper"'}), "[model.weights]"),
+    ("disc-only stencil on a line", patched(model={"stencil": '"isotropic"'}), "[model.stencil]"),
+    ("unknown stencil", patched(model={"stencil": '"nine_point"'}), "[model.stencil]"),
     ("model family", patched(model={"model": '"cone"'}), "[model.model]"),
     (
         "second resolution equal",

@@ -147,7 +147,7 @@ def run_scene(scene: Scene, *, progress: bool = True) -> SceneRun:
     nx, ny = grid.shape
     dist_cells = min(grid.courant * n_steps, math.hypot(nx, ny))
     dist_wl = dist_cells / grid.cells_per_wavelength
-    perr = phase_error_rad(grid.cells_per_wavelength, grid.courant, dist_wl)
+    perr = phase_error_rad(grid.cells_per_wavelength, grid.courant, dist_wl, stencil=grid.stencil)
     summary = {
         "difflattice_version": __version__,
         "scene": scene.path,

@@ -224,6 +224,17 @@ class ModelSection(Section):
         doc='baffle = "can": wall thickness of the housing around the modelled face (line_length_m across)',
         fix="give the wall thickness in metres, >= 0",
     )
+    stencil: str = setting(
+        "standard",
+        kind="str",
+        choices=("standard", "isotropic"),
+        doc="model = \"disc\": the r-z lattice's stencil for the ring transfers: standard (the paper's 5-point "
+        "stencil) or isotropic (9-point Mehrstellen: near-field extrema in place on the lattice itself). The "
+        "transfers carry the field from a surface one cell round the disc with the exact wavenumber, so the "
+        "lattice's dispersion hardly enters; measured on the 38.4 mm piston at 20 cells per wavelength the "
+        "standard stencil fits as well (chi2_red 0.44 against 0.94, same diameter to 0.0002 mm)",
+        fix='use "standard" (default) or "isotropic"',
+    )
 
 
 @dataclass(frozen=True)
@@ -378,6 +389,12 @@ class FitConfig:
                 "model.baffle",
                 f'= {show(m.baffle)} (with can_depth_m / can_wall_m) is for model = "disc" only: the line model '
                 'is a line of cells in free space; fix: remove them or use model = "disc"',
+            )
+        if m.model != "disc" and m.stencil != "standard":
+            raise self.error(
+                "model.stencil",
+                f'= {show(m.stencil)} is for model = "disc" only: the line model\'s transfers run the standard '
+                'stencil; fix: remove stencil or set model = "disc"',
             )
         if m.baffle == "can" and m.can_depth_m is None:
             raise self.error(
@@ -929,6 +946,7 @@ def _fit_disc(cfg: FitConfig, lobe, wave, f: float, c: float, ppw: float, opts, 
             baffle=m.baffle,
             can_depth_m=m.can_depth_m,
             can_wall_m=m.can_wall_m,
+            stencil=cast(Any, m.stencil),  # checked against the choices by the declaration
         )
     except ValueError as e:
         raise cfg.error("model", str(e)) from None

@@ -36,7 +36,7 @@ import numpy as np
 from .disc import AxisLayout, DiscSpec, ring_edges
 
 if TYPE_CHECKING:
-    from ..lattice.grid import Grid
+    from ..lattice.grid import Grid, StencilKind
 
 
 @dataclass
@@ -276,6 +276,7 @@ def disc_transfer(
     baffle: Literal["rigid", "none", "can"] = "rigid",
     can_depth_m: float | None = None,
     can_wall_m: float = 0.0,
+    stencil: StencilKind = "standard",
 ) -> DiscTransfer:
     """Transfer matrices of a disc of `n_rings` ring cells on the axisymmetric lattice at
     `cells_per_wavelength`: one simulated response per ring (a 4-cycle burst driving the ring's
@@ -346,6 +347,7 @@ def disc_transfer(
         shape=(nz, nr),
         dtype=dtype,
         kind="rz",
+        stencil=stencil,
     )
     cells = [surface_cells(surf, surface_order)]
     sampler = None
@@ -418,6 +420,8 @@ def disc_transfer(
         "can_depth_m": layout.depth_m if baffle == "can" else None,
         "can_wall_m": can_wall_m if baffle == "can" else None,
         "face_row": zf,
+        "stencil": stencil,
+        "courant": grid.courant,
     }
     return DiscTransfer(
         grid=grid, n_cells=n_rings, ring_edges_m=ring_edges(n_rings, dx, "face"), lobe=lobe, wave=wave, info=info
@@ -457,6 +461,7 @@ def disc_field_figure(fitted, transfer: DiscTransfer, path):
         shape=(nz, nr),
         dtype="float32",
         kind="rz",
+        stencil=g0.stencil,
     )
     ph = fitted.physical
     z_face = back * grid.dx_m
@@ -532,6 +537,7 @@ def disc_setup(
     baffle: str = "rigid",
     can_depth_m: float | None = None,
     can_wall_m: float = 0.0,
+    stencil: StencilKind = "standard",
 ) -> DiscSetup:
     """The disc model of a transducer face `face_diameter_m` across (the modelled disc: the fitted
     diameter lies inside it) for the data `lobe` / `wave` (`fit.data.LobeData` / `WaveData`;
@@ -557,6 +563,7 @@ def disc_setup(
             baffle=cast(Any, baffle),
             can_depth_m=can_depth_m,
             can_wall_m=can_wall_m,
+            stencil=stencil,
         )
 
     n = n_rings(cells_per_wavelength)

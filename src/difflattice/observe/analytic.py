@@ -45,10 +45,12 @@ def phase_velocity_error(
     return (omega / k) / courant - 1.0
 
 
-def phase_error_rad(cells_per_wavelength: float, courant: float, distance_wavelengths: float) -> float:
+def phase_error_rad(
+    cells_per_wavelength: float, courant: float, distance_wavelengths: float, stencil: str = "standard"
+) -> float:
     """Worst-direction phase error in radians accumulated over a distance (in wavelengths)."""
     thetas = np.linspace(0, math.pi / 4, 46)
-    err = np.abs(phase_velocity_error(cells_per_wavelength, courant, thetas)).max()
+    err = np.abs(phase_velocity_error(cells_per_wavelength, courant, thetas, stencil=stencil)).max()
     return float(2 * math.pi * distance_wavelengths * err / (1 + err))
 
 

@@ -22,7 +22,7 @@ import numpy as np
 if TYPE_CHECKING:
     from ..lattice.coefficients import Edges
     from ..lattice.geometry3d import Shape3D
-    from ..lattice.grid import Grid
+    from ..lattice.grid import Grid, StencilKind
     from ..lattice.medium import Material, Medium
     from ..observe.farfield import BoxContour
     from ..observe.farfield_rz import CylinderSurface
@@ -565,7 +565,8 @@ def _make_grid(scene: Scene, mats: list[Material]) -> Grid:
             _fail(p, f"grid.{key}", f"= {list(g[key])}: a {kind} grid needs {ndim} entries")
     default = DEFAULT_COURANT_3D if kind == "3d" else PAPER_COURANT
     courant = default if g["courant"] is None else float(g["courant"])
-    stencil = g["stencil"]
+    # rz scenes (discs, horns, dishes) default to the isotropic stencil: the near field in place
+    stencil: StencilKind = g["stencil"] or ("isotropic" if kind == "rz" else "standard")
     if stencil == "isotropic" and kind == "3d":
         _fail(p, "grid.stencil", '= "isotropic" is implemented for 2d and rz grids: use stencil = "standard" in 3d')
     limit = stability_limit(kind, stencil)

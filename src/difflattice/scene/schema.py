@@ -57,13 +57,14 @@ class GridSection(Section):
         "0.577 in 3d, at most 1/sqrt(3) = 0.5774)",
     )
     dtype: str = setting("float32", kind="str", doc="float32 or float64")
-    stencil: str = setting(
-        "standard",
+    stencil: str | None = setting(
+        None,
         kind="str",
         choices=("standard", "isotropic"),
         doc="spatial stencil: standard (the paper's 5-point) or isotropic (2d and rz: the 9-point form whose "
-        "phase speed is the same in every direction; courant up to sqrt(3)/2 = 0.866 for one density without "
-        "obstacles, else up to 1/sqrt(2))",
+        "phase speed is the same in every direction, so a disc's near-field maxima and minima sit in place; "
+        "courant up to sqrt(3)/2 = 0.866 for one density without obstacles, else up to 1/sqrt(2)). Default: "
+        "isotropic on rz grids (the transducer lattice), standard on 2d (the paper's) and 3d grids",
     )
 
 

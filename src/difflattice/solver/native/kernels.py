@@ -43,7 +43,7 @@ KNOWN_LATTICE_FIELDS = frozenset(
         "eta",
         "ghosts",
         "mur",
-        "stencil",  # the isotropic one is declined by name below
+        "stencil",  # the isotropic one: leapfrog on uniform faces only (declined by name below)
         "uniform_faces",  # a stability-limit fact, no term
     }
 )
@@ -108,7 +108,11 @@ def unsupported(stepper: Stepper, state: State | None, sharding) -> str | None:
     if any(lat.mur):
         return "Mur edges"
     if lat.stencil != "standard":
-        return "the isotropic stencil (the kernels run the standard 5-point stencil)"
+        if not lat.uniform_faces or lat.bx is not None or lat.by is not None:
+            return "the isotropic stencil with face-conductance arrays (obstacles, a speed or density map: native runs it in air only)"
+        m = getattr(lat, "metric", None)
+        if m is not None and not all(jnp.shape(v)[:-1] in ((), (1,)) for v in (m.lo, m.hi)):
+            return "the isotropic stencil with an rz metric that varies along z"
     rad = None if lat.pml is None else getattr(lat.pml, "radial", None)
     if rad is not None and not (hasattr(rad, "decay") and hasattr(rad, "drive")):
         return "an rz r_hi PML correction the kernels do not implement"
@@ -312,7 +316,14 @@ class _Chunk:
                 [field, field, rec_shape, *stat_shapes],
                 input_output_aliases={0: 0, 1: 1, 18: 3, 19: 4, 20: 5, 21: 6, 22: 7},
                 vmap_method="sequential",
-            )(*args, n_steps=np.int64(length), combine=np.int64(0), bands=self.bands, **self.attrs)
+            )(
+                *args,
+                n_steps=np.int64(length),
+                combine=np.int64(0),
+                stencil=np.int64(self.stepper.lattice.stencil == "isotropic"),
+                bands=self.bands,
+                **self.attrs,
+            )
             p, p_prev, rec, *stats_out = out
             st = eqx.tree_at(lambda s: (s.p, s.p_prev), st, (p, p_prev))
         else:
@@ -349,7 +360,12 @@ class _Chunk:
                 [*shapes, rec_shape, *stat_shapes, jax.ShapeDtypeStruct(c_r.shape, c_r.dtype)],
                 input_output_aliases={0: 0, 1: 1, 2: 2, 3: 3, 4: 4, 23: 5, 28: 7, 29: 8, 30: 9, 31: 10, 32: 11, 34: 12},
                 vmap_method="sequential",
-            )(*args, n_steps=np.int64(length), **self.attrs)
+            )(
+                *args,
+                n_steps=np.int64(length),
+                stencil=np.int64(self.stepper.lattice.stencil == "isotropic"),
+                **self.attrs,
+            )
             px, py, wx, wy, p_prev, acc, rec, *stats_out, c_r = out
             has_acc, has_prev, new_acc = bool(st.src_acc), st.p_prev is not None, self._acc_out(st, acc)
             if st.c_r is not None:

@@ -7,6 +7,9 @@
 //   (`q_scale`) and viscous (`eta`) terms; `combine = 2` runs the adjoint step instead.
 // - `difflattice_staggered`: the split-field PML form (face fluxes wx, wy; pressure parts px, py).
 //
+// Both run the standard 5-point stencil, and the isotropic 9-point one (attribute `stencil` = 1)
+// on uniform faces (air: the window's 0/1 masks and the rz metric; `row_iso`, `face_x_iso`).
+//
 // Both apply the sources, record probes, phasors and whole-field statistics inside the loop, in
 // the order of the JAX stepper. Coefficient arrays are inputs of any layout that broadcasts to
 // the grid (a scalar, one value per row, one vector for all rows, or a full array), so a lattice
@@ -400,6 +403,8 @@ struct RowCtx {  // a row's coefficients (planned once per call)
   T by;                    // kReg: both y faces of every cell of the row
   const T *cyl, *cyh;      // kVec: the low and high y face of each cell (ny each)
   T by_first_lo, by_first_hi, by_last_lo, by_last_hi;  // y faces of the cells j = 0 and ny - 1
+  const T *rl, *rh;        // isotropic stencil: weights of the filter across the x faces (ny each)
+  T am, ap;                // isotropic stencil: 1 where the row has a low / high neighbour, else 0
 };
 
 // an edge cell (its outer neighbour zero), in the reference form
@@ -474,6 +479,77 @@ static void row_kernel(const RowCtx<T>& c, const RowIO<T>& io, int64_t ny) {
   out[ny - 1] = last;
 }
 
+
+// The isotropic stencil (operators._across_faces) on uniform faces (one density, no obstacles:
+// face conductances are the window's 0/1 masks and the rz metric). Each face difference is
+// averaged across its face by [1, 10, 1] / 12; as the filters are linear and the x faces'
+// conductances are one value per row, the row reads
+//   L = S(D) + cyh (P_(j+1) - P_j) - cyl (P_j - P_(j-1)),
+//   D = bxhi (qp - q0) - bxlo (q0 - qm)                  (the x second difference),
+//   S(v)_j = v_j + (rh_j (v_(j+1) - v_j) - rl_j (v_j - v_(j-1))) / 12   (filter across x faces:
+//            rh, rl the ring areas (j + 1, j) / (j + 1/2) on an rz grid, 1 on a plane one, 0 past
+//            the window's ends: a mirror),
+//   P = q0 + (ap (qp - q0) - am (q0 - qm)) / 12           (filter across y faces; am, ap = 0 at
+//            the window's first / last row),
+// two passes over a row: D and P into per-thread scratch, then the update (~22 flops a cell).
+template <typename T, bool KREG, int CMB, bool FAST>
+static void row_iso(const RowCtx<T>& c, const RowIO<T>& io, int64_t ny) {
+  thread_local std::vector<T> scratch;
+  if (int64_t(scratch.size()) < 2 * ny + 4) scratch.assign(2 * ny + 4, T(0));
+  T* __restrict D = scratch.data() + 1;       // D[-1] = D[ny] = 0 (never written)
+  T* __restrict P = scratch.data() + ny + 3;  // P[-1] = P[ny] = 0 (FAST: E = q0 + D / 6)
+  const T* __restrict qm = io.qm;
+  const T* __restrict q0 = io.q0;
+  const T* __restrict qp = io.qp;
+  const T* pp0 = io.pp0;
+  T* out = io.out;
+  const T* __restrict krow = c.krow;
+  const T* __restrict cyl = c.cyl;
+  const T* __restrict cyh = c.cyh;
+  const T* __restrict rl = c.rl;
+  const T* __restrict rh = c.rh;
+  const T k = c.k, bxl = c.bxlo, bxh = c.bxhi, am = c.am, ap = c.ap;
+  constexpr T w = T(1.0 / 12.0);
+  auto put = [&](int64_t j, T l) {
+    if constexpr (CMB == kFwd) out[j] = (T(2) * q0[j] - pp0[j]) + (KREG ? k : krow[j]) * l;
+    else out[j] = (KREG ? k : krow[j]) * l;
+  };
+  if constexpr (FAST) {
+    // an inner row with unit x faces: P = q0 + D / 12 and, inside the row (where the y
+    // conductances are the filter's weights, which sum to 2), S(D) + L_y(P) = D + L_y(q0 + D / 6):
+    // the Mehrstellen form, one ring-form y stencil
+#pragma GCC ivdep
+    for (int64_t j = 0; j < ny; ++j) {
+      const T x0 = q0[j];
+      const T d = (qp[j] + qm[j]) - T(2) * x0;
+      D[j] = d;
+      P[j] = x0 + d * T(1.0 / 6.0);
+    }
+#pragma GCC ivdep
+    for (int64_t j = 1; j < ny - 1; ++j) put(j, D[j] + ((rh[j] * P[j + 1] + rl[j] * P[j - 1]) - T(2) * P[j]));
+    // the row's two end cells in the general form (P = q0 + D / 12 there)
+    for (int64_t j : {int64_t(0), ny - 1}) {
+      if (j > 0 && ny == 1) break;
+      const T d = D[j], p = q0[j] + d * w;
+      const T pn = j + 1 < ny ? q0[j + 1] + D[j + 1] * w : T(0);
+      const T ps = j > 0 ? q0[j - 1] + D[j - 1] * w : T(0);
+      put(j, (d + (rh[j] * (D[j + 1] - d) - rl[j] * (d - D[j - 1])) * w) + (cyh[j] * (pn - p) - cyl[j] * (p - ps)));
+    }
+  } else {
+#pragma GCC ivdep
+    for (int64_t j = 0; j < ny; ++j) {
+      const T x0 = q0[j], up = qp[j] - x0, dn = x0 - qm[j];
+      D[j] = bxh * up - bxl * dn;
+      P[j] = x0 + (ap * up - am * dn) * w;
+    }
+#pragma GCC ivdep
+    for (int64_t j = 0; j < ny; ++j) {
+      const T d = D[j], p = P[j];
+      put(j, (d + (rh[j] * (D[j + 1] - d) - rl[j] * (d - D[j - 1])) * w) + (cyh[j] * (P[j + 1] - p) - cyl[j] * (p - P[j - 1])));
+    }
+  }
+}
+
 template <typename T>
 using RowFn = void (*)(const RowCtx<T>&, const RowIO<T>&, int64_t);
 
@@ -495,6 +571,7 @@ struct LeapfrogArgs {
   int64_t nx, ny, n_steps;
   int n_threads, levels;
   bool bands;   // row bands with a barrier per step instead of the pipeline (no q buffering)
+  bool iso;     // the isotropic stencil (uniform faces only: 0/1 window masks and the rz metric)
   int combine;  // kFwd (plain or with extras) or kAdj
   T* p;         // P(t) in, the latest field out
   T* pp;        // P(t-1) in, the previous field out
@@ -511,7 +588,58 @@ struct RowPlan {
   std::vector<RowCtx<T>> ctx;        // coefficient fields only
   std::vector<T> bx_full, by_full;  // both axes as full arrays where one is and the other not
   std::vector<T> cy_lo, cy_hi;      // metric x conductance per cell face (a row, or the grid)
+  std::vector<T> r_lo, r_hi;        // isotropic stencil: the filter's weights across x faces
 };
+
+// the isotropic stencil's plan: x faces one value per row (window masks), y faces and the rz
+// metric one shared row of factors; anything else is declined (false)
+template <typename T>
+bool plan_iso(const LeapfrogArgs<T>& a, int cmb, RowPlan<T>& plan) {
+  const int64_t nx = a.nx, ny = a.ny;
+  const bool metric = a.my_lo.present();
+  if (cmb == kAdj) return false;
+  if (a.bx.present() && !a.bx.in_register()) return false;
+  if (a.by.present() && a.by.mode != kScalar && a.by.mode != kPerCol) return false;
+  if (metric && (a.my_lo.mode == kFull || a.my_lo.mode == kPerRow || a.my_hi.mode == kFull || a.my_hi.mode == kPerRow))
+    return false;
+  plan.cy_lo.assign(ny, T(0));
+  plan.cy_hi.assign(ny, T(0));
+  plan.r_lo.assign(ny, T(0));
+  plan.r_hi.assign(ny, T(0));
+  for (int64_t j = 0; j < ny; ++j) {
+    const T ml = metric ? a.my_lo.at(0, j) : T(1), mh = metric ? a.my_hi.at(0, j) : T(1);
+    plan.cy_lo[j] = a.by.present() ? ml * a.by.at(0, j) : ml;
+    plan.cy_hi[j] = a.by.present() ? mh * a.by.at(0, j + 1) : mh;
+    // the ring boundaries' areas j + 1 (between rings j and j + 1) over the ring's area j + 1/2
+    plan.r_lo[j] = j == 0 ? T(0) : (metric ? T(double(j) / (double(j) + 0.5)) : T(1));
+    plan.r_hi[j] = j + 1 == ny ? T(0) : (metric ? T((double(j) + 1.0) / (double(j) + 0.5)) : T(1));
+  }
+  plan.fn.resize(nx);
+  plan.ctx.resize(nx);
+  const bool kreg = a.K.in_register();
+  for (int64_t i = 0; i < nx; ++i) {
+    RowCtx<T>& c = plan.ctx[i];
+    c = RowCtx<T>{};
+    if (kreg) c.k = a.K.value(i);
+    else c.krow = a.K.row(i);
+    c.bxlo = a.bx.present() ? a.bx.value(i) : T(1);
+    c.bxhi = a.bx.present() ? (a.bx.mode == kScalar ? c.bxlo : a.bx.value(i + 1)) : T(1);
+    c.cyl = plan.cy_lo.data();
+    c.cyh = plan.cy_hi.data();
+    c.rl = plan.r_lo.data();
+    c.rh = plan.r_hi.data();
+    c.am = i > 0 ? T(1) : T(0);
+    c.ap = i + 1 < nx ? T(1) : T(0);
+    // inner rows with unit x faces take the Mehrstellen form (the y weights are the filter's
+    // inside a row: the rz metric, or 1 on a plane grid, whose y masks only close the end faces)
+    const bool fast = c.am == T(1) && c.ap == T(1) && c.bxlo == T(1) && c.bxhi == T(1);
+#define DL_ISO(K_, C_) (fast ? &row_iso<T, K_, C_, true> : &row_iso<T, K_, C_, false>)
+    if (cmb == kFwd) plan.fn[i] = kreg ? DL_ISO(true, kFwd) : DL_ISO(false, kFwd);
+    else plan.fn[i] = kreg ? DL_ISO(true, kD) : DL_ISO(false, kD);
+#undef DL_ISO
+  }
+  return true;
+}
 
 template <typename T>
 Coef<T> materialise(const Coef<T>& c, int64_t rows, int64_t cols, std::vector<T>& dst) {
@@ -624,7 +752,7 @@ bool leapfrog(const LeapfrogArgs<T>& a) {
   const int cmb = adj_scalar ? kFwd : (adj ? kAdj : (extras ? kD : kFwd));
   const bool qbuf = (adj && !adj_scalar) || a.qs.present() || a.eta != 0.0;  // q rows computed
   RowPlan<T> plan;
-  if (!plan_rows(a, cmb, plan)) return false;
+  if (!(a.iso ? plan_iso(a, cmb, plan) : plan_rows(a, cmb, plan))) return false;
   const T eta1 = T(1.0 + a.eta), eta = T(a.eta);
   T* buf[2] = {a.p, a.pp};  // step L lives in buf[L % 2] (step 0 = P(t) in buf[0])
 
@@ -782,6 +910,7 @@ struct StaggeredArgs {
   const T *rad_decay = nullptr, *rad_drive = nullptr;
   int64_t w = 0;
   double eta;
+  bool iso = false;  // the isotropic stencil (uniform faces: x masks per row, y masks per column)
   CellOps<T> cells;
 };
 
@@ -935,36 +1064,101 @@ bool staggered(const StaggeredArgs<T>& a) {
     }
   };
 
+  // The isotropic stencil (operators._across_faces, uniform faces): a face's difference averaged
+  // across the face by [1, 10, 1] / 12. x faces: S(hi - lo), S the filter along the row (rz: ring
+  // areas (j + 1, j) / (j + 1/2); a mirror past the row's ends); y faces of row i: the differences
+  // of P = q_i + (ap (q_(i+1) - q_i) - am (q_i - q_(i-1))) / 12 (am, ap = 0 at the first / last
+  // row), so this step reads q rows i - 1, i, i + 1 (a ring of three per level).
+  std::vector<T> r_lo(ny, T(0)), r_hi(ny, T(0));
+  const bool ring_w = a.my_lo.present();
+  for (int64_t j = 0; j < ny; ++j) {
+    r_lo[j] = j == 0 ? T(0) : (ring_w ? T(double(j) / (double(j) + 0.5)) : T(1));
+    r_hi[j] = j + 1 == ny ? T(0) : (ring_w ? T((double(j) + 1.0) / (double(j) + 0.5)) : T(1));
+  }
+  // x face f, isotropic: w = A w + B (b_f S(hi - lo)) with the difference row d in scratch
+  auto face_x_iso = [&](int64_t f, const T* __restrict lo, const T* __restrict hi, T* __restrict d) {
+    T* __restrict w = a.wx + f * ny;
+    const T* __restrict rl = r_lo.data();
+    const T* __restrict rh = r_hi.data();
+    constexpr T w12 = T(1.0 / 12.0);
+    const T bb = a.bx.present() ? a.bx.at(f, 0) : T(1);  // uniform faces: the window's mask
+    d[-1] = T(0);
+    d[ny] = T(0);
+#pragma GCC ivdep
+    for (int64_t j = 0; j < ny; ++j) d[j] = hi[j] - lo[j];
+    if (x_one_face(f)) {
+#pragma GCC ivdep
+      for (int64_t j = 0; j < ny; ++j) {
+        const T g = d[j];
+        w[j] = w[j] + bb * (g + (rh[j] * (d[j + 1] - g) - rl[j] * (g - d[j - 1])) * w12);
+      }
+    } else {
+      const T A = a.axf.present() ? a.axf.at(f, 0) : T(1), B = a.bxf.present() ? a.bxf.at(f, 0) : T(1);
+#pragma GCC ivdep
+      for (int64_t j = 0; j < ny; ++j) {
+        const T g = d[j];
+        w[j] = A * w[j] + B * (bb * (g + (rh[j] * (d[j + 1] - g) - rl[j] * (g - d[j - 1])) * w12));
+      }
+    }
+  };
+
   struct Level {
-    std::vector<T> ring, row, old;  // q rows i, i + 1; p = px + py of a row (statistics); old faces
-    T* q[2] = {nullptr, nullptr};
+    std::vector<T> ring, row, old;  // q rows i, i + 1 (isotropic: i - 1 too); p = px + py of a row; old faces
+    std::vector<T> d, f;            // isotropic: a face difference row, its filtered row
+    T* q[3] = {nullptr, nullptr, nullptr};
   };
   const std::vector<T> zero(ny, T(0));
   auto make_worker = [&](int) {
     std::vector<Level> lv(levels);
     for (auto& l : lv) {
-      l.ring.assign(2 * ny, T(0));
+      l.ring.assign(3 * ny, T(0));
       if (stats) l.row.assign(ny, T(0));
       l.old.assign(a.w + 1, T(0));
+      if (a.iso) {
+        l.d.assign(ny + 2, T(0));
+        l.f.assign(ny, T(0));
+      }
     }
     return [&, lv = std::move(lv), R = Scratch()](int l, int64_t L, int64_t i) mutable {
       Level& S = lv[l];
+      // x face f from q rows lo, hi (isotropic: the filtered difference as hi, zero as lo)
+      auto x_face = [&](int64_t f, const T* lo, const T* hi) {
+        if (a.iso) face_x_iso(f, lo, hi, S.d.data() + 1);
+        else face_x(R, f, lo, hi);
+      };
       if (i == 0) {
         S.q[0] = S.ring.data();
         S.q[1] = S.ring.data() + ny;
+        S.q[2] = S.ring.data() + 2 * ny;  // row i - 1 (zero before the first row)
+        std::fill(S.q[2], S.q[2] + ny, T(0));
         q_of(R, 0, S.q[0]);
-        face_x(R, 0, zero.data(), S.q[0]);
+        x_face(0, zero.data(), S.q[0]);
       } else {
-        std::swap(S.q[0], S.q[1]);
+        T* t = S.q[2];
+        S.q[2] = S.q[0];
+        S.q[0] = S.q[1];
+        S.q[1] = t;
       }
       const T* q0 = S.q[0];
       if (i + 1 < nx) {
         q_of(R, i + 1, S.q[1]);
-        face_x(R, i + 1, q0, S.q[1]);
+        x_face(i + 1, q0, S.q[1]);
       } else {
-        face_x(R, nx, q0, zero.data());
+        std::fill(S.q[1], S.q[1] + ny, T(0));
+        x_face(nx, q0, zero.data());
       }
-      faces_y(R, i, q0, S.old.data());
+      if (a.iso) {  // the y faces from P (row i filtered across the y faces)
+        const T* qm = S.q[2];
+        const T* qp = S.q[1];
+        const T am = i > 0 ? T(1) : T(0), ap = i + 1 < nx ? T(1) : T(0);
+        constexpr T w12 = T(1.0 / 12.0);
+        T* P = S.f.data();
+#pragma GCC ivdep
+        for (int64_t j = 0; j < ny; ++j) P[j] = q0[j] + (ap * (qp[j] - q0[j]) - am * (q0[j] - qm[j])) * w12;
+        faces_y(R, i, P, S.old.data());
+      } else {
+        faces_y(R, i, q0, S.old.data());
+      }
       if (has_eta) {  // P(n - 1) of this row for the next step, before px, py change
         T* pr = a.p_prev + i * ny;
         const T* x = a.px + i * ny;
@@ -1049,7 +1243,7 @@ ffi::Error leapfrog_typed(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K,
                           ffi::Result<ffi::AnyBuffer> ph_im_o, ffi::Result<ffi::AnyBuffer> p_max_o,
                           ffi::Result<ffi::AnyBuffer> p_sq_o, ffi::Result<ffi::AnyBuffer> arrival_o,
                           int64_t n_steps, int64_t threads, int64_t levels, int64_t bands, int64_t combine,
-                          double eta, double threshold) {
+                          int64_t stencil, double eta, double threshold) {
   auto dims = p.dimensions();
   if (dims.size() != 2) return ffi::Error::InvalidArgument("difflattice_leapfrog: the field must be 2-D");
   const int64_t nx = dims[0], ny = dims[1];
@@ -1061,6 +1255,7 @@ ffi::Error leapfrog_typed(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K,
   a.levels = int(levels);
   a.bands = bands != 0;
   a.combine = int(combine);
+  a.iso = stencil == 1;
   bool ok = true;
   a.K = dl::make_coef<T>(K, nx, ny, &ok);
   a.bx = dl::make_coef<T>(bx, nx + 1, ny, &ok);
@@ -1100,11 +1295,11 @@ ffi::Error leapfrog_impl(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K, 
                          ffi::Result<ffi::AnyBuffer> ph_im_o, ffi::Result<ffi::AnyBuffer> p_max_o,
                          ffi::Result<ffi::AnyBuffer> p_sq_o, ffi::Result<ffi::AnyBuffer> arrival_o,
                          int64_t n_steps, int64_t threads, int64_t levels, int64_t bands, int64_t combine,
-                         double eta, double threshold) {
+                         int64_t stencil, double eta, double threshold) {
 #define DL_ARGS                                                                                                 \
   p, pp, K, bx, by, qs, keep, sponge, my_lo, my_hi, src_cells, src_hard, src_vals, rec_cells, zero_cells, ph_cells, ph_cos, \
       ph_sin, ph_re, ph_im, p_max, p_sq, arrival, n0, p_o, pp_o, rec_o, ph_re_o, ph_im_o, p_max_o, p_sq_o,     \
-      arrival_o, n_steps, threads, levels, bands, combine, eta, threshold
+      arrival_o, n_steps, threads, levels, bands, combine, stencil, eta, threshold
   switch (p.element_type()) {
     case ffi::DataType::F32:
       return leapfrog_typed<float>(DL_ARGS);
@@ -1134,7 +1329,7 @@ ffi::Error staggered_typed(ffi::AnyBuffer px, ffi::AnyBuffer py, ffi::AnyBuffer 
                            ffi::Result<ffi::AnyBuffer> ph_re_o, ffi::Result<ffi::AnyBuffer> ph_im_o,
                            ffi::Result<ffi::AnyBuffer> p_max_o, ffi::Result<ffi::AnyBuffer> p_sq_o,
                            ffi::Result<ffi::AnyBuffer> arrival_o, ffi::Result<ffi::AnyBuffer> c_r_o,
-                           int64_t n_steps, int64_t threads, int64_t levels,
+                           int64_t n_steps, int64_t threads, int64_t levels, int64_t stencil,
                            double eta, double threshold) {
   auto dims = px.dimensions();
   if (dims.size() != 2) return ffi::Error::InvalidArgument("difflattice_staggered: the field must be 2-D");
@@ -1181,6 +1376,7 @@ ffi::Error staggered_typed(ffi::AnyBuffer px, ffi::AnyBuffer py, ffi::AnyBuffer 
                 out_from<T>(p_sq_o, p_sq), out_from<int32_t>(arrival_o, arrival), n0, threshold);
   a.cells.src_acc = out_from<T>(src_acc_o, src_acc);
   a.w = int64_t(rad_decay.element_count());
+  a.iso = stencil == 1;
   if (a.w) {
     if (a.w > ny || int64_t(rad_drive.element_count()) != a.w || int64_t(c_r.element_count()) != nx * a.w)
       return ffi::Error::InvalidArgument("difflattice_staggered: radial PML arrays of inconsistent sizes");
@@ -1209,12 +1405,12 @@ ffi::Error staggered_impl(ffi::AnyBuffer px, ffi::AnyBuffer py, ffi::AnyBuffer w
                           ffi::Result<ffi::AnyBuffer> ph_im_o, ffi::Result<ffi::AnyBuffer> p_max_o,
                           ffi::Result<ffi::AnyBuffer> p_sq_o, ffi::Result<ffi::AnyBuffer> arrival_o,
                           ffi::Result<ffi::AnyBuffer> c_r_o, int64_t n_steps,
-                          int64_t threads, int64_t levels, double eta, double threshold) {
+                          int64_t threads, int64_t levels, int64_t stencil, double eta, double threshold) {
 #define DL_ARGS                                                                                                  \
   px, py, wx, wy, p_prev, K, bx, by, qs, keep, my_lo, my_hi, axc, bxc, axf, bxf, ayc, byc, ayf, byf, src_cells, src_hard,    \
       src_vals, src_acc, rec_cells, ph_cells, ph_cos, ph_sin, ph_re, ph_im, p_max, p_sq, arrival, n0, c_r,        \
       rad_decay, rad_drive, px_o, py_o, wx_o, wy_o, p_prev_o, src_acc_o, rec_o, ph_re_o, ph_im_o, p_max_o, p_sq_o, \
-      arrival_o, c_r_o, n_steps, threads, levels, eta, threshold
+      arrival_o, c_r_o, n_steps, threads, levels, stencil, eta, threshold
   switch (px.element_type()) {
     case ffi::DataType::F32:
       return staggered_typed<float>(DL_ARGS);
@@ -1248,6 +1444,7 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(DifflatticeLeapfrog, leapfrog_impl,
                                   .Attr<int64_t>("levels")
                                   .Attr<int64_t>("bands")
                                   .Attr<int64_t>("combine")
+                                  .Attr<int64_t>("stencil")
                                   .Attr<double>("eta")
                                   .Attr<double>("threshold"));
 
@@ -1264,5 +1461,6 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(DifflatticeStaggered, staggered_impl,
                                   .Attr<int64_t>("n_steps")
                                   .Attr<int64_t>("threads")
                                   .Attr<int64_t>("levels")
+                                  .Attr<int64_t>("stencil")
                                   .Attr<double>("eta")
                                   .Attr<double>("threshold"));

@@ -11,7 +11,7 @@ from difflattice.apps.validation import discrete_energy
 from difflattice.lattice import Edges
 from difflattice.lattice.grid import MAX_COURANT, make_grid
 from difflattice.lattice.medium import Medium
-from difflattice.solver import Stepper, check_result, run, simulate
+from difflattice.solver import Stepper, check_finite, check_result, check_speed, run, simulate
 from difflattice.solver.sensors import Sensors
 from difflattice.solver.sources import PointSources, ToneBurst
 
@@ -113,6 +113,32 @@ def test_traced_speed_above_limit_is_refused_at_run_time():
     # ValueError carrying our message); at an eqx.filter_jit boundary as EquinoxRuntimeError
     with pytest.raises((eqx.EquinoxRuntimeError, ValueError), match="stability limit"):
         f(jnp.float32(400.0)).block_until_ready()
+
+
+def test_eager_simulate_checks_outside_the_program_so_it_is_persistently_cacheable():
+    """An eager `simulate` runs a program without host callbacks (JAX never writes a program with
+    one, e.g. `eqx.error_if`'s, to the persistent compilation cache, so every new process compiled
+    the whole run again) and checks the speed map and the result in Python: the same errors."""
+    from difflattice.solver.loop import _simulate
+
+    grid = make_grid(frequency_hz=50e3, cells_per_wavelength=10, c_max_m_s=343.0, shape=(20, 20))
+    src = PointSources(
+        cells=[(10, 10)], signal=ToneBurst(50e3, 2), weights=jnp.ones(1, jnp.float32), lags_s=jnp.zeros(1, jnp.float32)
+    )
+    med = Medium(343.0 * jnp.ones((20, 20), jnp.float32), 1.2)  # a speed map: checked at run time
+    st = Stepper.build(grid, med, src, edges=Edges.all("rigid"))
+    eager = _simulate.lower(st, 5, None, None, None, "autodiff", False, "jax", speed_check=False).as_text()
+    checked = _simulate.lower(st, 5, None, None, None, "autodiff", True, "jax").as_text()
+    assert "callback" not in eager and "callback" in checked  # the test can fail: the checked program has one
+    # the eager checks: a non-finite run (K 1.3x: c = 1.14 x 0.707 cells/step) and a speed map above the limit
+    unstable = eqx.tree_at(lambda s: s.lattice.K, st, 1.3 * st.lattice.K)
+    with pytest.raises(eqx.EquinoxRuntimeError, match="non-finite pressure"):
+        check_finite(run(unstable, 3000).peak_history)
+    fast = eqx.tree_at(lambda s: s.lattice.c, st, 0.8 * jnp.ones((20, 20), jnp.float32))
+    with pytest.raises(eqx.EquinoxRuntimeError, match="stability limit"):
+        check_speed(fast)
+    r = simulate(grid, med, src, Sensors(probes=[(12, 10)]), n_steps=40, edges=Edges.all("rigid"))
+    assert np.all(np.isfinite(np.asarray(r.probes))) and float(np.max(np.abs(np.asarray(r.probes)))) > 0
 
 
 @pytest.mark.parametrize("model", ["conservative", "speed_zero", "paper"])

@@ -313,7 +313,7 @@ def disc_transfer(
     from ..lattice.grid import make_grid
     from ..lattice.medium import Medium
     from ..observe.farfield_rz import field_at_rz, scan_line
-    from ..solver.loop import simulate
+    from ..solver.loop import check_finite, simulate
     from ..solver.sensors import Sensors
     from ..solver.sources import ToneBurst, disc_housing, disc_transducer
 
@@ -369,13 +369,21 @@ def disc_transfer(
         src = disc_transducer(
             grid, radius_m=n_rings * dx, z_m=z_face, n_rings=n_rings, weights=w, signal=sig, baffle=baffle
         )
-        return simulate(grid, medium, src, sensors, n_steps=n_steps, edges=edges).phasors
+        # checked for instability after the batch (check_finite): a program without eqx.error_if's
+        # host callback goes to the persistent compilation cache
+        r = simulate(grid, medium, src, sensors, n_steps=n_steps, edges=edges, throw=False)
+        return r.phasors, r.peak_history
 
     run = jax.jit(jax.vmap(one))
     eye = np.eye(n_rings)
     b = n_rings if batch is None else max(1, int(batch))
     t0 = time.perf_counter()
-    ph = np.concatenate([np.asarray(run(jnp.asarray(eye[s : s + b], grid.jnp_dtype))) for s in range(0, n_rings, b)])
+    parts = []
+    for s in range(0, n_rings, b):
+        ph_s, peaks = run(jnp.asarray(eye[s : s + b], grid.jnp_dtype))
+        check_finite(peaks)
+        parts.append(np.asarray(ph_s))
+    ph = np.concatenate(parts)
     sim_s = time.perf_counter() - t0
     ph = ph / _source_spectrum(sig, grid.dt_s, grid.omega, n_steps)
     pairs = jnp.asarray(surface_pairs(ph[:, :m_surf], surface_order))

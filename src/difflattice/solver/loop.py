@@ -314,7 +314,35 @@ def simulate(
         from .estimate import preflight as _preflight
 
         _preflight(stepper, n_steps, checkpoint=checkpoint, show=preflight == "print")
-    return _simulate(stepper, n_steps, checkpoint, unroll, sharding, adjoint, throw, backend)
+    traced = any(isinstance(v, jax.core.Tracer) for v in jax.tree_util.tree_leaves(stepper))
+    if traced:  # inside the caller's jit / vmap / grad: the checks run in the program (eqx.error_if)
+        return _simulate(stepper, n_steps, checkpoint, unroll, sharding, adjoint, throw, backend)
+    # called eagerly: the same checks in Python around the program, which then has no host
+    # callback and so goes to the persistent compilation cache (a program with eqx.error_if's
+    # callback never does: each new process compiled the whole run again)
+    check_speed(stepper)
+    result = _simulate(stepper, n_steps, checkpoint, unroll, sharding, adjoint, False, backend, speed_check=False)
+    if throw:
+        check_finite(result.peak_history)
+    return result
+
+
+def check_speed(stepper: Stepper) -> None:
+    """Raise `eqx.EquinoxRuntimeError` (the type `eqx.error_if` raises) with `SPEED_MESSAGE` if a
+    concrete speed map exceeds the stability limit (eagerly: `simulate`'s out-of-program check)."""
+    lat = stepper.lattice
+    if jnp.ndim(lat.c) != 0:
+        limit = speed_limit(lat, stepper.grid.kind)
+        if float(jnp.max(lat.c)) > limit * (1 + 1e-6):
+            raise eqx.EquinoxRuntimeError(SPEED_MESSAGE_3D if stepper.grid.kind == "3d" else SPEED_MESSAGE)
+
+
+def check_finite(peak_history) -> None:
+    """Raise `eqx.EquinoxRuntimeError` with `INSTABILITY_MESSAGE` if a run's peak history (concrete)
+    is not finite: the eager counterpart of `check_result`, for programs kept free of host
+    callbacks (persistently cacheable), e.g. a vmapped batch of runs checked after it returns."""
+    if not np.all(np.isfinite(np.asarray(peak_history))):
+        raise eqx.EquinoxRuntimeError(INSTABILITY_MESSAGE)
 
 
 @eqx.filter_jit
@@ -327,9 +355,10 @@ def _simulate(
     adjoint,
     throw: bool,
     backend: Literal["auto", "jax", "native"] = "auto",
+    speed_check: bool = True,
 ) -> Result:
     lat = stepper.lattice
-    if jnp.ndim(lat.c) != 0 or isinstance(lat.c, jax.core.Tracer):
+    if speed_check and (jnp.ndim(lat.c) != 0 or isinstance(lat.c, jax.core.Tracer)):
         # speeds may be traced (e.g. fitted): check the stability limit at run time
         limit = speed_limit(lat, stepper.grid.kind)
         msg = SPEED_MESSAGE_3D if stepper.grid.kind == "3d" else SPEED_MESSAGE

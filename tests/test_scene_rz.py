@@ -79,8 +79,12 @@ def test_scene_file_chooses_the_isotropic_stencil():
     built = parse_scene(_data(stencil="isotropic", courant=0.85), "iso").build()
     assert built.grid.stencil == "isotropic"
     assert build_lattice(built.grid, built.medium, built.edges).stencil == "isotropic"
-    default = parse_scene(_data(), "default").build()  # rz scenes default to the isotropic stencil
+    default = parse_scene(_data(), "default").build()  # rz scenes in air default to the isotropic stencil
     assert build_lattice(default.grid, default.medium, default.edges).stencil == "isotropic"
+    housed = _data()  # a bare disc (a rigid housing: not uniform faces) keeps the standard one
+    housed["transducers"][0].update(baffle="none", centre_m=[0.02, 0.0])
+    housed["edges"]["z_lo"] = "pml"
+    assert parse_scene(housed, "housed").build().grid.stencil == "standard"
     std = parse_scene(_data(stencil="standard"), "std").build()
     assert build_lattice(std.grid, std.medium, std.edges).stencil == "standard"
     with pytest.raises(SceneError, match=r"grid\.courant.*sqrt\(3\)/2"):

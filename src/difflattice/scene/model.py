@@ -565,8 +565,13 @@ def _make_grid(scene: Scene, mats: list[Material]) -> Grid:
             _fail(p, f"grid.{key}", f"= {list(g[key])}: a {kind} grid needs {ndim} entries")
     default = DEFAULT_COURANT_3D if kind == "3d" else PAPER_COURANT
     courant = default if g["courant"] is None else float(g["courant"])
-    # rz scenes (discs, horns, dishes) default to the isotropic stencil: the near field in place
-    stencil: StencilKind = g["stencil"] or ("isotropic" if kind == "rz" else "standard")
+    # rz scenes in air (no objects, no housing, one fluid) default to the isotropic stencil: the
+    # near field in place, on the native kernels; with obstacles the standard one (the native
+    # kernels run the isotropic stencil on uniform faces only)
+    in_air = not scene.objects and all(
+        t.get("type") != "disc" or t.get("baffle", "rigid") == "rigid" for t in scene.transducers
+    )
+    stencil: StencilKind = g["stencil"] or ("isotropic" if kind == "rz" and in_air else "standard")
     if stencil == "isotropic" and kind == "3d":
         _fail(p, "grid.stencil", '= "isotropic" is implemented for 2d and rz grids: use stencil = "standard" in 3d')
     limit = stability_limit(kind, stencil)

@@ -64,7 +64,8 @@ class GridSection(Section):
         doc="spatial stencil: standard (the paper's 5-point) or isotropic (2d and rz: the 9-point form whose "
         "phase speed is the same in every direction, so a disc's near-field maxima and minima sit in place; "
         "courant up to sqrt(3)/2 = 0.866 for one density without obstacles, else up to 1/sqrt(2)). Default: "
-        "isotropic on rz grids (the transducer lattice), standard on 2d (the paper's) and 3d grids",
+        "isotropic on rz grids in air (no objects, discs in a rigid baffle: the native kernels run it there), "
+        "standard otherwise (2d: the paper's; 3d)",
     )
 
 

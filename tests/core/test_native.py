@@ -438,6 +438,23 @@ def _iso_scene(kind, dtype):
             SENS,
             Edges(x_lo="soft", y_lo="rigid", thickness_cells=6),
         )
+    rigid = ((X > 30) & (X < 35) & (jnp.arange(40.0)[None, :] > 5) & (jnp.arange(40.0)[None, :] < 25)).astype(
+        jnp.float64
+    )
+    heavy = jnp.where(X > 38, 2.0, 1.2)
+    if kind == "rz obstacle+density":  # face-conductance arrays (cut cells, a density step)
+        return g, Medium(343.0, heavy, rigid=rigid), src, SENS, Edges.axisymmetric("rigid", "rigid", "soft")
+    if kind == "rz obstacle+pml":
+        return (
+            g,
+            Medium(343.0, heavy, rigid=rigid),
+            src,
+            SENS,
+            Edges.axisymmetric("rigid", "pml", "pml", thickness_cells=6),
+        )
+    if kind == "2d obstacle+speed map+pml":
+        medium = Medium(jnp.where(X < 8, 300.0, 343.0), heavy, rigid=rigid)
+        return g, medium, src, SENS, Edges(x_lo="soft", y_lo="rigid", thickness_cells=6)
     if kind == "2d mixed":  # rigid and soft window sides, viscous absorption
         medium = Medium(343.0, 1.2, absorption_db_per_m=3.0)
         return g, medium, src, SENS, Edges(x_lo="soft", x_hi="rigid", y_lo="rigid", y_hi="soft")
@@ -445,11 +462,24 @@ def _iso_scene(kind, dtype):
 
 
 @pytest.mark.parametrize("dtype", ["float32", "float64"])
-@pytest.mark.parametrize("kind", ["rz rigid", "rz soft+sponge", "rz pml", "2d mixed", "2d pml+absorbing"])
+@pytest.mark.parametrize(
+    "kind",
+    [
+        "rz rigid",
+        "rz soft+sponge",
+        "rz pml",
+        "rz obstacle+density",
+        "rz obstacle+pml",
+        "2d mixed",
+        "2d pml+absorbing",
+        "2d obstacle+speed map+pml",
+    ],
+)
 def test_isotropic_stencil_native_equals_jax(kind, dtype):
-    """The isotropic (9-point) stencil on uniform faces runs natively and equals the XLA loop to
-    the rounding tolerance of `_compare` (the filter adds ~12 operations per cell to the 16 budgeted,
-    so the same n_steps * 16 * eps * peak bound, the differences adding linearly)."""
+    """The isotropic (9-point) stencil runs natively, in air (the Mehrstellen row form, filtered
+    PML face differences) and with face-conductance arrays (obstacles, density and speed maps:
+    the filter's min(b_j, b_k) edge weights), and equals the XLA loop to the rounding tolerance of
+    `_compare` (n_steps * 16 * eps * peak; the differences add linearly)."""
     g, medium, src, sens, edges = _iso_scene(kind, dtype)
     assert native.why_not(Stepper.build(g, medium, src, sens, edges)) is None
     ref = simulate(g, medium, src, sens, n_steps=N, edges=edges, backend="jax", checkpoint=10)
@@ -470,22 +500,3 @@ def test_isotropic_stencil_threads_and_blocking_do_not_change_results(monkeypatc
             monkeypatch.setenv("DIFFLATTICE_NATIVE_LEVELS", str(levels))
             out.append(np.asarray(run(stepper, N, backend="native").final.pressure))
         assert all(np.array_equal(out[0], o) for o in out[1:])
-
-
-def test_isotropic_stencil_declined_natively_where_not_implemented():
-    """Obstacles keep the isotropic stencil on the XLA loop: `backend="native"` refuses with the
-    reason, `auto` runs the JAX loop."""
-    _, _, src, sens, _ = _iso_scene("rz rigid", "float32")
-    g2 = make_grid(
-        frequency_hz=50e3,
-        cells_per_wavelength=10,
-        c_max_m_s=343.0,
-        shape=SHAPE,
-        dtype="float32",
-        stencil="isotropic",
-        courant=0.7,
-    )
-    obst = Stepper.build(g2, Medium(343.0, 1.2, rigid=(X > 42).astype(jnp.float64)), src, sens, Edges.all("rigid"))
-    assert "face-conductance arrays" in (native.why_not(obst) or "")
-    with pytest.raises(ValueError, match="isotropic stencil"):
-        run(obst, 10, backend="native")

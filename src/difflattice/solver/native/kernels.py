@@ -108,8 +108,6 @@ def unsupported(stepper: Stepper, state: State | None, sharding) -> str | None:
     if any(lat.mur):
         return "Mur edges"
     if lat.stencil != "standard":
-        if not lat.uniform_faces or lat.bx is not None or lat.by is not None:
-            return "the isotropic stencil with face-conductance arrays (obstacles, a speed or density map: native runs it in air only)"
         m = getattr(lat, "metric", None)
         if m is not None and not all(jnp.shape(v)[:-1] in ((), (1,)) for v in (m.lo, m.hi)):
             return "the isotropic stencil with an rz metric that varies along z"

@@ -405,6 +405,8 @@ struct RowCtx {  // a row's coefficients (planned once per call)
   T by_first_lo, by_first_hi, by_last_lo, by_last_hi;  // y faces of the cells j = 0 and ny - 1
   const T *rl, *rh;        // isotropic stencil: weights of the filter across the x faces (ny each)
   T am, ap;                // isotropic stencil: 1 where the row has a low / high neighbour, else 0
+  const T *bym, *by0, *byp;  // isotropic stencil, face arrays: y faces of rows i - 1, i, i + 1
+  const T* inva;             // isotropic stencil, face arrays: 1 / (ring area) per column
 };
 
 // an edge cell (its outer neighbour zero), in the reference form
@@ -550,6 +552,80 @@ static void row_iso(const RowCtx<T>& c, const RowIO<T>& io, int64_t ny) {
   }
 }
 
+
+// The isotropic stencil with face-conductance arrays (obstacles, a density or speed map):
+// operators._across_faces as written, M g = b g + T / 12 with the edge weights min(b_j, b_k)
+// (times the ring boundary's area on an rz grid's x faces): x faces i and i + 1 from the q rows
+// and the bx rows, y faces of row i from q rows i - 1, i, i + 1 and their by rows.
+template <typename T, bool KREG, int CMB>
+static void row_iso_faces(const RowCtx<T>& c, const RowIO<T>& io, int64_t ny) {
+  thread_local std::vector<T> scratch;
+  const int64_t n1 = ny + 1;
+  if (int64_t(scratch.size()) < 9 * n1 + 8) scratch.assign(9 * n1 + 8, T(0));
+  T* zl = scratch.data();
+  T* zh = zl + n1;
+  T* g = zh + n1;
+  T* e = g + n1;          // edge values between columns j and j + 1 (ny - 1)
+  T* yf = e + n1;         // ny + 1 y-face values
+  T* gm = yf + n1;        // y-face differences of rows i - 1, i, i + 1 (ny + 1 each)
+  T* g0 = gm + n1;
+  T* gp = g0 + n1;
+  const T* __restrict qm = io.qm;
+  const T* __restrict q0 = io.q0;
+  const T* __restrict qp = io.qp;
+  const T* pp0 = io.pp0;
+  T* out = io.out;
+  const T* __restrict rl = c.rl;
+  const T* __restrict rh = c.rh;
+  const T* __restrict inva = c.inva;
+  constexpr T w = T(1.0 / 12.0);
+  // x face between rows lo and hi with conductances b (ny values)
+  auto xface = [&](const T* __restrict lo, const T* __restrict hi, const T* __restrict b, T* __restrict dst) {
+#pragma GCC ivdep
+    for (int64_t j = 0; j < ny; ++j) g[j] = hi[j] - lo[j];
+#pragma GCC ivdep
+    for (int64_t j = 0; j + 1 < ny; ++j) {
+      const T lo_b = b[j] < b[j + 1] ? b[j] : b[j + 1];
+      e[j] = (g[j + 1] - g[j]) * lo_b * rh[j];  // rh: the boundary's weight (j + 1 on a ring grid)
+    }
+    dst[0] = b[0] * g[0] + (ny > 1 ? e[0] : T(0)) * inva[0] * w;
+#pragma GCC ivdep
+    for (int64_t j = 1; j + 1 < ny; ++j) dst[j] = b[j] * g[j] + (e[j] - e[j - 1]) * inva[j] * w;
+    if (ny > 1) dst[ny - 1] = b[ny - 1] * g[ny - 1] - e[ny - 2] * inva[ny - 1] * w;
+  };
+  xface(qm, q0, c.bxlo_r, zl);
+  xface(q0, qp, c.bxhi_r, zh);
+  auto diffs = [&](const T* __restrict q, T* __restrict d) {
+    d[0] = q[0];
+#pragma GCC ivdep
+    for (int64_t f = 1; f < ny; ++f) d[f] = q[f] - q[f - 1];
+    d[ny] = -q[ny - 1];
+  };
+  diffs(qm, gm);
+  diffs(q0, g0);
+  diffs(qp, gp);
+  const T* __restrict bm = c.bym;
+  const T* __restrict b0 = c.by0;
+  const T* __restrict bp = c.byp;
+  const T am = c.am, ap = c.ap;
+#pragma GCC ivdep
+  for (int64_t f = 0; f <= ny; ++f) {
+    const T x = g0[f], bb = b0[f];
+    const T mp = bb < bp[f] ? bb : bp[f], mm = bm[f] < bb ? bm[f] : bb;
+    yf[f] = bb * x + (ap * (gp[f] - x) * mp - am * (x - gm[f]) * mm) * w;
+  }
+  (void)rl;
+  const T* __restrict cyl = c.cyl;
+  const T* __restrict cyh = c.cyh;
+  const T* __restrict krow = c.krow;
+#pragma GCC ivdep
+  for (int64_t j = 0; j < ny; ++j) {
+    const T l = (zh[j] - zl[j]) + (cyh[j] * yf[j + 1] - cyl[j] * yf[j]);
+    if constexpr (CMB == kFwd) out[j] = (T(2) * q0[j] - pp0[j]) + (KREG ? c.k : krow[j]) * l;
+    else out[j] = (KREG ? c.k : krow[j]) * l;
+  }
+}
+
 template <typename T>
 using RowFn = void (*)(const RowCtx<T>&, const RowIO<T>&, int64_t);
 
@@ -589,7 +665,60 @@ struct RowPlan {
   std::vector<T> bx_full, by_full;  // both axes as full arrays where one is and the other not
   std::vector<T> cy_lo, cy_hi;      // metric x conductance per cell face (a row, or the grid)
   std::vector<T> r_lo, r_hi;        // isotropic stencil: the filter's weights across x faces
+  std::vector<T> inva, m_lo, m_hi;  // isotropic stencil with face arrays: 1 / ring area, the metric
 };
+
+
+template <typename T>
+Coef<T> materialise(const Coef<T>& c, int64_t rows, int64_t cols, std::vector<T>& dst);
+
+// the isotropic stencil with face arrays: bx and by as full arrays, the metric and the filter's
+// weights one row each
+template <typename T>
+bool plan_iso_faces(const LeapfrogArgs<T>& a, int cmb, RowPlan<T>& plan) {
+  const int64_t nx = a.nx, ny = a.ny;
+  const bool metric = a.my_lo.present();
+  const Coef<T> bx = materialise(a.bx, nx + 1, ny, plan.bx_full);
+  const Coef<T> by = materialise(a.by, nx, ny + 1, plan.by_full);
+  plan.m_lo.assign(ny, T(1));
+  plan.m_hi.assign(ny, T(1));
+  plan.r_lo.assign(ny, T(1));
+  plan.r_hi.assign(ny, T(1));
+  plan.inva.assign(ny, T(1));
+  for (int64_t j = 0; j < ny; ++j) {
+    if (metric) {
+      plan.m_lo[j] = a.my_lo.at(0, j);
+      plan.m_hi[j] = a.my_hi.at(0, j);
+      plan.r_lo[j] = T(double(j));  // the ring boundaries' areas j and j + 1, the ring's j + 1/2
+      plan.r_hi[j] = T(double(j) + 1.0);
+      plan.inva[j] = T(1.0 / (double(j) + 0.5));
+    }
+  }
+  plan.fn.resize(nx);
+  plan.ctx.resize(nx);
+  const bool kreg = a.K.in_register();
+  for (int64_t i = 0; i < nx; ++i) {
+    RowCtx<T>& c = plan.ctx[i];
+    c = RowCtx<T>{};
+    if (kreg) c.k = a.K.value(i);
+    else c.krow = a.K.row(i);
+    c.bxlo_r = bx.row(i);
+    c.bxhi_r = bx.row(i + 1);
+    c.by0 = by.row(i);
+    c.bym = i > 0 ? by.row(i - 1) : c.by0;
+    c.byp = i + 1 < nx ? by.row(i + 1) : c.by0;
+    c.cyl = plan.m_lo.data();
+    c.cyh = plan.m_hi.data();
+    c.rl = plan.r_lo.data();
+    c.rh = plan.r_hi.data();
+    c.inva = plan.inva.data();
+    c.am = i > 0 ? T(1) : T(0);
+    c.ap = i + 1 < nx ? T(1) : T(0);
+    if (cmb == kFwd) plan.fn[i] = kreg ? &row_iso_faces<T, true, kFwd> : &row_iso_faces<T, false, kFwd>;
+    else plan.fn[i] = kreg ? &row_iso_faces<T, true, kD> : &row_iso_faces<T, false, kD>;
+  }
+  return true;
+}
 
 // the isotropic stencil's plan: x faces one value per row (window masks), y faces and the rz
 // metric one shared row of factors; anything else is declined (false)
@@ -598,10 +727,11 @@ bool plan_iso(const LeapfrogArgs<T>& a, int cmb, RowPlan<T>& plan) {
   const int64_t nx = a.nx, ny = a.ny;
   const bool metric = a.my_lo.present();
   if (cmb == kAdj) return false;
-  if (a.bx.present() && !a.bx.in_register()) return false;
-  if (a.by.present() && a.by.mode != kScalar && a.by.mode != kPerCol) return false;
   if (metric && (a.my_lo.mode == kFull || a.my_lo.mode == kPerRow || a.my_hi.mode == kFull || a.my_hi.mode == kPerRow))
     return false;
+  const bool faces = (a.bx.present() && !a.bx.in_register()) ||
+                     (a.by.present() && a.by.mode != kScalar && a.by.mode != kPerCol);
+  if (faces) return plan_iso_faces(a, cmb, plan);
   plan.cy_lo.assign(ny, T(0));
   plan.cy_hi.assign(ny, T(0));
   plan.r_lo.assign(ny, T(0));
@@ -1102,9 +1232,82 @@ bool staggered(const StaggeredArgs<T>& a) {
     }
   };
 
+  // face arrays (obstacles, a density or speed map): operators._across_faces as written, the
+  // edge weights min(b_j, b_k) (times the ring boundary's area j + 1 over the ring's j + 1/2 on an
+  // rz grid's x faces)
+  const bool iso_faces = a.iso && ((a.bx.present() && !a.bx.in_register()) ||
+                                   (a.by.present() && a.by.mode != kScalar && a.by.mode != kPerCol));
+  std::vector<T> e_lo(ny, T(1)), e_hi(ny, T(1)), inva(ny, T(1));
+  for (int64_t j = 0; ring_w && j < ny; ++j) {
+    e_lo[j] = T(double(j));
+    e_hi[j] = T(double(j) + 1.0);
+    inva[j] = T(1.0 / (double(j) + 0.5));
+  }
+  auto face_x_faces = [&](Scratch& R, int64_t f, const T* __restrict lo, const T* __restrict hi, T* __restrict d,
+                          T* __restrict e) {
+    T* __restrict w = a.wx + f * ny;
+    const T* __restrict bb = a.bx.present() ? R.bx.get(a.bx, f, ny) : ones.data();
+    constexpr T w12 = T(1.0 / 12.0);
+    const T A = a.axf.present() ? a.axf.at(f, 0) : T(1), B = a.bxf.present() ? a.bxf.at(f, 0) : T(1);
+    const T* __restrict eh = e_hi.data();
+    const T* __restrict ia = inva.data();
+#pragma GCC ivdep
+    for (int64_t j = 0; j < ny; ++j) d[j] = hi[j] - lo[j];
+    // e[j]: the edge between columns j - 1 and j (e[0] = e[ny] = 0: the window's ends)
+    e[0] = T(0);
+    e[ny] = T(0);
+#pragma GCC ivdep
+    for (int64_t j = 1; j < ny; ++j) {
+      const T m = bb[j - 1] < bb[j] ? bb[j - 1] : bb[j];
+      e[j] = (d[j] - d[j - 1]) * m * eh[j - 1];
+    }
+#pragma GCC ivdep
+    for (int64_t j = 0; j < ny; ++j) w[j] = A * w[j] + B * (bb[j] * d[j] + (e[j + 1] - e[j]) * ia[j] * w12);
+  };
+  // the ny + 1 y faces of row i from q rows i - 1, i, i + 1 and their by rows (by as a full
+  // array; `y` scratch of 3 (ny + 1))
+  std::vector<T> by_full;
+  if (iso_faces) materialise(a.by, nx, ny + 1, by_full);
+  auto faces_y_faces = [&](int64_t i, const T* qm, const T* q0, const T* qp, T* old, T* y) {
+    T* __restrict w = a.wy + i * (ny + 1);
+    if (a.w) std::copy(w + ny - a.w, w + ny + 1, old);
+    constexpr T w12 = T(1.0 / 12.0);
+    const int64_t n1 = ny + 1;
+    T* __restrict gm = y;
+    T* __restrict g0 = y + n1;
+    T* __restrict gp = y + 2 * n1;
+    auto diffs = [&](const T* __restrict q, T* __restrict d) {
+      d[0] = q[0];
+#pragma GCC ivdep
+      for (int64_t f = 1; f < ny; ++f) d[f] = q[f] - q[f - 1];
+      d[ny] = -q[ny - 1];
+    };
+    diffs(qm, gm);
+    diffs(q0, g0);
+    diffs(qp, gp);
+    const T* __restrict b0 = by_full.data() + i * n1;
+    const T* __restrict bm = i > 0 ? b0 - n1 : b0;
+    const T* __restrict bp = i + 1 < nx ? b0 + n1 : b0;
+    const T am = i > 0 ? T(1) : T(0), ap = i + 1 < nx ? T(1) : T(0);
+#pragma GCC ivdep
+    for (int64_t f = 0; f <= ny; ++f) {
+      const T x = g0[f], bb = b0[f];
+      const T mp = bb < bp[f] ? bb : bp[f], mm = bm[f] < bb ? bm[f] : bb;
+      w[f] = ayf[f] * w[f] + byf[f] * (bb * x + (ap * (gp[f] - x) * mp - am * (x - gm[f]) * mm) * w12);
+    }
+    if (a.w) {  // the rz r_hi PML's ring field, as in faces_y
+      T* c = a.c_r + i * a.w;
+      for (int64_t k = 0; k < a.w; ++k) {
+        const int64_t j = ny - a.w + k;
+        const T sum = ((w[j + 1] + w[j]) + old[k + 1]) + old[k];
+        c[k] = a.rad_decay[k] * c[k] + a.rad_drive[k] * sum;
+      }
+    }
+  };
+
   struct Level {
     std::vector<T> ring, row, old;  // q rows i, i + 1 (isotropic: i - 1 too); p = px + py of a row; old faces
-    std::vector<T> d, f;            // isotropic: a face difference row, its filtered row
+    std::vector<T> d, f, y;         // isotropic: a face difference row, its filtered row; y-face differences
     T* q[3] = {nullptr, nullptr, nullptr};
   };
   const std::vector<T> zero(ny, T(0));
@@ -1117,13 +1320,15 @@ bool staggered(const StaggeredArgs<T>& a) {
       if (a.iso) {
         l.d.assign(ny + 2, T(0));
         l.f.assign(ny, T(0));
+        if (iso_faces) l.y.assign(3 * (ny + 1), T(0));
       }
     }
     return [&, lv = std::move(lv), R = Scratch()](int l, int64_t L, int64_t i) mutable {
       Level& S = lv[l];
       // x face f from q rows lo, hi (isotropic: the filtered difference as hi, zero as lo)
       auto x_face = [&](int64_t f, const T* lo, const T* hi) {
-        if (a.iso) face_x_iso(f, lo, hi, S.d.data() + 1);
+        if (iso_faces) face_x_faces(R, f, lo, hi, S.d.data(), S.y.data());
+        else if (a.iso) face_x_iso(f, lo, hi, S.d.data() + 1);
         else face_x(R, f, lo, hi);
       };
       if (i == 0) {
@@ -1147,7 +1352,9 @@ bool staggered(const StaggeredArgs<T>& a) {
         std::fill(S.q[1], S.q[1] + ny, T(0));
         x_face(nx, q0, zero.data());
       }
-      if (a.iso) {  // the y faces from P (row i filtered across the y faces)
+      if (iso_faces) {
+        faces_y_faces(i, S.q[2], q0, S.q[1], S.old.data(), S.y.data());
+      } else if (a.iso) {  // the y faces from P (row i filtered across the y faces)
         const T* qm = S.q[2];
         const T* qp = S.q[1];
         const T am = i > 0 ? T(1) : T(0), ap = i + 1 < nx ? T(1) : T(0);

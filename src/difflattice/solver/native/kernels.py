@@ -43,7 +43,7 @@ KNOWN_LATTICE_FIELDS = frozenset(
         "eta",
         "ghosts",
         "mur",
-        "stencil",  # the isotropic one: leapfrog on uniform faces only (declined by name below)
+        "stencil",  # both run natively (attribute `stencil` of the FFI calls)
         "uniform_faces",  # a stability-limit fact, no term
     }
 )

@@ -139,3 +139,19 @@ def test_family_entries_checked():
         error_budget(r, T, lobe, None, model_families=[{"n_basiss": 4}], symmetries=False)
     with pytest.raises(ValueError, match="profile family"):
         error_budget(r, T, lobe, None, model_families=["wiggly"], symmetries=False)
+
+
+@pytest.mark.parametrize("profile", ["free", "symmetric", "smooth"])
+@pytest.mark.parametrize("n_cells", [9, 10])
+def test_expansion_is_the_jacobian_of_the_profile_map(profile, n_cells):
+    """`ModelSpec.expansion` (NumPy) is the matrix of the linear map `_expand(profile, p, pinned=True)`,
+    checked against JAX's Jacobian of that map (exact: a linear map of 0/1 and Chebyshev values)."""
+    import jax
+    import jax.numpy as jnp
+
+    s = ModelSpec(n_cells=n_cells, dx_m=1e-3, frequency_hz=F, weights=profile, lags=profile, n_basis=3)
+    n = s._n_params(profile, pinned=True)
+    ref = np.asarray(jax.jacfwd(lambda p: s._expand(profile, p, pinned=True))(jnp.zeros(n)))
+    got = s.expansion(profile)
+    assert got.shape == ref.shape == (n_cells, n)
+    np.testing.assert_allclose(got, ref, rtol=0, atol=1e-12)

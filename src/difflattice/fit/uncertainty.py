@@ -387,6 +387,10 @@ def quantities(spec: ModelSpec, params: dict):
     return jnp.concatenate(parts), names, units
 
 
+_quantities = eqx.filter_jit(quantities)
+"""`quantities` as one compiled program (called eagerly, its ~40 operations each ran as its own)."""
+
+
 @eqx.filter_jit
 def _quantity_jacobian(spec: ModelSpec, params: dict):
     jac = jax.jacfwd(lambda p: quantities(spec, p)[0])(params)
@@ -394,14 +398,14 @@ def _quantity_jacobian(spec: ModelSpec, params: dict):
 
 
 def _values(spec: ModelSpec, params: dict) -> dict:
-    v, names, _ = quantities(spec, params)
+    v, names, _ = _quantities(spec, params)
     return dict(zip(names, np.asarray(v).tolist()))
 
 
 def _stats(r: FitResult) -> dict:
     """Statistical errors of a fit's quantities, inflated by its variance factor (its own total
     as far as the noise and its own chi2 go)."""
-    v, names, _ = quantities(r.spec, r.params)
+    v, names, _ = _quantities(r.spec, r.params)
     G = np.asarray(_quantity_jacobian(r.spec, r.params))
     cov = np.asarray(r.covariance_raw)
     s = np.sqrt(np.clip(np.einsum("ij,jk,ik->i", G, cov, G), 0, None) * max(r.variance_factor, 1.0))
@@ -427,6 +431,24 @@ def _on_nominal(spec: ModelSpec, other_spec: ModelSpec, other: dict) -> dict:
     return out
 
 
+def _per_cell(ospec: ModelSpec, p: dict, y_nom, y_other, key: str):
+    """A fit's per-cell raw profile (log weight, or artanh(2 lag / T)) interpolated at `y_nom`."""
+    ph = ospec.physical(p)
+    v = (
+        jnp.log(ph["weights_raw"])
+        if key == "w"
+        else jnp.arctanh(jnp.clip(2 * ph["lags_s"] / ospec.period_s, -0.999999, 0.999999))
+    )
+    return jnp.interp(y_nom, y_other, v)
+
+
+@eqx.filter_jit
+def _per_cell_raw(ospec: ModelSpec, params: dict, y_nom, y_other, key: str):
+    """`_per_cell` and its Jacobian w.r.t. the raw parameters (flat), as one compiled program."""
+    jac = jax.jacfwd(lambda p: _per_cell(ospec, p, y_nom, y_other, key))(params)
+    return _per_cell(ospec, params, y_nom, y_other, key), _flat_jacobian(jac, params)
+
+
 def _implied_coefficients(spec: ModelSpec, active: np.ndarray, other: FitResult) -> tuple[dict, dict]:
     """The nominal smooth profiles' coefficients that another family's fit implies: its per-cell
     raw profiles (log weight, artanh(2 lag / T)) interpolated at the nominal's active cells and
@@ -439,21 +461,10 @@ def _implied_coefficients(spec: ModelSpec, active: np.ndarray, other: FitResult)
         return {}, {}
     ospec, y_nom, y_other = other.spec, jnp.asarray(spec.y_m[active]), jnp.asarray(other.spec.y_m)
     cov = np.asarray(other.covariance_raw) * max(other.variance_factor, 1.0)
-
-    def per_cell(p, key):
-        ph = ospec.physical(p)
-        v = (
-            jnp.log(ph["weights_raw"])
-            if key == "w"
-            else jnp.arctanh(jnp.clip(2 * ph["lags_s"] / ospec.period_s, -0.999999, 0.999999))
-        )
-        return jnp.interp(y_nom, y_other, v)
-
     vals, ses = {}, {}
     step = 2 if spec.symmetric else 1
     for key, profile in keys:
-        v = np.asarray(per_cell(other.params, key))
-        Gv = np.asarray(_flat_jacobian(jax.jacfwd(lambda p, key=key: per_cell(p, key))(other.params), other.params))
+        v, Gv = (np.asarray(a) for a in _per_cell_raw(ospec, other.params, y_nom, y_other, key))
         cv = Gv @ cov @ Gv.T
         var = np.clip(np.diag(cv), 1e-12 * max(float(np.max(np.diag(cv))), 1e-300), None)
         E = spec.expansion(profile)[active]
@@ -591,7 +602,7 @@ def error_budget(
     options = options or fitted.options or FitOptions()
     say = print if progress else (lambda *a, **k: None)
     vf = fitted.variance_factor
-    v, names, units = quantities(spec, params)
+    v, names, units = _quantities(spec, params)
     v = np.asarray(v)
     G = np.asarray(_quantity_jacobian(spec, params))
     cov = fitted.covariance_raw

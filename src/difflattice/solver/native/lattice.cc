@@ -575,8 +575,7 @@ static void row_iso_faces(const RowCtx<T>& c, const RowIO<T>& io, int64_t ny) {
   const T* __restrict qp = io.qp;
   const T* pp0 = io.pp0;
   T* out = io.out;
-  const T* __restrict rl = c.rl;
-  const T* __restrict rh = c.rh;
+  const T* __restrict rh = c.rh;  // the ring boundaries' weights (j + 1 between columns j, j + 1)
   const T* __restrict inva = c.inva;
   constexpr T w = T(1.0 / 12.0);
   // x face between rows lo and hi with conductances b (ny values)
@@ -586,7 +585,7 @@ static void row_iso_faces(const RowCtx<T>& c, const RowIO<T>& io, int64_t ny) {
 #pragma GCC ivdep
     for (int64_t j = 0; j + 1 < ny; ++j) {
       const T lo_b = b[j] < b[j + 1] ? b[j] : b[j + 1];
-      e[j] = (g[j + 1] - g[j]) * lo_b * rh[j];  // rh: the boundary's weight (j + 1 on a ring grid)
+      e[j] = (g[j + 1] - g[j]) * lo_b * rh[j];
     }
     dst[0] = b[0] * g[0] + (ny > 1 ? e[0] : T(0)) * inva[0] * w;
 #pragma GCC ivdep
@@ -614,7 +613,6 @@ static void row_iso_faces(const RowCtx<T>& c, const RowIO<T>& io, int64_t ny) {
     const T mp = bb < bp[f] ? bb : bp[f], mm = bm[f] < bb ? bm[f] : bb;
     yf[f] = bb * x + (ap * (gp[f] - x) * mp - am * (x - gm[f]) * mm) * w;
   }
-  (void)rl;
   const T* __restrict cyl = c.cyl;
   const T* __restrict cyh = c.cyh;
   const T* __restrict krow = c.krow;
@@ -682,15 +680,13 @@ bool plan_iso_faces(const LeapfrogArgs<T>& a, int cmb, RowPlan<T>& plan) {
   const Coef<T> by = materialise(a.by, nx, ny + 1, plan.by_full);
   plan.m_lo.assign(ny, T(1));
   plan.m_hi.assign(ny, T(1));
-  plan.r_lo.assign(ny, T(1));
   plan.r_hi.assign(ny, T(1));
   plan.inva.assign(ny, T(1));
   for (int64_t j = 0; j < ny; ++j) {
     if (metric) {
       plan.m_lo[j] = a.my_lo.at(0, j);
       plan.m_hi[j] = a.my_hi.at(0, j);
-      plan.r_lo[j] = T(double(j));  // the ring boundaries' areas j and j + 1, the ring's j + 1/2
-      plan.r_hi[j] = T(double(j) + 1.0);
+      plan.r_hi[j] = T(double(j) + 1.0);  // the ring boundary's area between j, j + 1; the ring's j + 1/2
       plan.inva[j] = T(1.0 / (double(j) + 0.5));
     }
   }
@@ -709,7 +705,6 @@ bool plan_iso_faces(const LeapfrogArgs<T>& a, int cmb, RowPlan<T>& plan) {
     c.byp = i + 1 < nx ? by.row(i + 1) : c.by0;
     c.cyl = plan.m_lo.data();
     c.cyh = plan.m_hi.data();
-    c.rl = plan.r_lo.data();
     c.rh = plan.r_hi.data();
     c.inva = plan.inva.data();
     c.am = i > 0 ? T(1) : T(0);

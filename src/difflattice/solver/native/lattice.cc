@@ -557,6 +557,24 @@ static void row_iso(const RowCtx<T>& c, const RowIO<T>& io, int64_t ny) {
 // operators._across_faces as written, M g = b g + T / 12 with the edge weights min(b_j, b_k)
 // (times the ring boundary's area on an rz grid's x faces): x faces i and i + 1 from the q rows
 // and the bx rows, y faces of row i from q rows i - 1, i, i + 1 and their by rows.
+// the ny + 1 y-face differences of a q row (zero beyond the row's ends)
+template <typename T>
+static inline void y_differences(const T* __restrict q, T* __restrict d, int64_t ny) {
+  d[0] = q[0];
+#pragma GCC ivdep
+  for (int64_t f = 1; f < ny; ++f) d[f] = q[f] - q[f - 1];
+  d[ny] = -q[ny - 1];
+}
+
+// a y face's isotropic value from its differences in rows i - 1, i, i + 1 (gm, g0, gp) and their
+// conductances (bm, b0, bp): b0 g0 + (edge to row i + 1 - edge to row i - 1) / 12, the edges
+// weighted min(b, b'); am, ap = 0 where row i - 1 / i + 1 is outside the window
+template <typename T>
+static inline T iso_y_face(T gm, T g0, T gp, T bm, T b0, T bp, T am, T ap) {
+  const T mp = b0 < bp ? b0 : bp, mm = bm < b0 ? bm : b0;
+  return b0 * g0 + (ap * (gp - g0) * mp - am * (g0 - gm) * mm) * T(1.0 / 12.0);
+}
+
 template <typename T, bool KREG, int CMB>
 static void row_iso_faces(const RowCtx<T>& c, const RowIO<T>& io, int64_t ny) {
   thread_local std::vector<T> scratch;
@@ -594,25 +612,15 @@ static void row_iso_faces(const RowCtx<T>& c, const RowIO<T>& io, int64_t ny) {
   };
   xface(qm, q0, c.bxlo_r, zl);
   xface(q0, qp, c.bxhi_r, zh);
-  auto diffs = [&](const T* __restrict q, T* __restrict d) {
-    d[0] = q[0];
-#pragma GCC ivdep
-    for (int64_t f = 1; f < ny; ++f) d[f] = q[f] - q[f - 1];
-    d[ny] = -q[ny - 1];
-  };
-  diffs(qm, gm);
-  diffs(q0, g0);
-  diffs(qp, gp);
+  y_differences(qm, gm, ny);
+  y_differences(q0, g0, ny);
+  y_differences(qp, gp, ny);
   const T* __restrict bm = c.bym;
   const T* __restrict b0 = c.by0;
   const T* __restrict bp = c.byp;
   const T am = c.am, ap = c.ap;
 #pragma GCC ivdep
-  for (int64_t f = 0; f <= ny; ++f) {
-    const T x = g0[f], bb = b0[f];
-    const T mp = bb < bp[f] ? bb : bp[f], mm = bm[f] < bb ? bm[f] : bb;
-    yf[f] = bb * x + (ap * (gp[f] - x) * mp - am * (x - gm[f]) * mm) * w;
-  }
+  for (int64_t f = 0; f <= ny; ++f) yf[f] = iso_y_face(gm[f], g0[f], gp[f], bm[f], b0[f], bp[f], am, ap);
   const T* __restrict cyl = c.cyl;
   const T* __restrict cyh = c.cyh;
   const T* __restrict krow = c.krow;
@@ -1109,6 +1117,17 @@ bool staggered(const StaggeredArgs<T>& a) {
       for (int64_t j = 0; j < ny; ++j) w[j] = A * w[j] + B * (bb[j] * (hi[j] - lo[j]));
     }
   };
+  // the rz r_hi PML's ring field of row i from its y faces, new (w) and old:
+  // C = decay C + drive ((w_new[j+1] + w_new[j]) + w_old[j+1]) + w_old[j])
+  auto ring_field = [&](int64_t i, const T* w, const T* old) {
+    if (!a.w) return;
+    T* c = a.c_r + i * a.w;
+    for (int64_t k = 0; k < a.w; ++k) {
+      const int64_t j = ny - a.w + k;
+      const T sum = ((w[j + 1] + w[j]) + old[k + 1]) + old[k];
+      c[k] = a.rad_decay[k] * c[k] + a.rad_drive[k] * sum;
+    }
+  };
   // the ny + 1 y faces of row i from q row i
   auto faces_y = [&](Scratch& S, int64_t i, const T* __restrict q, T* old) {
     T* __restrict w = a.wy + i * (ny + 1);
@@ -1130,14 +1149,7 @@ bool staggered(const StaggeredArgs<T>& a) {
     }
 #pragma GCC ivdep
     for (int64_t f = f1; f < ny; ++f) w[f] = ayf[f] * w[f] + byf[f] * (bb[f] * (q[f] - q[f - 1]));
-    if (a.w) {  // C = decay C + drive ((w_new[j+1] + w_new[j]) + w_old[j+1]) + w_old[j])
-      T* c = a.c_r + i * a.w;
-      for (int64_t k = 0; k < a.w; ++k) {
-        const int64_t j = ny - a.w + k;
-        const T sum = ((w[j + 1] + w[j]) + old[k + 1]) + old[k];
-        c[k] = a.rad_decay[k] * c[k] + a.rad_drive[k] * sum;
-      }
-    }
+    ring_field(i, w, old);
   };
   // px, py of row i from the new faces
   auto cells = [&](Scratch& S, int64_t i) {
@@ -1266,38 +1278,21 @@ bool staggered(const StaggeredArgs<T>& a) {
   auto faces_y_faces = [&](int64_t i, const T* qm, const T* q0, const T* qp, T* old, T* y) {
     T* __restrict w = a.wy + i * (ny + 1);
     if (a.w) std::copy(w + ny - a.w, w + ny + 1, old);
-    constexpr T w12 = T(1.0 / 12.0);
     const int64_t n1 = ny + 1;
     T* __restrict gm = y;
     T* __restrict g0 = y + n1;
     T* __restrict gp = y + 2 * n1;
-    auto diffs = [&](const T* __restrict q, T* __restrict d) {
-      d[0] = q[0];
-#pragma GCC ivdep
-      for (int64_t f = 1; f < ny; ++f) d[f] = q[f] - q[f - 1];
-      d[ny] = -q[ny - 1];
-    };
-    diffs(qm, gm);
-    diffs(q0, g0);
-    diffs(qp, gp);
+    y_differences(qm, gm, ny);
+    y_differences(q0, g0, ny);
+    y_differences(qp, gp, ny);
     const T* __restrict b0 = by_full.data() + i * n1;
     const T* __restrict bm = i > 0 ? b0 - n1 : b0;
     const T* __restrict bp = i + 1 < nx ? b0 + n1 : b0;
     const T am = i > 0 ? T(1) : T(0), ap = i + 1 < nx ? T(1) : T(0);
 #pragma GCC ivdep
-    for (int64_t f = 0; f <= ny; ++f) {
-      const T x = g0[f], bb = b0[f];
-      const T mp = bb < bp[f] ? bb : bp[f], mm = bm[f] < bb ? bm[f] : bb;
-      w[f] = ayf[f] * w[f] + byf[f] * (bb * x + (ap * (gp[f] - x) * mp - am * (x - gm[f]) * mm) * w12);
-    }
-    if (a.w) {  // the rz r_hi PML's ring field, as in faces_y
-      T* c = a.c_r + i * a.w;
-      for (int64_t k = 0; k < a.w; ++k) {
-        const int64_t j = ny - a.w + k;
-        const T sum = ((w[j + 1] + w[j]) + old[k + 1]) + old[k];
-        c[k] = a.rad_decay[k] * c[k] + a.rad_drive[k] * sum;
-      }
-    }
+    for (int64_t f = 0; f <= ny; ++f)
+      w[f] = ayf[f] * w[f] + byf[f] * iso_y_face(gm[f], g0[f], gp[f], bm[f], b0[f], bp[f], am, ap);
+    ring_field(i, w, old);
   };
 
   struct Level {

@@ -500,3 +500,122 @@ def test_isotropic_stencil_threads_and_blocking_do_not_change_results(monkeypatc
             monkeypatch.setenv("DIFFLATTICE_NATIVE_LEVELS", str(levels))
             out.append(np.asarray(run(stepper, N, backend="native").final.pressure))
         assert all(np.array_equal(out[0], o) for o in out[1:])
+
+
+def _adjoint_case(kind, dtype):
+    """A loss of source weights and lags through `simulate(adjoint="lattice")` whose backward pass
+    the kernel's adjoint step runs (no q_scale, keep, sponge or viscous term)."""
+    sens = Sensors(probes=[(30, 20), (36, 12), (30, 20)], phasor_cells=[(28, 25), (33, 18), (40, 30)])
+    kw = {"kind": "rz"} if kind == "rz" else {}
+    g = _grid(dtype, **kw)
+    zr = jnp.asarray(np.sin(np.arange(SHAPE[0] * SHAPE[1]).reshape(SHAPE) / 7.0), g.jnp_dtype)
+    if kind == "rz":
+        from difflattice.solver.sources import disc_transducer
+
+        medium, edges = Medium(343.0, jnp.where(X > 30, 2.0, 1.2)), Edges.axisymmetric("rigid", "rigid", "rigid")
+
+        def sources(w, lag):
+            return disc_transducer(
+                g, radius_m=5.3 * g.dx_m, n_rings=8, weights=w, lags_s=lag, signal=ToneBurst(50e3, 2)
+            )
+
+        n_src = 8
+    else:
+        medium = Medium(343.0, jnp.where(X > 30, 2.0, 1.2)) if kind == "density" else Medium(343.0, 1.2)
+        edges = Edges.all("rigid")
+        injection = "hard" if kind == "hard" else "soft"
+
+        def sources(w, lag):
+            return line_transducer(
+                g,
+                (14 * g.dx_m, 20 * g.dx_m),
+                n_cells=5,
+                signal=ToneBurst(50e3, 2),
+                weights=w,
+                lags_s=lag,
+                injection=injection,
+            )
+
+        n_src = 5
+
+    def loss(w, lag_us, backend):
+        r = simulate(
+            g, medium, sources(w, lag_us * 1e-6), sens, n_steps=N, edges=edges, adjoint="lattice", backend=backend
+        )
+        return jnp.sum(r.probes**2) + jnp.sum(jnp.abs(r.phasors) ** 2) * 1e-3 + jnp.sum(r.final.pressure * zr) * 0.1
+
+    args = (jnp.linspace(0.8, 1.2, n_src).astype(g.jnp_dtype), jnp.linspace(0.0, 3.0, n_src).astype(g.jnp_dtype))
+    return loss, args, sources, g, medium, sens, edges
+
+
+@pytest.mark.parametrize("dtype", ["float64", "float32"])
+@pytest.mark.parametrize("kind", ["homogeneous", "density", "hard", "rz"])
+def test_native_lattice_adjoint_equals_the_jax_one(kind, dtype, monkeypatch):
+    """`adjoint="lattice"` with the forward and the backward runs on the native kernels (the
+    kernel's adjoint step carries x = a / V, the probes' and phasors' cotangents injected and the
+    source cells recorded inside the loop) = the same reverse mode on the JAX loop. Both sum the
+    same per-step terms in a different order: the per-step bound of the forward comparison (module
+    docstring) applies to the cotangent fields, whose peak the gradient's scale bounds, so the
+    tolerance is n_steps * 16 * eps relative to the largest gradient entry."""
+    from difflattice.solver import adjoint as adj
+
+    loss, args, sources, g, medium, sens, edges = _adjoint_case(kind, dtype)
+    st = Stepper.build(g, medium, sources(*args), sens, edges)
+    assert adj._native_backward(st) and native.why_not(st) is None
+    calls = []
+    real = adj._native_backward_pass
+    monkeypatch.setattr(adj, "_native_backward_pass", lambda *a: calls.append(1) or real(*a))
+    val, got = jax.value_and_grad(lambda w, lag: loss(w, lag, "auto"), argnums=(0, 1))(*args)
+    assert calls, "the native backward pass did not run"
+    ref_val, ref = jax.value_and_grad(lambda w, lag: loss(w, lag, "jax"), argnums=(0, 1))(*args)
+    tol = N * 16 * float(jnp.finfo(dtype).eps)
+    assert abs(float(val - ref_val)) <= tol * abs(float(ref_val))
+    for name, a, b in zip(("weights", "lags"), got, ref):
+        scale = float(jnp.abs(b).max())
+        assert scale > 0, name
+        err = float(jnp.abs(a - b).max())
+        assert err <= tol * scale, f"{kind} {dtype} {name}: {err:.3g} vs scale {scale:.3g} (tol {tol:.2g})"
+
+
+@pytest.mark.parametrize("dtype", ["float64", "float32"])
+@pytest.mark.parametrize("kind", ["plane", "plane-hard", "rz", "rz-disc"])
+def test_native_lattice_adjoint_coefficient_gradients(kind, dtype, monkeypatch):
+    """Gradients w.r.t. a speed map and a density map (every coefficient the kernels' adjoint
+    computes: K and both face conductances; on the rz lattice with the ring metric) and the
+    sources, with the backward pass on `difflattice_adjoint_chunk` (fields recomputed chunk by
+    chunk, cotangents fused into the adjoint step) = the JAX lattice adjoint's, to the module's
+    rounding bound relative to each gradient's largest entry."""
+    from difflattice.solver.native import kernels
+    from difflattice.solver.sources import disc_transducer
+
+    rz = kind.startswith("rz")
+    g = _grid(dtype, kind="rz") if rz else _grid(dtype)
+    dt = g.jnp_dtype
+    sens = Sensors(probes=[(30, 20), (36, 12)], phasor_cells=[(28, 25), (33, 18)])
+    bump = jnp.exp(-((X - 26) ** 2 + (jnp.arange(40.0)[None] - 20) ** 2) / 30).astype(dt)
+    if kind == "rz-disc":  # velocity injection: the speed map also scales the source
+        src = disc_transducer(g, radius_m=4.6 * g.dx_m, n_rings=5, signal=ToneBurst(50e3, 2))
+    else:
+        injection = "hard" if kind == "plane-hard" else "soft"
+        src = line_transducer(g, (14 * g.dx_m, 20 * g.dx_m), n_cells=5, signal=ToneBurst(50e3, 2), injection=injection)
+    edges = Edges.axisymmetric("rigid", "rigid", "rigid") if rz else Edges.all("rigid")
+
+    def loss(w, c_scale, rho_scale, backend):
+        s = eqx.tree_at(lambda s: s.weights, src, w)
+        med = Medium(343.0 - 20.0 * c_scale * bump, 1.2 + 0.8 * rho_scale * bump)
+        r = simulate(g, med, s, sens, n_steps=N, edges=edges, adjoint="lattice", checkpoint=10, backend=backend)
+        return jnp.sum(r.probes**2) + jnp.sum(jnp.abs(r.phasors) ** 2) * 1e-3
+
+    calls = []
+    real = kernels._Chunk.adjoint_chunk
+    monkeypatch.setattr(kernels._Chunk, "adjoint_chunk", lambda *a, **k: calls.append(1) or real(*a, **k))
+    args = (jnp.linspace(0.8, 1.2, 5).astype(dt), jnp.asarray(1.0, dt), jnp.asarray(1.0, dt))
+    got = jax.grad(lambda *a: loss(*a, "native"), argnums=(0, 1, 2))(*args)
+    assert calls, "the native chunked backward pass did not run"
+    ref = jax.grad(lambda *a: loss(*a, "jax"), argnums=(0, 1, 2))(*args)
+    tol = N * 16 * float(jnp.finfo(dt).eps)
+    for name, a, b in zip(("weights", "speed", "density"), got, ref):
+        scale = float(jnp.abs(b).max())
+        assert scale > 0, name
+        err = float(jnp.abs(a - b).max())
+        assert err <= tol * scale, f"{kind} {dtype} {name}: {err:.3g} vs scale {scale:.3g} (tol {tol:.2g})"

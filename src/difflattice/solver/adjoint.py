@@ -19,6 +19,14 @@ Supported: the leapfrog stepper (no PML, no Mur edges, no absorption, not the "p
 starting at rest, recording probes, phasors and the final fields. `supports` says why not
 otherwise; `run(..., adjoint="auto")` then falls back to JAX's reverse mode. The plain JAX path is
 the reference: tests compare the two.
+
+On a CPU with the native kernels (`backend="auto"`), the forward run is native, and so is the
+backward run where the lattice has no q_scale, keep, sponge or viscous term (K and face
+conductances, plane or rz: `native.kernels.adjoint_supported`): source gradients by the kernels'
+adjoint step (temporal blocking, nothing stored), coefficient gradients (K, bx, by) by
+`difflattice_adjoint_chunk`, which steps the forward field back from each chunk's saved end
+alongside the adjoint (the leapfrog is reversible; the reconstruction's rounding restarts from an
+exact saved field every chunk) with the cotangents fused into the same pass.
 """
 
 from __future__ import annotations
@@ -28,6 +36,7 @@ import math
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from ..lattice.operators import _along, operator, stencil
 from .stepper import cell_index, source_injection
@@ -71,16 +80,22 @@ def _angles(grid, sensors, n):
     return (n.astype(grid.jnp_dtype) * w) % (2 * math.pi)
 
 
-def _forward(stepper, n_steps: int, chunk: int, save: bool):
-    """Run from rest; returns (probes, phasor_re, phasor_im, p, p_prev, peaks, starts)."""
+def _forward(stepper, n_steps: int, chunk: int, save: bool, native: bool):
+    """Run from rest; returns (probes, phasor_re, phasor_im, p, p_prev, peaks), (starts, rem_start).
+    `native`: each chunk of steps one call of the native kernels (else the JAX scan)."""
     n_chunks, rem = divmod(n_steps, chunk)
+    if native:
+        from .native.kernels import chunk_kernel
 
-    def one(st, _):
-        return stepper.step(st)
+        advance = chunk_kernel(stepper).advance
+    else:
+
+        def advance(st, length):
+            return jax.lax.scan(lambda s, _: stepper.step(s), st, None, length=length, unroll=min(2, length))
 
     def outer(st, _):
         start = (st.p, st.p_prev) if save else None
-        st, ys = jax.lax.scan(one, st, None, length=chunk, unroll=min(2, chunk))
+        st, ys = advance(st, chunk)
         return st, (ys, jnp.max(jnp.abs(st.p)), start)
 
     st = stepper.init()
@@ -90,7 +105,7 @@ def _forward(stepper, n_steps: int, chunk: int, save: bool):
     rem_start = None
     if rem:
         rem_start = (st.p, st.p_prev) if save else None
-        st, ys_r = jax.lax.scan(one, st, None, length=rem, unroll=min(2, rem))
+        st, ys_r = advance(st, rem)
         peaks = jnp.concatenate([peaks, jnp.max(jnp.abs(st.p))[None]])
         if ys is not None:
             ys = jnp.concatenate([ys, ys_r.reshape(rem, -1)], axis=0)
@@ -98,16 +113,19 @@ def _forward(stepper, n_steps: int, chunk: int, save: bool):
 
 
 @eqx.filter_custom_vjp
-def linear_run(stepper, n_steps: int, chunk: int):
-    """Outputs (probes, phasor_re, phasor_im, p_final, p_prev_final, peak_history)."""
-    return _forward(stepper, n_steps, chunk, save=False)[0]
+def linear_run(stepper, n_steps: int, chunk: int, native: bool = False):
+    """Outputs (probes, phasor_re, phasor_im, p_final, p_prev_final, peak_history). `native`: the
+    forward run and, where `native.kernels.adjoint_supported`, the backward run on the native
+    kernels (the caller checked they run this scene)."""
+    return _forward(stepper, n_steps, chunk, save=False, native=native)[0]
 
 
 @linear_run.def_fwd
-def _linear_run_fwd(perturbed, stepper, n_steps, chunk):
+def _linear_run_fwd(perturbed, stepper, n_steps, chunk, native=False):
     save = _lattice_perturbed(perturbed)  # coefficient gradients need the forward fields
-    out, starts = _forward(stepper, n_steps, chunk, save=save)
-    return out, starts
+    out, starts = _forward(stepper, n_steps, chunk, save=save, native=native)
+    final = (out[3], out[4]) if save else None  # (the native backward steps back from the end)
+    return out, (*starts, final)
 
 
 def _lattice_perturbed(perturbed) -> bool:
@@ -115,7 +133,7 @@ def _lattice_perturbed(perturbed) -> bool:
 
 
 @linear_run.def_bwd
-def _linear_run_bwd(starts, grads, perturbed, stepper, n_steps, chunk):
+def _linear_run_bwd(starts, grads, perturbed, stepper, n_steps, chunk, native=False):
     lat = stepper.lattice
     grid, sens = stepper.grid, stepper.sensors
     dtype = grid.jnp_dtype
@@ -232,47 +250,53 @@ def _linear_run_bwd(starts, grads, perturbed, stepper, n_steps, chunk):
     probes_all = jnp.concatenate([jnp.zeros((1, n_probes), dtype), g_probes.astype(dtype)]) if n_probes else None
     g1 = inject(g1, jnp.asarray(n_steps, jnp.int32), None if probes_all is None else probes_all[n_steps])
 
-    def segment(carry, n_first, length, start):
-        """Backward over steps n_first+1 .. n_first+length (recomputing their fields if needed)."""
-        ns = n_first + 1 + jnp.arange(length)
-        rows = None if probes_all is None else jax.lax.dynamic_slice_in_dim(probes_all, n_first, length, 0)
-        fields = None
-        if fields_wanted:
-            p_start, pp_start = start
+    if native and set(fields_wanted) <= {"K", "bx", "by"} and _native_backward(stepper):
+        src_cts, lat_ct = _native_backward_pass(
+            stepper, g1, g0, n_steps, chunk, starts, probes_all, (g_re, g_im) if use_phasors else None, fields_wanted
+        )
+    else:
 
-            def fwd_one(c, n_next):
-                p, pp = c
-                new = _linear_step(lat, p, pp)
-                t = n_next.astype(dtype) * grid.dt_s
-                for src in stepper.sources:
-                    cc = cell_index(src.cells)
-                    v = source_injection(src, t, grid, lat).astype(dtype)
-                    new = new.at[cc].add(v) if src.adds else new.at[cc].set(v)
-                return (new, p), ((p, pp) if need_prev else p)
+        def segment(carry, n_first, length, start):
+            """Backward over steps n_first+1 .. n_first+length (recomputing their fields if needed)."""
+            ns = n_first + 1 + jnp.arange(length)
+            rows = None if probes_all is None else jax.lax.dynamic_slice_in_dim(probes_all, n_first, length, 0)
+            fields = None
+            if fields_wanted:
+                p_start, pp_start = start
 
-            _, fields = jax.lax.scan(fwd_one, (p_start, pp_start), ns, unroll=min(2, length))
-        carry, src_ct = jax.lax.scan(back_step, carry, (ns, rows, fields), reverse=True, unroll=min(2, length))
-        return carry, src_ct
+                def fwd_one(c, n_next):
+                    p, pp = c
+                    new = _linear_step(lat, p, pp)
+                    t = n_next.astype(dtype) * grid.dt_s
+                    for src in stepper.sources:
+                        cc = cell_index(src.cells)
+                        v = source_injection(src, t, grid, lat).astype(dtype)
+                        new = new.at[cc].add(v) if src.adds else new.at[cc].set(v)
+                    return (new, p), ((p, pp) if need_prev else p)
 
-    n_chunks, rem = divmod(n_steps, chunk)
-    full_starts, rem_start = starts
-    carry = (g1, g0, lat_ct0)
-    pieces = []
-    if rem:
-        carry, ct = segment(carry, jnp.asarray(n_chunks * chunk, jnp.int32), rem, rem_start)
-        pieces.append(ct)
-    if n_chunks:
+                _, fields = jax.lax.scan(fwd_one, (p_start, pp_start), ns, unroll=min(2, length))
+            carry, src_ct = jax.lax.scan(back_step, carry, (ns, rows, fields), reverse=True, unroll=min(2, length))
+            return carry, src_ct
 
-        def chunk_back(carry, xs):
-            k, start = xs
-            return segment(carry, k * chunk, chunk, start)
+        n_chunks, rem = divmod(n_steps, chunk)
+        full_starts, rem_start = starts[:2]
+        carry = (g1, g0, lat_ct0)
+        pieces = []
+        if rem:
+            carry, ct = segment(carry, jnp.asarray(n_chunks * chunk, jnp.int32), rem, rem_start)
+            pieces.append(ct)
+        if n_chunks:
 
-        ks = jnp.arange(n_chunks, dtype=jnp.int32)
-        carry, cts = jax.lax.scan(chunk_back, carry, (ks, full_starts), reverse=True)
-        cts = tuple(x.reshape(n_chunks * chunk, -1) for x in cts)
-        pieces.insert(0, cts)
-    src_cts = tuple(jnp.concatenate([pc[i] for pc in pieces], axis=0) for i in range(len(stepper.sources)))
-    _, _, lat_ct = carry
+            def chunk_back(carry, xs):
+                k, start = xs
+                return segment(carry, k * chunk, chunk, start)
+
+            ks = jnp.arange(n_chunks, dtype=jnp.int32)
+            carry, cts = jax.lax.scan(chunk_back, carry, (ks, full_starts), reverse=True)
+            cts = tuple(x.reshape(n_chunks * chunk, -1) for x in cts)
+            pieces.insert(0, cts)
+        src_cts = tuple(jnp.concatenate([pc[i] for pc in pieces], axis=0) for i in range(len(stepper.sources)))
+        _, _, lat_ct = carry
 
     # chain the per-step source cotangents through the drive signals (weights, lags) and, for
     # velocity sources, the lattice speed at their cells
@@ -311,6 +335,159 @@ def _linear_run_bwd(starts, grads, perturbed, stepper, n_steps, chunk):
         )
         out = eqx.tree_at(lambda s: s.lattice, out, lat_grad, is_leaf=lambda x: x is None)
     return out
+
+
+def _native_backward(stepper) -> bool:
+    """Whether the native kernels run this backward pass.
+    It records every source cell, then zeroes the hard ones; JAX's backward step does both source
+    by source (last first), which differs only where a hard source shares a cell with another
+    source: so hard sources run natively when they are the only source."""
+    from .native.kernels import adjoint_supported
+
+    srcs = stepper.sources
+    return adjoint_supported(stepper) and (len(srcs) <= 1 or all(s.adds for s in srcs))
+
+
+def _native_backward_pass(stepper, g1, g0, n_steps: int, chunk: int, starts, probes_all, phasor_ct, fields_wanted):
+    """The backward pass on the native kernels: (per-step source cotangents, one (n_steps,
+    n_cells) array per source; coefficient cotangents {field: array}).
+
+    With a(n) the cotangent of p(n) after the hard sources' zeroing, the backward step is
+    a(n-1) = 2 a(n) + V L(K a(n) / V) - a(n+1) + injections (V the ring volumes on an rz grid,
+    else 1), so x = a / V follows the kernel's x' = 2 x + L(K x) - h with the injections divided
+    by V; the record of x at the source cells (before the zeroing) times V is the cotangent of p(n)
+    there. Without coefficient cotangents the kernel's adjoint mode runs the whole pass (temporal
+    blocking, no stored fields); with them, `difflattice_adjoint_chunk` runs it chunk by chunk from
+    the forward run's saved chunk starts, recomputing each chunk's fields (as the JAX pass does)."""
+    from ..lattice.operators import _face_coefficients
+    from .native.kernels import chunk_kernel
+
+    lat, grid, sens = stepper.lattice, stepper.grid, stepper.sensors
+    dtype, shape = grid.jnp_dtype, grid.shape
+    nx, ny = shape
+    kern = chunk_kernel(stepper)
+    srcs = stepper.sources
+    cells_of = lambda c: jnp.asarray(c, jnp.int32).reshape(-1, 2)
+    empty = jnp.zeros((0, 2), jnp.int32)
+    cells = jnp.concatenate([cells_of(s.cells) for s in srcs]) if srcs else empty
+    hard = np.concatenate([np.full(s.n_cells, not s.adds) for s in srcs]) if srcs else np.zeros(0, bool)
+    zero_cells = cells[np.flatnonzero(hard)]
+    m = lat.metric
+    vol = None if m is None else jnp.broadcast_to(jnp.asarray(m.volume, dtype), shape)
+    at = lambda f, c: f[c[:, 0], c[:, 1]]
+
+    inj = []  # the output cotangents' cells: probes, then phasor cells
+    if probes_all is not None:
+        inj.append(cells_of(sens.probes))
+    if phasor_ct is not None:
+        inj.append(cells_of(sens.phasor_cells))
+    inj_cells = jnp.concatenate(inj) if inj else empty
+    inv_v = None if vol is None else 1.0 / at(vol, inj_cells)
+
+    def rows(ns):
+        """The injections at steps `ns` (descending), one row per step."""
+        cols = []
+        if probes_all is not None:
+            cols.append(probes_all[ns])
+        if phasor_ct is not None:
+            g_re, g_im = phasor_ct
+            ang = _angles(grid, sens, ns)[:, None]
+            w = jnp.where(ns > sens.phasor_from_step, 1.0, 0.0).astype(dtype)[:, None]
+            cols.append(w * (g_re[None] * jnp.cos(ang) + g_im[None] * jnp.sin(ang)))
+        v = jnp.concatenate(cols, axis=1).astype(dtype) if cols else jnp.zeros((ns.shape[0], 0), dtype)
+        return v if inv_v is None else v * inv_v[None]
+
+    first = at(g1, cells)  # the cotangent at the sources of p(n_steps)
+    a = g1.at[zero_cells[:, 0], zero_cells[:, 1]].set(0.0)
+    x, h = (a, -g0) if vol is None else (a / vol, -g0 / vol)
+    lat_ct = {}
+    if not fields_wanted:
+        m_steps = n_steps - 1  # steps n_steps - 1 .. 1 (step 0's cotangent is not needed: the run starts at rest)
+        per_call = min(m_steps, 512)
+        recs = []
+        if m_steps:
+            n_calls, rem = divmod(m_steps, per_call)
+
+            def call(x, h, n_hi, length):
+                ns = n_hi - jnp.arange(length, dtype=jnp.int32)
+                return kern.adjoint_steps(x, h, length, inj_cells, rows(ns), cells, zero_cells)
+
+            def body(c, j):
+                x, h, rec = call(*c, (n_steps - 1 - j * per_call).astype(jnp.int32), per_call)
+                return (x, h), rec
+
+            (x, h), rec = jax.lax.scan(body, (x, h), jnp.arange(n_calls, dtype=jnp.int32))
+            recs.append(rec.reshape(n_calls * per_call, -1))
+            if rem:
+                recs.append(call(x, h, jnp.asarray(rem, jnp.int32), rem)[2])
+        later = jnp.concatenate(recs) if recs else jnp.zeros((0, cells.shape[0]), dtype)
+        desc = jnp.concatenate([first[None], later])  # rows: steps n_steps .. 1
+    else:
+        bx, by = _face_coefficients(lat, shape, dtype)
+        faces = (
+            jnp.ones((nx + 1, ny), dtype) if bx is None else jnp.broadcast_to(jnp.asarray(bx, dtype), (nx + 1, ny)),
+            jnp.ones((nx, ny + 1), dtype) if by is None else jnp.broadcast_to(jnp.asarray(by, dtype), (nx, ny + 1)),
+        )
+        row = lambda v, n: jnp.broadcast_to(jnp.asarray(v, dtype).reshape(-1), (n,))
+        one_y, one_f = jnp.ones(ny, dtype), jnp.ones(ny + 1, dtype)
+        metric = (
+            (one_y, one_y, one_y, one_f)
+            if m is None
+            else (row(m.lo, ny), row(m.hi, ny), row(m.volume, ny), row(m.area, ny + 1))
+        )
+        full = {"K": (nx, ny), "bx": (nx + 1, ny), "by": (nx, ny + 1)}
+        acc0 = tuple(jnp.zeros(full[f] if f in fields_wanted else (0,), dtype) for f in ("K", "bx", "by"))
+
+        def segment(carry, n_first, length, end):
+            x, h, acc = carry
+            ns = n_first + length - 1 - jnp.arange(length, dtype=jnp.int32)  # the injections' steps
+            x, h, rec, acc = kern.adjoint_chunk(
+                end, x, h, length, n_first, faces, metric, inj_cells, rows(ns), cells, zero_cells, acc
+            )
+            return (x, h, acc), rec[::-1]  # rows: steps n_first .. n_first + length - 1
+
+        # each segment steps the forward field back from its end: the next segment's saved start,
+        # the last one from the run's final fields
+        n_chunks, rem = divmod(n_steps, chunk)
+        full_starts, rem_start = starts[:2]
+        final = starts[2]
+        carry = (x, h, acc0)
+        asc = []
+        if rem:
+            carry, rec_r = segment(carry, jnp.asarray(n_chunks * chunk, jnp.int32), rem, final)
+            asc.append(rec_r)
+        if n_chunks:
+            last = rem_start if rem else final
+            ends = jax.tree_util.tree_map(lambda s, e: jnp.concatenate([s[1:], e[None]]), full_starts, last)
+
+            def chunk_back(carry, xs):
+                k, end = xs
+                return segment(carry, k * chunk, chunk, end)
+
+            ks = jnp.arange(n_chunks, dtype=jnp.int32)
+            carry, rec_c = jax.lax.scan(chunk_back, carry, (ks, ends), reverse=True)
+            asc.insert(0, rec_c.reshape(n_chunks * chunk, -1))
+        acc = carry[2]
+        for f, v in zip(("K", "bx", "by"), acc):
+            if f in fields_wanted:
+                lat_ct[f] = _sum_to(v, jnp.shape(getattr(lat, f)))
+        later = jnp.concatenate(asc)[1:]  # steps 1 .. n_steps - 1 (step 0's record dropped)
+        desc = jnp.concatenate([first[None], later[::-1]])
+    if vol is not None:
+        desc = desc.at[1:].multiply(at(vol, cells)[None])
+    ct = desc[::-1]  # rows: steps 1 .. n_steps
+    bounds = np.cumsum([0] + [s.n_cells for s in srcs])
+    return tuple(ct[:, bounds[i] : bounds[i + 1]] for i in range(len(srcs))), lat_ct
+
+
+def _sum_to(v, shape):
+    """Sum a full-grid cotangent down to the (broadcast) shape of its coefficient."""
+    if tuple(v.shape) == tuple(shape):
+        return v
+    if len(shape) == 0:
+        return jnp.sum(v)
+    axes = tuple(i for i, (a, b) in enumerate(zip(v.shape, shape)) if b == 1 and a != 1)
+    return jnp.sum(v, axis=axes, keepdims=True).reshape(shape)
 
 
 def _mask(grad_tree, perturbed_tree):

@@ -103,7 +103,8 @@ def run(
 
     `backend`: "jax" (this loop: the reference, and the path on GPUs), "native" (the C++ kernels
     of `difflattice.solver.native` on a CPU: raises if the scene or machine is not supported), or
-    "auto" (native where supported, else jax). Derivatives of a native run are the JAX loop's."""
+    "auto" (native where supported, else jax). Derivatives of a native run are the JAX loop's,
+    except with adjoint="lattice", whose forward and backward runs are native where supported."""
     if not isinstance(n_steps, (int, np.integer)) or n_steps < 1:
         raise ValueError(f"n_steps = {n_steps!r} must be a positive integer")
     n_steps = int(n_steps)
@@ -131,7 +132,17 @@ def run(
 
         reason = adj.supports(stepper, state)
         if reason is None and sharding is None:
-            return _run_lattice_adjoint(stepper, n_steps, checkpoint)
+            on_native = False
+            if backend != "jax":
+                from . import native as nat
+
+                why = nat.why_not(stepper, state, sharding)
+                if why is not None and backend == "native":
+                    raise ValueError(
+                        f"backend='native' is not available for this run: {why} (use backend='auto' or 'jax')"
+                    )
+                on_native = why is None
+            return _run_lattice_adjoint(stepper, n_steps, checkpoint, on_native)
         if adjoint == "lattice":
             raise ValueError(
                 f"adjoint='lattice' does not support {reason or 'sharding'}: use adjoint='autodiff' "
@@ -195,11 +206,11 @@ def run(
     )
 
 
-def _run_lattice_adjoint(stepper: Stepper, n_steps: int, checkpoint: Checkpoint) -> Result:
+def _run_lattice_adjoint(stepper: Stepper, n_steps: int, checkpoint: Checkpoint, native: bool) -> Result:
     from .adjoint import linear_run
 
     chunk = _chunking(n_steps, stepper.sensors, "sqrt" if checkpoint is None else checkpoint)
-    probes, re, im, p, p_prev, peaks = linear_run(stepper, n_steps, chunk)
+    probes, re, im, p, p_prev, peaks = linear_run(stepper, n_steps, chunk, native)
     final = eqx.tree_at(
         lambda s: (s.p, s.p_prev, s.n, s.phasor_re, s.phasor_im),
         stepper.init(),

@@ -6,7 +6,8 @@ pipeline of threads (all cores), for the leapfrog (homogeneous, conservative wit
 maps, speed-zero, sponge, soft cells, absorption) and the split-field PML step, with sources,
 probes, phasors and field statistics inside the loop. The JAX loop stays the reference (tests
 compare the two), the path for GPUs, and the path of derivatives: a native run's JVP is the JAX
-loop's, so `jax.grad` through it gives JAX's gradients.
+loop's, so `jax.grad` through it gives JAX's gradients; `adjoint="lattice"` runs its forward and
+backward passes (the adjoint wave equation) on these kernels instead.
 
 `loop.run(..., backend="auto")` (the default) picks these kernels on a CPU when the scene's
 features are supported and a C++ compiler is available (compiled once per machine, see
@@ -48,12 +49,8 @@ def dispatch(stepper, n_steps: int, *, state, checkpoint, unroll, sharding, adjo
         if supports(stepper, state) is None and sharding is None:
             adjoint = "lattice"  # what "auto" picks here; otherwise it is "autodiff"
     if adjoint == "lattice":
-        # the adjoint-wave-equation reverse mode has its own forward pass (solver/adjoint.py)
-        if backend == "native":
-            raise ValueError(
-                "backend='native' runs with adjoint='autodiff' only (here adjoint='lattice' applies): "
-                "use backend='auto' or 'jax' for the lattice adjoint"
-            )
+        # the adjoint-wave-equation reverse mode has its own forward and backward passes
+        # (solver/adjoint.py), on these kernels where they run the scene
         return None
     reason = why_not(stepper, state, sharding)
     if reason is not None:

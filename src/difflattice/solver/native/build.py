@@ -25,7 +25,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 SOURCE = Path(__file__).with_name("lattice.cc")
-TARGETS = {"difflattice_leapfrog": "DifflatticeLeapfrog", "difflattice_staggered": "DifflatticeStaggered"}
+TARGETS = {
+    "difflattice_leapfrog": "DifflatticeLeapfrog",
+    "difflattice_staggered": "DifflatticeStaggered",
+    "difflattice_adjoint_chunk": "DifflatticeAdjointChunk",
+}
 COMPILE_TIMEOUT_S = 300
 
 

@@ -5,7 +5,9 @@ records probes, phasors and field statistics.
 Derivatives: the native loop is a `custom_jvp` whose rule is the JAX reference loop
 (`loop.run(..., backend="jax")`), so `jax.jvp`, `jax.grad` and `jax.jacfwd` through a native run
 give JAX's own derivatives (never the derivative of an opaque call, never silently wrong); only
-runs that are not differentiated execute the native kernel.
+runs that are not differentiated execute the native kernel. Reverse mode at native speed is
+`adjoint="lattice"` (solver/adjoint.py), whose forward and backward runs call these kernels
+(`_Chunk.advance`, `adjoint_steps`, `adjoint_chunk`).
 """
 
 from __future__ import annotations
@@ -381,6 +383,96 @@ class _Chunk:
         st = eqx.tree_at(lambda s: s.n, st, st.n + length)
         return st, (rec if self.n_probes else None)
 
+    def adjoint_steps(self, x, h, length: int, inj_cells, inj_vals, rec_cells, zero_cells):
+        """`length` steps of the adjoint recurrence ``x' = 2 x + L(K x) - h`` (kernel mode
+        ``combine = 2``; the pair (x, h) becomes (x', x)). After each step `inj_vals[k]` is added
+        at `inj_cells`, `rec_cells` are recorded, then `zero_cells` set to zero. The lattice must
+        have no q_scale, keep, sponge or viscous term (the caller checks: `adjoint_supported`).
+        Returns (x, h, records (length, n_rec))."""
+        dt = self.dt
+        e = _absent(dt)
+        n_rec = int(rec_cells.shape[0])
+        field = jax.ShapeDtypeStruct(self.shape, dt)
+        out = jax.ffi.ffi_call(
+            "difflattice_leapfrog",
+            [field, field, jax.ShapeDtypeStruct((length, n_rec), dt)]
+            + [jax.ShapeDtypeStruct((0,), dt)] * 4
+            + [jax.ShapeDtypeStruct((0,), jnp.int32)],
+            input_output_aliases={0: 0, 1: 1},
+            vmap_method="sequential",
+        )(
+            x,
+            h,
+            self.coef[0],
+            self.coef[1],
+            self.coef[2],
+            e,
+            e,
+            e,
+            *self.metric,
+            inj_cells,
+            jnp.zeros((inj_cells.shape[0],), jnp.int32),
+            inj_vals.astype(dt),
+            rec_cells,
+            zero_cells,
+            jnp.zeros((0, 2), jnp.int32),
+            jnp.zeros((length,), dt),
+            jnp.zeros((length,), dt),
+            e,
+            e,
+            e,
+            e,
+            _absent(jnp.int32),
+            jnp.asarray(0, jnp.int32),
+            n_steps=np.int64(length),
+            combine=np.int64(2),
+            stencil=np.int64(0),
+            bands=np.int64(0),
+            **self.attrs,
+        )
+        return out[0], out[1], out[2]
+
+    def adjoint_chunk(self, end, x, h, length: int, n0, faces, metric, inj_cells, inj_vals, rec_cells, zero_cells, acc):
+        """The lattice adjoint's backward pass over steps n0 + length .. n0 + 1 with the
+        coefficients' cotangents (`difflattice_adjoint_chunk`): the forward fields are stepped
+        back from `end` = (p(n0 + length), p(n0 + length - 1)) alongside; `faces` = the full (bx,
+        by) arrays; `metric` = (ml, mh, volumes, areas) rows; `acc` = the (dK, dbx, dby) sums so
+        far (empty arrays: not wanted). Returns (x, h, records (length, n_rec), acc)."""
+        dt = self.dt
+        vals, _, _ = self.tables(n0 - 2, length + 2)  # steps n0 - 1 .. n0 + length
+        steps = n0 - 1 + jnp.arange(length + 2, dtype=jnp.int32)
+        vals = jnp.where((steps >= 1)[:, None], vals, 0.0).astype(dt)  # p(0) = 0: the run starts at rest
+        shapes = [jax.ShapeDtypeStruct(self.shape, dt)] * 2 + [
+            jax.ShapeDtypeStruct((length, int(rec_cells.shape[0])), dt),
+            *(jax.ShapeDtypeStruct(a.shape, dt) for a in acc),
+        ]
+        out = jax.ffi.ffi_call(
+            "difflattice_adjoint_chunk",
+            shapes,
+            input_output_aliases={2: 0, 3: 1, 18: 3, 19: 4, 20: 5},
+            vmap_method="sequential",
+        )(
+            end[0],
+            end[1],
+            x,
+            h,
+            self.coef[0],
+            *faces,
+            *metric,
+            self.src_cells,
+            self.src_hard,
+            vals,
+            inj_cells,
+            inj_vals.astype(dt),
+            rec_cells,
+            zero_cells,
+            *acc,
+            n_steps=np.int64(length),
+            threads=self.attrs["threads"],
+            levels=np.int64(_levels(self.shape[1], jnp.dtype(dt).itemsize, True)),
+        )
+        return out[0], out[1], out[2], tuple(out[3:])
+
     def _acc_in(self, st: StaggeredState):
         """The soft sources' running sums, one slot per source cell (hard cells: unused zeros)."""
         parts, i_soft = [], 0
@@ -449,17 +541,40 @@ def _loop_jvp(primals, tangents, *, n_steps, chunk, checkpoint, unroll, threads,
     return eqx.filter_jvp(reference, primals, tangents)
 
 
+def schedule(stepper: Stepper) -> tuple[int, int, bool]:
+    """(threads, levels, bands) of the kernels for this stepper's grid."""
+    nx, ny = stepper.grid.shape
+    levels = _levels(ny, jnp.dtype(stepper.grid.jnp_dtype).itemsize, stepper.staggered)
+    bands = _bands(stepper)
+    return _threads(nx, 0 if bands else levels), levels, bands
+
+
+def chunk_kernel(stepper: Stepper) -> _Chunk:
+    """The FFI calls of one stepper (forward chunks, adjoint steps)."""
+    return _Chunk(stepper, *schedule(stepper))
+
+
+def adjoint_supported(stepper: Stepper) -> bool:
+    """Whether the kernel's adjoint mode runs this stepper's backward pass: the leapfrog with K
+    and face conductances only (no q_scale, keep, sponge or viscous term; 5-point stencil)."""
+    lat = stepper.lattice
+    return (
+        not stepper.staggered
+        and lat.stencil == "standard"
+        and lat.q_scale is None
+        and lat.keep is None
+        and lat.sponge is None
+        and lat.eta == 0
+    )
+
+
 def run_native(stepper: Stepper, n_steps: int, *, state: State | None, checkpoint, unroll):
     """`loop.run` on the native kernels (the caller checked `unsupported` and the library)."""
     from ..loop import Result, _chunking
 
-    sens = stepper.sensors
-    chunk = _chunking(n_steps, sens, checkpoint)
+    chunk = _chunking(n_steps, stepper.sensors, checkpoint)
     state = stepper.init() if state is None else state
-    nx, ny = stepper.grid.shape
-    levels = _levels(ny, jnp.dtype(stepper.grid.jnp_dtype).itemsize, stepper.staggered)
-    bands = _bands(stepper)
-    threads = _threads(nx, 0 if bands else levels)
+    threads, levels, bands = schedule(stepper)
     final, ys, peaks, snaps = _loop(
         stepper,
         state,

@@ -27,8 +27,9 @@ PHASES = {  # profile entry (function name) -> phase
     "compile_or_get_cached": "XLA compile / cache read",
     "free_field_transfer": "transfer simulation",
     "_fit": "fit (whole command)",
-    "write_report": "report (plots, field image)",
-    "_field_figure": "report: field image simulation",
+    "write_report": "report (aperture; waits for the figure worker)",
+    "start_figures": "report: figures started (worker process)",
+    "_field_image_args": "report: field image simulation (a thread beside the error budget)",
 }
 
 

@@ -381,3 +381,64 @@ def echo_angle_plot(angles_deg, curves: dict, *, title: str = "echo amplitude ag
     ax.set_title(title)
     fig.tight_layout()
     return fig
+
+
+def convergence_plot(trace):
+    """A fit's convergence: cost against solver iteration, one colour per stage, stage
+    boundaries marked and named; and cost against solve time with compilation excluded (it is
+    stated in the title). `trace`: arrays `iteration`, `stage`, `cost`, `accepted`, `solve_s`,
+    `stages` (dicts: stage, name, first_iteration, result_code) and `compile_s` (as
+    `fit.solve.FitTrace`). The stages' costs are on different scales (stages 1-2 floor the
+    sigmas), so each is drawn on its own and the boundaries are where the cost jumps."""
+    fig = Figure(figsize=(11, 4.2))
+    a1, a2 = fig.subplots(1, 2)
+    it = trace.iteration
+    for s in trace.stages:
+        m = trace.stage == s["stage"]
+        if not m.any():
+            continue
+        best = np.minimum.accumulate(trace.cost[m])
+        (line,) = a1.semilogy(it[m], best, "-", label=f"stage {s['stage']}: {s['name']}")
+        rej = m & ~trace.accepted
+        a1.semilogy(it[rej], trace.cost[rej], "x", ms=3, color=line.get_color(), alpha=0.5)
+        a1.axvline(s["first_iteration"] - 0.5, color="0.6", lw=0.8, ls=":")
+        a1.text(s["first_iteration"], best[0], f" {s['stage']}", fontsize=8, va="bottom", color=line.get_color())
+        a2.semilogy(trace.solve_s[m], best, "-", color=line.get_color())
+    a1.set_xlabel("solver iteration (x: trial step rejected; dotted: stage boundaries)")
+    a1.set_ylabel("cost (half sum of squared residuals)")
+    a1.legend(fontsize=7, loc="lower left")
+    a1.grid(True, alpha=0.3, which="both")
+    a2.set_xlabel("solve time (s), compilation excluded")
+    a2.set_ylabel("cost")
+    a2.grid(True, alpha=0.3, which="both")
+    n_conv = [s for s in trace.stages if s["stage"] == max(t["stage"] for t in trace.stages)]
+    verdict = n_conv[0]["result_code"] if n_conv else ""
+    fig.suptitle(
+        f"convergence: {len(it)} iterations, final stage {verdict}; compilation {trace.compile_s:.1f} s (not shown)",
+        fontsize=10,
+    )
+    fig.tight_layout()
+    return fig
+
+
+def _render_jobs(stream) -> dict[str, str]:
+    """The report's figure worker (`fit.report.FigureWriter`): render the pickled jobs
+    (name, function name in this module, path, args, kwargs) the calling process streams to
+    `stream`, as they come."""
+    import pickle
+
+    done: dict[str, str] = {}
+    while True:
+        try:
+            name, fn, out, args, kwargs = pickle.load(stream)  # noqa: S301 (from the parent process)
+        except EOFError:
+            return done
+        done[name] = str(save(globals()[fn](*args, **kwargs), out))
+
+
+if __name__ == "__main__":
+    import json
+
+    if sys.argv[1:] != ["--render-jobs", "-"]:
+        raise SystemExit("usage: python -m difflattice.plots --render-jobs -  (pickled jobs on stdin)")
+    print(json.dumps(_render_jobs(sys.stdin.buffer)))

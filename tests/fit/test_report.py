@@ -9,6 +9,7 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from difflattice import plots
 from difflattice.fit.report import beam_metrics, write_report
@@ -69,3 +70,27 @@ def test_plots_without_pyplot_colour_bar_and_polar_labels():
     polar = fig.axes[0]
     assert polar.get_legend() is not None
     assert {"-10 dB", "-20 dB", "0 dB"} <= {t.get_text() for t in polar.texts}
+
+
+def test_figures_drawn_in_the_worker_process_equal_those_drawn_here(tmp_path, monkeypatch):
+    """`start_figures` (as `run_fit` calls it, before the error budget) draws the figures in a
+    worker process: the same files, byte for byte, as drawn in this process (matplotlib's Agg
+    output is deterministic); a worker's failure is raised with its error."""
+    from difflattice.fit.report import FigureWriter, start_figures
+
+    T = transfer(12.0)
+    lobe, wave, _ = data(T)
+    r = fit(spec(T), T, lobe, wave, FitOptions())
+    names = ("lobe", "wavefront", "convergence", "field")
+    a = start_figures(tmp_path / "worker", r, None, T, lobe, wave, background=True)
+    assert a._proc is not None, "no worker process started on this machine"
+    got = a.results()
+    b = start_figures(tmp_path / "here", r, None, T, lobe, wave, background=False).results()
+    assert sorted(got) == sorted(b) == sorted(names)
+    for n in names:
+        assert got[n].read_bytes() == b[n].read_bytes(), n
+    # a failing job is reported with the worker's error, not lost
+    w = FigureWriter(background=True)
+    w.submit("bad", "lobe_plots", tmp_path / "bad.png", np.zeros(3), {"x": np.zeros(4)})
+    with pytest.raises(RuntimeError, match="figure worker failed"):
+        w.results()

@@ -973,7 +973,7 @@ def run_fit(cfg: FitConfig, *, out: str | Path | None = None, quick: bool = Fals
             stacklevel=2,
         )
     from ..air import speed_of_sound_m_s
-    from .report import write_report
+    from .report import start_figures, write_report
 
     data = load_fit_data(cfg)
     lobe, wave, f = data.lobe, data.wave, data.frequency_hz
@@ -985,21 +985,29 @@ def run_fit(cfg: FitConfig, *, out: str | Path | None = None, quick: bool = Fals
     fit_model = _fit_disc if m.model == "disc" else _fit_line
     fitted, uniform, transfer, make_transfer, t_transfer = fit_model(cfg, lobe, wave, f, c, ppw, opts, verbose)
     fitted.warnings[:0] = [f"data: {n}" for n in data.notes]
+    out_dir = Path(out) if out is not None else Path(cfg.output.dir)
+    # the figures that do not need the error budget are drawn in a worker process meanwhile
+    field_image = cfg.output.field_image and not quick  # a line on the 2-D lattice, a disc on the rz lattice
+    figures = start_figures(out_dir, fitted, uniform, transfer, lobe, wave, field_image=field_image)
     # error budget (fit.uncertainty): refits at a second resolution and with other model families
     from .uncertainty import error_budget
 
     t1 = time.perf_counter()
-    budget = error_budget(
-        fitted,
-        transfer,
-        lobe,
-        wave,
-        opts,
-        make_transfer=make_transfer,
-        second_cells_per_wavelength=None if quick else cfg.uncertainty.second_cells_per_wavelength,
-        model_families=list(cfg.uncertainty.model_families) or None,
-        progress=verbose,
-    )
+    try:
+        budget = error_budget(
+            fitted,
+            transfer,
+            lobe,
+            wave,
+            opts,
+            make_transfer=make_transfer,
+            second_cells_per_wavelength=None if quick else cfg.uncertainty.second_cells_per_wavelength,
+            model_families=list(cfg.uncertainty.model_families) or None,
+            progress=verbose,
+        )
+    except BaseException:
+        figures.close()
+        raise
     t_budget = time.perf_counter() - t1
     prov = provenance(cfg.path if cfg.path is not None and cfg.path.exists() else None, data.paths)
     prov["timing_s"] = {
@@ -1012,7 +1020,6 @@ def run_fit(cfg: FitConfig, *, out: str | Path | None = None, quick: bool = Fals
     prov["temperature_c"] = data.temperature_c
     prov["speed_of_sound_m_s"] = c
     prov["data_notes"] = list(data.notes)
-    out_dir = Path(out) if out is not None else Path(cfg.output.dir)
     rep = write_report(
         out_dir,
         fitted,
@@ -1021,8 +1028,9 @@ def run_fit(cfg: FitConfig, *, out: str | Path | None = None, quick: bool = Fals
         lobe,
         wave,
         provenance=prov,
-        field_image=cfg.output.field_image and not quick,  # a line on the 2-D lattice, a disc on the rz lattice
+        field_image=field_image,
         budget=budget,
+        figures=figures,
     )
     if verbose:
         _print_summary(rep, out_dir)

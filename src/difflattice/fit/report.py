@@ -13,7 +13,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any, cast
 
 import numpy as np
@@ -173,6 +175,11 @@ def aperture_figure(ap: dict, *, truth: dict | None = None, title: str = "fitted
     normalised the same way and overlaid."""
     from .. import plots
 
+    args, kwargs = _aperture_plot_args(ap, truth=truth, title=title)
+    return plots.aperture_plot(*args, **kwargs)
+
+
+def _aperture_plot_args(ap: dict, *, truth: dict | None, title: str) -> tuple[tuple, dict]:
     y = np.asarray(ap["y_m"])
     w = np.asarray(ap.get("weights_re_centre", np.ones_like(y)))
     lag = np.asarray(ap.get("lags_re_centre_s", np.zeros_like(y)))
@@ -193,17 +200,190 @@ def aperture_figure(ap: dict, *, truth: dict | None = None, title: str = "fitted
             t["lags_s"] = tl - np.interp(0.0, ty, tl)
     we = ap.get("weights_total")
     le = ap.get("lags_total")
-    return plots.aperture_plot(
-        y,
-        ws,
-        ls,
-        labels=labels,
-        title=title,
-        truth=t,
-        weight_label="weight re centre cell",
-        weight_err=None if we is None else np.asarray(we, float),
-        lag_err_s=None if le is None else np.asarray(le, float),
-    )
+    kwargs = {
+        "labels": labels,
+        "title": title,
+        "truth": t,
+        "weight_label": "weight re centre cell",
+        "weight_err": None if we is None else np.asarray(we, float),
+        "lag_err_s": None if le is None else np.asarray(le, float),
+    }
+    return (y, ws, ls), kwargs
+
+
+class FigureWriter:
+    """Renders the report's figures: in a worker process where it may start one (two or more
+    CPUs, `DIFFLATTICE_REPORT_WORKER` not "0"), so matplotlib's import, drawing and PNG encoding
+    (~2 s for a fit report) run beside the error budget instead of after it; else in this
+    process. Jobs are `plots` functions returning a Figure, with NumPy arguments, streamed to
+    `python -m difflattice.plots --render-jobs -` as they come (a plain subprocess: the caller's
+    main module is never imported again, as a multiprocessing child would). `defer` computes a
+    job's arguments in a thread meanwhile (the field image's simulation)."""
+
+    def __init__(self, background: bool):
+        self._proc: Any = None
+        self._err: Any = None
+        self._done: dict[str, Path] = {}
+        self._deferred: list[tuple] = []
+        if background and _worker_allowed():
+            import subprocess
+            import sys
+            import tempfile
+
+            self._err = tempfile.TemporaryFile()
+            try:
+                self._proc = subprocess.Popen(
+                    [sys.executable, "-m", "difflattice.plots", "--render-jobs", "-"],
+                    stdin=subprocess.PIPE,
+                    stdout=subprocess.PIPE,
+                    stderr=self._err,
+                )
+            except OSError:  # no processes here: draw in-process
+                self._proc = None
+
+    def submit(self, name: str, fn: str, path: Path, *args, **kwargs) -> None:
+        """Draw `plots.<fn>(*args, **kwargs)` into `path` (matplotlib is imported only where the
+        figure is drawn)."""
+        if self._proc is None:
+            self._done[name] = _render(fn, path, args, kwargs)
+            return
+        import pickle
+
+        try:
+            pickle.dump((name, fn, str(path), args, kwargs), self._proc.stdin)
+            self._proc.stdin.flush()
+        except BrokenPipeError:  # the worker died: its error is raised by `results`
+            pass
+
+    def defer(self, name: str, fn: str, path: Path, compute) -> None:
+        """Submit `fn(*args, **kwargs)` with `(args, kwargs) = compute()`, computed in a thread
+        from now on (its result, or error, is taken by `results`)."""
+        import threading
+
+        box: dict[str, Any] = {}
+
+        def run():
+            try:
+                box["value"] = compute()
+            except BaseException as e:  # re-raised in `results`
+                box["error"] = e
+
+        t = threading.Thread(target=run, daemon=True)
+        t.start()
+        self._deferred.append((name, fn, path, t, box))
+
+    def results(self) -> dict[str, Path]:
+        """Wait for every figure; their paths by name (a worker's failure is raised here)."""
+        try:
+            for name, fn, path, t, box in self._deferred:
+                t.join()
+                if "error" in box:
+                    raise box["error"]
+                args, kwargs = box["value"]
+                self.submit(name, fn, path, *args, **kwargs)
+            self._deferred = []
+            if self._proc is not None:
+                out, _ = self._proc.communicate()
+                if self._proc.returncode != 0:
+                    self._err.seek(0)
+                    err = self._err.read().decode(errors="replace")
+                    raise RuntimeError(
+                        f"the report's figure worker failed (exit {self._proc.returncode}):\n{err[-3000:]}"
+                    )
+                self._done.update({k: Path(v) for k, v in json.loads(out.decode().strip().splitlines()[-1]).items()})
+            return dict(self._done)
+        finally:
+            self.close()
+
+    def close(self) -> None:
+        for *_, t, _box in self._deferred:
+            t.join()
+        self._deferred = []
+        if self._proc is not None and self._proc.poll() is None:
+            self._proc.kill()
+            self._proc.wait()
+        self._proc = None
+        if self._err is not None:
+            self._err.close()
+            self._err = None
+
+
+def _worker_allowed() -> bool:
+    if os.environ.get("DIFFLATTICE_REPORT_WORKER", "1") == "0":
+        return False
+    try:
+        return len(os.sched_getaffinity(0)) >= 2
+    except AttributeError:  # not Linux
+        return (os.cpu_count() or 1) >= 2
+
+
+def _render(fn: str, path: Path, args: tuple, kwargs: dict) -> Path:
+    from .. import plots
+
+    return plots.save(getattr(plots, fn)(*args, **kwargs), path)
+
+
+def start_figures(
+    out_dir: str | Path,
+    fitted: FitResult,
+    uniform: FitResult | None,
+    transfer: Transfer,
+    lobe: LobeData | None,
+    wave: WaveData | None,
+    *,
+    field_image: bool = True,
+    background: bool = True,
+) -> FigureWriter:
+    """Start the figures that do not depend on the error budget (lobe, wavefront, convergence,
+    field image; `write_report` adds the aperture and collects them). The field image's
+    simulation runs in a thread from here; the drawing, with `background`, in a worker process."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    w = FigureWriter(background)
+    if lobe is not None:
+        ref = float(np.max(lobe.level_db))
+        lc: dict[str, Any] = {
+            "measured": (np.asarray(lobe.level_db) - ref, "o"),
+            "fitted model": np.asarray(fitted.model_curves["lobe_db"]) - ref,
+        }
+        if uniform is not None:
+            lc["uniform model"] = (np.asarray(uniform.model_curves["lobe_db"]) - ref, "--")
+        w.submit(
+            "lobe",
+            "lobe_plots",
+            out / "lobe.png",
+            np.asarray(lobe.angle_deg),
+            lc,
+            title=f"lobe at {lobe.range_m:g} m",
+        )
+    if wave is not None:
+        to_us = 1e6 / (2 * math.pi * wave.frequency_hz)
+        centre = int(np.argmin(np.abs(wave.x_m)))
+
+        def arrival(phase):  # the models' phase falls with delay: arrival = -unwrapped phase / omega
+            u = -np.unwrap(np.asarray(phase))
+            return (u - u[centre]) * to_us
+
+        wc: dict[str, Any] = {
+            "measured": (arrival(wave.phase_rad), "o"),
+            "fitted model": arrival(fitted.model_curves["wave_phase_rad"]),
+        }
+        if uniform is not None:
+            wc["uniform model"] = (arrival(uniform.model_curves["wave_phase_rad"]), "--")
+        w.submit(
+            "wavefront",
+            "wavefront_plot",
+            out / "wavefront.png",
+            np.asarray(wave.x_m),
+            wc,
+            ylabel="arrival re centre (µs, from phase)",
+            title=f"near-field wavefront at z = {wave.z_m * 1e3:.1f} mm",
+        )
+    if fitted.trace is not None:
+        w.submit("convergence", "convergence_plot", out / "convergence.png", _trace_arrays(fitted.trace))
+    if field_image:  # its simulation runs beside the error budget
+        w.defer("field", "field_image", out / "field.png", lambda: _field_image_args(fitted, transfer))
+    return w
 
 
 def write_report(
@@ -218,79 +398,52 @@ def write_report(
     field_image: bool = True,
     budget=None,
     truth: dict | None = None,
+    figures: FigureWriter | None = None,
 ) -> dict:
     """Write report.json, report.md and figures into `out_dir`; returns the report dict.
     `budget`: the `fit.uncertainty.ErrorBudget` (without one, the statistical part alone is
     reported and the report says the systematic parts were not measured). `truth` ({"y_m",
-    "weights", "lags_s"}): overlaid on the aperture plot (emulated data)."""
-    from .. import plots
+    "weights", "lags_s"}): overlaid on the aperture plot (emulated data). `figures`: the figures
+    `start_figures` began (`field_image` then applies there); else they are drawn here."""
     from .uncertainty import error_budget
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    if budget is None:
-        budget = error_budget(fitted, transfer, lobe, wave, make_transfer=None, model_families=[], symmetries=False)
-        budget.notes.append(
-            "systematic parts not measured: this report was written without an error budget "
-            "(fit.uncertainty.error_budget); the totals are statistical (chi2-inflated) only"
-        )
-    rep = {"fit": _summary(fitted), "budget": budget.to_dict(), "provenance": provenance, "transfer": transfer.info}
-    if uniform is not None:
-        rep["untuned_uniform_model"] = {
-            "rms": uniform.rms,
-            "chi2_reduced": uniform.chi2_reduced,
-            "converged": uniform.converged,
-        }
-    rep["trace"] = fitted.trace.to_dict() if fitted.trace is not None else {}
-    curves, beam = _model_curves(fitted, uniform, lobe, wave)
-    rep["model_curves"] = curves
-    rep["beam"] = beam
-    ap = aperture_arrays(fitted, budget)
-    rep["aperture"] = ap
-    figs = {}
-    if lobe is not None:
-        ref = float(np.max(lobe.level_db))
-        lc = {"measured": (lobe.level_db - ref, "o"), "fitted model": fitted.model_curves["lobe_db"] - ref}
+    if figures is None:
+        figures = start_figures(out, fitted, uniform, transfer, lobe, wave, field_image=field_image, background=False)
+    try:
+        if budget is None:
+            budget = error_budget(fitted, transfer, lobe, wave, make_transfer=None, model_families=[], symmetries=False)
+            budget.notes.append(
+                "systematic parts not measured: this report was written without an error budget "
+                "(fit.uncertainty.error_budget); the totals are statistical (chi2-inflated) only"
+            )
+        rep = {"fit": _summary(fitted), "budget": budget.to_dict(), "provenance": provenance, "transfer": transfer.info}
         if uniform is not None:
-            lc["uniform model"] = (uniform.model_curves["lobe_db"] - ref, "--")
-        figs["lobe"] = plots.save(
-            plots.lobe_plots(lobe.angle_deg, lc, title=f"lobe at {lobe.range_m:g} m"), out / "lobe.png"
+            rep["untuned_uniform_model"] = {
+                "rms": uniform.rms,
+                "chi2_reduced": uniform.chi2_reduced,
+                "converged": uniform.converged,
+            }
+        rep["trace"] = fitted.trace.to_dict() if fitted.trace is not None else {}
+        curves, beam = _model_curves(fitted, uniform, lobe, wave)
+        rep["model_curves"] = curves
+        rep["beam"] = beam
+        ap = aperture_arrays(fitted, budget)
+        rep["aperture"] = ap
+        d = budget.get("diameter_mm") if any(e.name == "diameter_mm" for e in budget.scalars) else None
+        dtxt = (
+            f"D = {d.text(4)} mm"
+            if d is not None
+            else f"D = {float(fitted.physical['diameter_m']) * 1e3:.2f} mm (fixed)"
         )
-    if wave is not None:
-        to_us = 1e6 / (2 * math.pi * wave.frequency_hz)
-        centre = int(np.argmin(np.abs(wave.x_m)))
-
-        def arrival(phase):  # the models' phase falls with delay: arrival = -unwrapped phase / omega
-            u = -np.unwrap(np.asarray(phase))
-            return (u - u[centre]) * to_us
-
-        wc = {
-            "measured": (arrival(wave.phase_rad), "o"),
-            "fitted model": arrival(fitted.model_curves["wave_phase_rad"]),
-        }
-        if uniform is not None:
-            wc["uniform model"] = (arrival(uniform.model_curves["wave_phase_rad"]), "--")
-        figs["wavefront"] = plots.save(
-            plots.wavefront_plot(
-                wave.x_m,
-                wc,
-                ylabel="arrival re centre (µs, from phase)",
-                title=f"near-field wavefront at z = {wave.z_m * 1e3:.1f} mm",
-            ),
-            out / "wavefront.png",
-        )
-    d = budget.get("diameter_mm") if any(e.name == "diameter_mm" for e in budget.scalars) else None
-    dtxt = (
-        f"D = {d.text(4)} mm" if d is not None else f"D = {float(fitted.physical['diameter_m']) * 1e3:.2f} mm (fixed)"
-    )
-    figs["aperture"] = plots.save(
-        aperture_figure(ap, truth=truth, title=f"fitted aperture: {dtxt}"), out / "aperture.png"
-    )
-    if fitted.trace is not None:
-        figs["convergence"] = plots.save(trace_figure(fitted.trace), out / "convergence.png")
-    if field_image:
-        figs["field"] = _field_figure(fitted, transfer, out / "field.png")
-    rep["figures"] = {k: str(v) for k, v in figs.items()}
+        args, kwargs = _aperture_plot_args(ap, truth=truth, title=f"fitted aperture: {dtxt}")
+        figures.submit("aperture", "aperture_plot", out / "aperture.png", *args, **kwargs)
+        figs = figures.results()
+    finally:
+        figures.close()
+    order = ("lobe", "wavefront", "aperture", "convergence", "field")
+    rep["figures"] = {k: str(figs[k]) for k in order if k in figs}
     (out / "report.json").write_text(json.dumps(rep, indent=2, default=_default))
     (out / "report.md").write_text(_markdown(rep, fitted, uniform, budget))
     return rep
@@ -329,54 +482,36 @@ def _model_curves(fitted: FitResult, uniform: FitResult | None, lobe, wave) -> t
 
 
 def trace_figure(trace):
-    """Cost against solver iteration, one colour per stage, stage boundaries marked and named;
-    and cost against solve time with compilation excluded (it is stated in the title). The
-    stages' costs are on different scales (stages 1-2 floor the sigmas), so each is drawn on its
-    own and the boundaries are where the cost jumps."""
-    from matplotlib.figure import Figure
+    """Cost against solver iteration and against solve time, one colour per stage
+    (`plots.convergence_plot` of the fit's `FitTrace`)."""
+    from .. import plots
 
-    fig = Figure(figsize=(11, 4.2))
-    a1, a2 = fig.subplots(1, 2)
-    it = trace.iteration
-    for s in trace.stages:
-        m = trace.stage == s["stage"]
-        if not m.any():
-            continue
-        best = np.minimum.accumulate(trace.cost[m])
-        (line,) = a1.semilogy(it[m], best, "-", label=f"stage {s['stage']}: {s['name']}")
-        rej = m & ~trace.accepted
-        a1.semilogy(it[rej], trace.cost[rej], "x", ms=3, color=line.get_color(), alpha=0.5)
-        a1.axvline(s["first_iteration"] - 0.5, color="0.6", lw=0.8, ls=":")
-        a1.text(s["first_iteration"], best[0], f" {s['stage']}", fontsize=8, va="bottom", color=line.get_color())
-        a2.semilogy(trace.solve_s[m], best, "-", color=line.get_color())
-    a1.set_xlabel("solver iteration (x: trial step rejected; dotted: stage boundaries)")
-    a1.set_ylabel("cost (half sum of squared residuals)")
-    a1.legend(fontsize=7, loc="lower left")
-    a1.grid(True, alpha=0.3, which="both")
-    a2.set_xlabel("solve time (s), compilation excluded")
-    a2.set_ylabel("cost")
-    a2.grid(True, alpha=0.3, which="both")
-    n_conv = [s for s in trace.stages if s["stage"] == max(t["stage"] for t in trace.stages)]
-    verdict = n_conv[0]["result_code"] if n_conv else ""
-    fig.suptitle(
-        f"convergence: {len(it)} iterations, final stage {verdict}; compilation {trace.compile_s:.1f} s (not shown)",
-        fontsize=10,
+    return plots.convergence_plot(_trace_arrays(trace))
+
+
+def _trace_arrays(trace) -> SimpleNamespace:
+    """The trace's arrays, as `plots.convergence_plot` reads them (picklable without JAX)."""
+    return SimpleNamespace(
+        iteration=np.asarray(trace.iteration),
+        stage=np.asarray(trace.stage),
+        cost=np.asarray(trace.cost),
+        accepted=np.asarray(trace.accepted),
+        solve_s=np.asarray(trace.solve_s),
+        stages=[dict(x) for x in trace.stages],
+        compile_s=float(trace.compile_s),
     )
-    fig.tight_layout()
-    return fig
 
 
-def _field_figure(fitted: FitResult, transfer: Transfer, path: Path):
-    """Simulate the fitted transducer (a burst) and render it like the paper's Fig. 2: a line on
-    the 2-D lattice, or a disc on the rz lattice (`transfer_disc.disc_field_figure`, the meridian
-    plane mirrored about the axis)."""
+def _field_image_args(fitted: FitResult, transfer: Transfer) -> tuple[tuple, dict]:
+    """Simulate the fitted transducer (a burst): the arguments of `plots.field_image` for a
+    picture like the paper's Fig. 2: a line on the 2-D lattice, or a disc on the rz lattice
+    (`transfer_disc.disc_field_image_args`, the meridian plane mirrored about the axis)."""
     if model_family(fitted.spec) == "disc":
-        from .transfer_disc import disc_field_figure
+        from .transfer_disc import disc_field_image_args
 
-        return disc_field_figure(fitted, cast(Any, transfer), path)
+        return disc_field_image_args(fitted, cast(Any, transfer))
     import jax.numpy as jnp
 
-    from .. import plots
     from ..lattice.grid import make_grid
     from ..lattice.medium import Medium
     from ..solver.loop import simulate
@@ -404,15 +539,13 @@ def _field_figure(fitted: FitResult, transfer: Transfer, path: Path):
     )
     steps = int((nx - 60) / grid.courant)
     res = simulate(grid, Medium(g0.c_max_m_s, 1.2), src, Sensors(), n_steps=steps)
-    fig = plots.field_image(
-        res.final.pressure,
-        grid.dx_m,
-        step=steps,
-        dt_s=grid.dt_s,
-        sources=[src.cells_array],
-        title="fitted transducer (8-cycle burst)",
-    )
-    return plots.save(fig, path)
+    kwargs = {
+        "step": steps,
+        "dt_s": grid.dt_s,
+        "sources": [np.asarray(src.cells_array)],
+        "title": "fitted transducer (8-cycle burst)",
+    }
+    return (np.asarray(res.final.pressure), grid.dx_m), kwargs
 
 
 def _fmt(x, f=".3g") -> str:

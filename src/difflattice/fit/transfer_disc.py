@@ -439,10 +439,18 @@ def disc_transfer(
 def disc_field_figure(fitted, transfer: DiscTransfer, path):
     """Simulate the fitted disc (an 8-cycle burst, its ring weights and lags) on the rz lattice of
     `transfer` and render the meridian plane mirrored about the axis (z across, x up), like the
-    paper's Fig. 2; saved to `path` (PNG). For `fit.report` (a disc model's field image)."""
+    paper's Fig. 2; saved to `path` (PNG)."""
+    from .. import plots
+
+    args, kwargs = disc_field_image_args(fitted, transfer)
+    return plots.save(plots.field_image(*args, **kwargs), path)
+
+
+def disc_field_image_args(fitted, transfer: DiscTransfer) -> tuple[tuple, dict]:
+    """The simulation of `disc_field_figure`: the arguments of `plots.field_image` (NumPy), for
+    `fit.report` (a disc model's field image, drawn in its figure worker)."""
     import jax.numpy as jnp
 
-    from .. import plots
     from ..air import density_kg_m3
     from ..lattice.coefficients import Edges
     from ..lattice.grid import make_grid
@@ -499,19 +507,17 @@ def disc_field_figure(fitted, transfer: DiscTransfer, path):
     mirrored = np.concatenate(
         [np.stack([cells[:, 0], nr - 1 - cells[:, 1]], 1), np.stack([cells[:, 0], nr + cells[:, 1]], 1)]
     )
-    fig = plots.field_image(
-        full,
-        grid.dx_m,
-        step=steps,
-        dt_s=grid.dt_s,
-        sources=[mirrored],
-        obstacles=None
+    kwargs = {
+        "step": steps,
+        "dt_s": grid.dt_s,
+        "sources": [mirrored],
+        "obstacles": None
         if housing is None
         else np.concatenate([np.asarray(housing)[:, ::-1], np.asarray(housing)], axis=1),
-        title=f"fitted disc ({'rigid baffle' if baffle == 'rigid' else baffle if baffle == 'can' else 'no baffle'}), "
+        "title": f"fitted disc ({'rigid baffle' if baffle == 'rigid' else baffle if baffle == 'can' else 'no baffle'}), "
         "meridian plane (8-cycle burst)",
-    )
-    return plots.save(fig, path)
+    }
+    return (full, grid.dx_m), kwargs
 
 
 @dataclass(frozen=True)

@@ -1,9 +1,21 @@
-"""Shared test configuration: float64 available, strict rank promotion, a non-interactive backend."""
+"""Shared test configuration: float64 available, strict rank promotion, a non-interactive backend;
+each test module's compiled programs released after it."""
 
 import os
 
 os.environ.setdefault("MPLBACKEND", "Agg")
 
 import jax  # noqa: E402
+import pytest  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _release_compiled_programs():
+    """Drop JAX's caches of compiled programs after each test module. Every XLA CPU executable
+    maps its code into the process, and one pytest process that kept the whole suite's programs
+    ran into the kernel's limit on memory maps (vm.max_map_count = 65530; measured 65233 maps
+    and 6.4 GB resident before XLA failed to compile the next program and the process died)."""
+    yield
+    jax.clear_caches()

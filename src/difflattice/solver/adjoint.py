@@ -278,23 +278,8 @@ def _linear_run_bwd(starts, grads, perturbed, stepper, n_steps, chunk, native=Fa
             carry, src_ct = jax.lax.scan(back_step, carry, (ns, rows, fields), reverse=True, unroll=min(2, length))
             return carry, src_ct
 
-        n_chunks, rem = divmod(n_steps, chunk)
         full_starts, rem_start = starts[:2]
-        carry = (g1, g0, lat_ct0)
-        pieces = []
-        if rem:
-            carry, ct = segment(carry, jnp.asarray(n_chunks * chunk, jnp.int32), rem, rem_start)
-            pieces.append(ct)
-        if n_chunks:
-
-            def chunk_back(carry, xs):
-                k, start = xs
-                return segment(carry, k * chunk, chunk, start)
-
-            ks = jnp.arange(n_chunks, dtype=jnp.int32)
-            carry, cts = jax.lax.scan(chunk_back, carry, (ks, full_starts), reverse=True)
-            cts = tuple(x.reshape(n_chunks * chunk, -1) for x in cts)
-            pieces.insert(0, cts)
+        carry, pieces = _chunks_backwards(segment, (g1, g0, lat_ct0), n_steps, chunk, full_starts, rem_start)
         src_cts = tuple(jnp.concatenate([pc[i] for pc in pieces], axis=0) for i in range(len(stepper.sources)))
         _, _, lat_ct = carry
 
@@ -448,25 +433,14 @@ def _native_backward_pass(stepper, g1, g0, n_steps: int, chunk: int, starts, pro
 
         # each segment steps the forward field back from its end: the next segment's saved start,
         # the last one from the run's final fields
-        n_chunks, rem = divmod(n_steps, chunk)
         full_starts, rem_start = starts[:2]
         final = starts[2]
-        carry = (x, h, acc0)
-        asc = []
-        if rem:
-            carry, rec_r = segment(carry, jnp.asarray(n_chunks * chunk, jnp.int32), rem, final)
-            asc.append(rec_r)
-        if n_chunks:
+        n_chunks, rem = divmod(n_steps, chunk)
+        ends = None
+        if n_chunks:  # a full chunk ends where the next chunk (or the remainder, or the run) starts
             last = rem_start if rem else final
             ends = jax.tree_util.tree_map(lambda s, e: jnp.concatenate([s[1:], e[None]]), full_starts, last)
-
-            def chunk_back(carry, xs):
-                k, end = xs
-                return segment(carry, k * chunk, chunk, end)
-
-            ks = jnp.arange(n_chunks, dtype=jnp.int32)
-            carry, rec_c = jax.lax.scan(chunk_back, carry, (ks, ends), reverse=True)
-            asc.insert(0, rec_c.reshape(n_chunks * chunk, -1))
+        carry, asc = _chunks_backwards(segment, (x, h, acc0), n_steps, chunk, ends, final)
         acc = carry[2]
         for f, v in zip(("K", "bx", "by"), acc):
             if f in fields_wanted:
@@ -478,6 +452,28 @@ def _native_backward_pass(stepper, g1, g0, n_steps: int, chunk: int, starts, pro
     ct = desc[::-1]  # rows: steps 1 .. n_steps
     bounds = np.cumsum([0] + [s.n_cells for s in srcs])
     return tuple(ct[:, bounds[i] : bounds[i + 1]] for i in range(len(srcs))), lat_ct
+
+
+def _chunks_backwards(segment, carry, n_steps: int, chunk: int, full_xs, rem_x):
+    """`segment(carry, n_first, length, x)` over the run's chunks from the last to the first: the
+    remainder chunk (steps n_chunks * chunk + 1 .. n_steps) with `rem_x`, then the full chunks in
+    a reverse scan over `full_xs` (stacked per chunk). Returns (carry, [the full chunks' outputs
+    joined along the steps, the remainder's]) in step order."""
+    n_chunks, rem = divmod(n_steps, chunk)
+    pieces = []
+    if rem:
+        carry, out = segment(carry, jnp.asarray(n_chunks * chunk, jnp.int32), rem, rem_x)
+        pieces.append(out)
+    if n_chunks:
+
+        def body(c, xs):
+            k, x = xs
+            return segment(c, k * chunk, chunk, x)
+
+        ks = jnp.arange(n_chunks, dtype=jnp.int32)
+        carry, outs = jax.lax.scan(body, carry, (ks, full_xs), reverse=True)
+        pieces.insert(0, jax.tree_util.tree_map(lambda a: a.reshape(n_chunks * chunk, -1), outs))
+    return carry, pieces
 
 
 def _sum_to(v, shape):

@@ -27,7 +27,6 @@
 #include <cstdint>
 #include <cstring>
 #include <limits>
-#include <memory>
 #include <thread>
 #include <vector>
 #if defined(__x86_64__) || defined(_M_X64)
@@ -1410,29 +1409,6 @@ struct AdjointChunkArgs {
   CellOps<T> adj;  // the injected output cotangents (rows = the backward steps), records, zero cells
   T *dK = nullptr, *dbx = nullptr, *dby = nullptr;  // accumulated cotangents (nullptr: not wanted)
 };
-
-// one row of L(f) (rows fm, f0, fp; zero rows beyond the window) into out, by the formula above
-// (the first and last cells apart, so the inner loop has no branch and vectorises)
-template <typename T>
-static inline void lap_row(const T* __restrict fm, const T* __restrict f0, const T* __restrict fp,
-                           const T* __restrict bxl, const T* __restrict bxh, const T* __restrict byr,
-                           const T* __restrict ml, const T* __restrict mh, T* __restrict out, int64_t ny) {
-  auto cell = [&](int64_t j, T s, T n) {
-    const T q = f0[j];
-    return (bxh[j] * (fp[j] - q) - bxl[j] * (q - fm[j])) + (mh[j] * byr[j + 1] * (n - q) - ml[j] * byr[j] * (q - s));
-  };
-  if (ny == 1) {
-    out[0] = cell(0, T(0), T(0));
-    return;
-  }
-  out[0] = cell(0, T(0), f0[1]);
-  for (int64_t j = 1; j < ny - 1; ++j) {
-    const T q = f0[j];
-    out[j] = (bxh[j] * (fp[j] - q) - bxl[j] * (q - fm[j])) +
-             (mh[j] * byr[j + 1] * (f0[j + 1] - q) - ml[j] * byr[j] * (q - f0[j - 1]));
-  }
-  out[ny - 1] = cell(ny - 1, f0[ny - 2], T(0));
-}
 
 template <typename T, bool DK, bool DBX, bool DBY>
 void adjoint_chunk_run(const AdjointChunkArgs<T>& a) {

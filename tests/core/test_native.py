@@ -577,16 +577,26 @@ def test_native_lattice_adjoint_equals_the_jax_one(kind, dtype, monkeypatch):
         assert err <= tol * scale, f"{kind} {dtype} {name}: {err:.3g} vs scale {scale:.3g} (tol {tol:.2g})"
 
 
-@pytest.mark.parametrize("dtype", ["float64", "float32"])
-@pytest.mark.parametrize("kind", ["plane", "plane-hard", "rz", "rz-disc"])
-def test_native_lattice_adjoint_coefficient_gradients(kind, dtype, monkeypatch):
+@pytest.mark.parametrize(
+    "kind, dtype, segment",
+    [(k, d, 40) for k in ("plane", "plane-hard", "rz", "rz-disc") for d in ("float64", "float32")]
+    + [("plane", "float32", None)],
+)
+def test_native_lattice_adjoint_coefficient_gradients(kind, dtype, segment, monkeypatch):
     """Gradients w.r.t. a speed map and a density map (every coefficient the kernels' adjoint
     computes: K and both face conductances; on the rz lattice with the ring metric) and the
-    sources, with the backward pass on `difflattice_adjoint_chunk` (fields recomputed chunk by
-    chunk, cotangents fused into the adjoint step) = the JAX lattice adjoint's, to the module's
-    rounding bound relative to each gradient's largest entry."""
+    sources, with the backward pass on `difflattice_adjoint_chunk` (fields stepped back segment by
+    segment, cotangents fused into the adjoint step) = the JAX lattice adjoint's, to the module's
+    rounding bound relative to each gradient's largest entry. Segments of 40 steps over chunks of
+    10 and 97 steps: two whole segments from saved ends, then 17 steps (a chunk and the remainder)
+    from the final fields; the default segment (256 steps): the whole run from the final fields."""
+    from difflattice.solver import adjoint as adj
     from difflattice.solver.native import kernels
     from difflattice.solver.sources import disc_transducer
+
+    if segment is not None:
+        monkeypatch.setattr(adj, "NATIVE_SEGMENT_STEPS", segment)
+    jax.clear_caches()  # the segment is read while tracing: no program traced by another case
 
     rz = kind.startswith("rz")
     g = _grid(dtype, kind="rz") if rz else _grid(dtype)

@@ -24,9 +24,10 @@ On a CPU with the native kernels (`backend="auto"`), the forward run is native, 
 backward run where the lattice has no q_scale, keep, sponge or viscous term (K and face
 conductances, plane or rz: `native.kernels.adjoint_supported`): source gradients by the kernels'
 adjoint step (temporal blocking, nothing stored), coefficient gradients (K, bx, by) by
-`difflattice_adjoint_chunk`, which steps the forward field back from each chunk's saved end
+`difflattice_adjoint_chunk`, which steps the forward field back from each segment's saved end
 alongside the adjoint (the leapfrog is reversible; the reconstruction's rounding restarts from an
-exact saved field every chunk) with the cotangents fused into the same pass.
+exact saved field every segment of `NATIVE_SEGMENT_STEPS` steps, two fields saved per segment)
+with the cotangents fused into the same pass.
 """
 
 from __future__ import annotations
@@ -80,9 +81,27 @@ def _angles(grid, sensors, n):
     return (n.astype(grid.jnp_dtype) * w) % (2 * math.pi)
 
 
-def _forward(stepper, n_steps: int, chunk: int, save: bool, native: bool):
-    """Run from rest; returns (probes, phasor_re, phasor_im, p, p_prev, peaks), (starts, rem_start).
-    `native`: each chunk of steps one call of the native kernels (else the JAX scan)."""
+# The native backward pass steps the forward fields back from saved ends, so its segments can be
+# much longer than the forward run's chunks (its memory is 2 fields per segment, its rounding
+# restarts from an exact field at every segment end): the saved fields are taken every
+# `native_segment(chunk)` steps. Each segment costs one kernel call and two field copies, whose
+# fixed cost dominated at sqrt(n_steps)-step segments (measured: 840x630 x 1000 steps, a speed-map
+# gradient 0.88 s with 31-step segments, 0.59 s with 250).
+NATIVE_SEGMENT_STEPS = 256
+
+
+def native_segment(chunk: int) -> int:
+    """The native backward pass's segment length: the multiple of `chunk` nearest
+    `NATIVE_SEGMENT_STEPS` (at least one chunk)."""
+    return chunk * max(1, round(NATIVE_SEGMENT_STEPS / chunk))
+
+
+def _forward(stepper, n_steps: int, chunk: int, save, native: bool):
+    """Run from rest; returns (probes, phasor_re, phasor_im, p, p_prev, peaks), (saved, rem_start).
+    `save`: False (nothing), "starts" (each chunk's start (p, p_prev), stacked, and the remainder
+    chunk's start) or a segment length in steps, a multiple of `chunk` (the fields at the end of
+    each whole segment, stacked; rem_start None). `native`: each chunk of steps one call of the
+    native kernels (else the JAX scan)."""
     n_chunks, rem = divmod(n_steps, chunk)
     if native:
         from .native.kernels import chunk_kernel
@@ -93,23 +112,50 @@ def _forward(stepper, n_steps: int, chunk: int, save: bool, native: bool):
         def advance(st, length):
             return jax.lax.scan(lambda s, _: stepper.step(s), st, None, length=length, unroll=min(2, length))
 
+    starts = save == "starts"
+
     def outer(st, _):
-        start = (st.p, st.p_prev) if save else None
+        start = (st.p, st.p_prev) if starts else None
         st, ys = advance(st, chunk)
         return st, (ys, jnp.max(jnp.abs(st.p)), start)
 
+    def chunks(st, n):
+        """n chunks: (state, (probes (n * chunk, n_probes) or None, peaks (n,), starts or None))."""
+        st, (ys, peaks, saved) = jax.lax.scan(outer, st, None, length=n)
+        return st, (None if ys is None else ys.reshape(n * chunk, -1), peaks, saved)
+
     st = stepper.init()
-    st, (ys, peaks, starts) = jax.lax.scan(outer, st, None, length=n_chunks)
-    if ys is not None:
-        ys = ys.reshape(n_chunks * chunk, -1)
+    saved = None
+    if save and not starts:  # whole segments of m chunks, each end saved, then the chunks left
+        m = save // chunk
+        n_seg, left = divmod(n_chunks, m)
+        ys_parts: list = []
+        peak_parts: list = []
+        if n_seg:
+
+            def group(st, _):
+                st, (ys, peaks, _) = chunks(st, m)
+                return st, (ys, peaks, (st.p, st.p_prev))
+
+            st, (ys, peaks, saved) = jax.lax.scan(group, st, None, length=n_seg)
+            ys_parts.append(None if ys is None else ys.reshape(n_seg * m * chunk, -1))
+            peak_parts.append(peaks.reshape(-1))
+        if left:
+            st, (ys, peaks, _) = chunks(st, left)
+            ys_parts.append(ys)
+            peak_parts.append(peaks)
+        ys = None if stepper.sensors.n_probes == 0 else jnp.concatenate(ys_parts)
+        peaks = jnp.concatenate(peak_parts)
+    else:
+        st, (ys, peaks, saved) = chunks(st, n_chunks)
     rem_start = None
     if rem:
-        rem_start = (st.p, st.p_prev) if save else None
+        rem_start = (st.p, st.p_prev) if starts else None
         st, ys_r = advance(st, rem)
         peaks = jnp.concatenate([peaks, jnp.max(jnp.abs(st.p))[None]])
         if ys is not None:
             ys = jnp.concatenate([ys, ys_r.reshape(rem, -1)], axis=0)
-    return (ys, st.phasor_re, st.phasor_im, st.p, st.p_prev, peaks), (starts, rem_start)
+    return (ys, st.phasor_re, st.phasor_im, st.p, st.p_prev, peaks), (saved, rem_start)
 
 
 @eqx.filter_custom_vjp
@@ -122,14 +168,32 @@ def linear_run(stepper, n_steps: int, chunk: int, native: bool = False):
 
 @linear_run.def_fwd
 def _linear_run_fwd(perturbed, stepper, n_steps, chunk, native=False):
-    save = _lattice_perturbed(perturbed)  # coefficient gradients need the forward fields
-    out, starts = _forward(stepper, n_steps, chunk, save=save, native=native)
+    save: bool | str | int = False
+    if _lattice_perturbed(perturbed):  # coefficient gradients need the forward fields
+        # the native pass steps back from saved segment ends, the JAX pass recomputes from chunk starts
+        save = native_segment(chunk) if _native_path(stepper, perturbed, native) else "starts"
+    out, saved = _forward(stepper, n_steps, chunk, save=save, native=native)
     final = (out[3], out[4]) if save else None  # (the native backward steps back from the end)
-    return out, (*starts, final)
+    return out, (*saved, final)
 
 
 def _lattice_perturbed(perturbed) -> bool:
     return any(jax.tree_util.tree_leaves(perturbed.lattice))
+
+
+def _fields_wanted(lat, perturbed) -> tuple[str, ...]:
+    """The lattice fields whose gradients are wanted (the step reads K, q_scale, bx, by[, bz],
+    keep, sponge)."""
+    return tuple(
+        f
+        for f in ("K", "q_scale", "bx", "by", "bz", "keep", "sponge")
+        if getattr(lat, f) is not None and any(jax.tree_util.tree_leaves(getattr(perturbed.lattice, f)))
+    )
+
+
+def _native_path(stepper, perturbed, native: bool) -> bool:
+    """Whether the backward pass runs on the native kernels."""
+    return native and set(_fields_wanted(stepper.lattice, perturbed)) <= {"K", "bx", "by"} and _native_backward(stepper)
 
 
 @linear_run.def_bwd
@@ -164,16 +228,7 @@ def _linear_run_bwd(starts, grads, perturbed, stepper, n_steps, chunk, native=Fa
             g = g.at[c].add(w * (g_re * jnp.cos(ang) + g_im * jnp.sin(ang)))
         return g
 
-    # lattice fields whose gradients are wanted (the step reads K, q_scale, bx, by[, bz], keep, sponge)
-    fields_wanted = (
-        tuple(
-            f
-            for f in ("K", "q_scale", "bx", "by", "bz", "keep", "sponge")
-            if getattr(lat, f) is not None and any(jax.tree_util.tree_leaves(getattr(perturbed.lattice, f)))
-        )
-        if want_lat
-        else ()
-    )
+    fields_wanted = _fields_wanted(lat, perturbed) if want_lat else ()
 
     need_prev = "keep" in fields_wanted or "sponge" in fields_wanted
 
@@ -250,9 +305,17 @@ def _linear_run_bwd(starts, grads, perturbed, stepper, n_steps, chunk, native=Fa
     probes_all = jnp.concatenate([jnp.zeros((1, n_probes), dtype), g_probes.astype(dtype)]) if n_probes else None
     g1 = inject(g1, jnp.asarray(n_steps, jnp.int32), None if probes_all is None else probes_all[n_steps])
 
-    if native and set(fields_wanted) <= {"K", "bx", "by"} and _native_backward(stepper):
+    if _native_path(stepper, perturbed, native):
         src_cts, lat_ct = _native_backward_pass(
-            stepper, g1, g0, n_steps, chunk, starts, probes_all, (g_re, g_im) if use_phasors else None, fields_wanted
+            stepper,
+            g1,
+            g0,
+            n_steps,
+            native_segment(chunk),
+            starts,
+            probes_all,
+            (g_re, g_im) if use_phasors else None,
+            fields_wanted,
         )
     else:
 
@@ -333,7 +396,7 @@ def _native_backward(stepper) -> bool:
     return adjoint_supported(stepper) and (len(srcs) <= 1 or all(s.adds for s in srcs))
 
 
-def _native_backward_pass(stepper, g1, g0, n_steps: int, chunk: int, starts, probes_all, phasor_ct, fields_wanted):
+def _native_backward_pass(stepper, g1, g0, n_steps: int, segment: int, saved, probes_all, phasor_ct, fields_wanted):
     """The backward pass on the native kernels: (per-step source cotangents, one (n_steps,
     n_cells) array per source; coefficient cotangents {field: array}).
 
@@ -342,8 +405,9 @@ def _native_backward_pass(stepper, g1, g0, n_steps: int, chunk: int, starts, pro
     else 1), so x = a / V follows the kernel's x' = 2 x + L(K x) - h with the injections divided
     by V; the record of x at the source cells (before the zeroing) times V is the cotangent of p(n)
     there. Without coefficient cotangents the kernel's adjoint mode runs the whole pass (temporal
-    blocking, no stored fields); with them, `difflattice_adjoint_chunk` runs it chunk by chunk from
-    the forward run's saved chunk starts, recomputing each chunk's fields (as the JAX pass does)."""
+    blocking, no stored fields); with them, `difflattice_adjoint_chunk` runs it segment by segment
+    (`segment` steps each, then the rest) from the fields the forward run saved at each segment's
+    end (`saved` = (stacked ends, None, final fields)), stepping the forward field back alongside."""
     from ..lattice.operators import _face_coefficients
     from .native.kernels import chunk_kernel
 
@@ -414,16 +478,15 @@ def _native_backward_pass(stepper, g1, g0, n_steps: int, chunk: int, starts, pro
             jnp.ones((nx, ny + 1), dtype) if by is None else jnp.broadcast_to(jnp.asarray(by, dtype), (nx, ny + 1)),
         )
         row = lambda v, n: jnp.broadcast_to(jnp.asarray(v, dtype).reshape(-1), (n,))
-        one_y, one_f = jnp.ones(ny, dtype), jnp.ones(ny + 1, dtype)
-        metric = (
-            (one_y, one_y, one_y, one_f)
+        metric = (  # a plane grid: no metric (empty arrays), the kernel's unit-factor loop
+            (jnp.zeros((0,), dtype),) * 4
             if m is None
             else (row(m.lo, ny), row(m.hi, ny), row(m.volume, ny), row(m.area, ny + 1))
         )
         full = {"K": (nx, ny), "bx": (nx + 1, ny), "by": (nx, ny + 1)}
         acc0 = tuple(jnp.zeros(full[f] if f in fields_wanted else (0,), dtype) for f in ("K", "bx", "by"))
 
-        def segment(carry, n_first, length, end):
+        def backwards(carry, n_first, length, end):
             x, h, acc = carry
             ns = n_first + length - 1 - jnp.arange(length, dtype=jnp.int32)  # the injections' steps
             x, h, rec, acc = kern.adjoint_chunk(
@@ -431,16 +494,10 @@ def _native_backward_pass(stepper, g1, g0, n_steps: int, chunk: int, starts, pro
             )
             return (x, h, acc), rec[::-1]  # rows: steps n_first .. n_first + length - 1
 
-        # each segment steps the forward field back from its end: the next segment's saved start,
-        # the last one from the run's final fields
-        full_starts, rem_start = starts[:2]
-        final = starts[2]
-        n_chunks, rem = divmod(n_steps, chunk)
-        ends = None
-        if n_chunks:  # a full chunk ends where the next chunk (or the remainder, or the run) starts
-            last = rem_start if rem else final
-            ends = jax.tree_util.tree_map(lambda s, e: jnp.concatenate([s[1:], e[None]]), full_starts, last)
-        carry, asc = _chunks_backwards(segment, (x, h, acc0), n_steps, chunk, ends, final)
+        # each segment steps the forward field back from its end: the saved field at a whole
+        # segment's end, the run's final fields for the rest
+        ends, _, final = saved
+        carry, asc = _chunks_backwards(backwards, (x, h, acc0), n_steps, segment, ends, final)
         acc = carry[2]
         for f, v in zip(("K", "bx", "by"), acc):
             if f in fields_wanted:

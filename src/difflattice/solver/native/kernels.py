@@ -436,8 +436,9 @@ class _Chunk:
         """The lattice adjoint's backward pass over steps n0 + length .. n0 + 1 with the
         coefficients' cotangents (`difflattice_adjoint_chunk`): the forward fields are stepped
         back from `end` = (p(n0 + length), p(n0 + length - 1)) alongside; `faces` = the full (bx,
-        by) arrays; `metric` = (ml, mh, volumes, areas) rows; `acc` = the (dK, dbx, dby) sums so
-        far (empty arrays: not wanted). Returns (x, h, records (length, n_rec), acc)."""
+        by) arrays; `metric` = (ml, mh, volumes, areas) rows (empty arrays on a plane grid); `acc` =
+        the (dK, dbx, dby) sums so far (empty arrays: not wanted). Returns (x, h, records (length,
+        n_rec), acc)."""
         dt = self.dt
         vals, _, _ = self.tables(n0 - 2, length + 2)  # steps n0 - 1 .. n0 + length
         steps = n0 - 1 + jnp.arange(length + 2, dtype=jnp.int32)

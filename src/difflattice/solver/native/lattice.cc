@@ -1410,7 +1410,7 @@ struct AdjointChunkArgs {
   T *dK = nullptr, *dbx = nullptr, *dby = nullptr;  // accumulated cotangents (nullptr: not wanted)
 };
 
-template <typename T, bool DK, bool DBX, bool DBY>
+template <typename T, bool DK, bool DBX, bool DBY, bool RZ>
 void adjoint_chunk_run(const AdjointChunkArgs<T>& a) {
   const int64_t nx = a.nx, ny = a.ny, len = a.len, cells = nx * ny;
   // the forward pair, stepped back in place: a buffer kept between calls (a fresh one would cost
@@ -1488,10 +1488,15 @@ void adjoint_chunk_run(const AdjointChunkArgs<T>& a) {
       }
       const T* __restrict x0 = xb + i * ny;
       const T* __restrict kr = k_row(i);
+      // the ring metric (RZ), else unit factors that the compiler folds away
       const T* __restrict ml = a.ml;
       const T* __restrict mh = a.mh;
       const T* __restrict vol = a.vol;
       const T* __restrict area = a.area;
+      auto ML = [&](int64_t j) { if constexpr (RZ) return ml[j]; else return T(1); };
+      auto MH = [&](int64_t j) { if constexpr (RZ) return mh[j]; else return T(1); };
+      auto VOL = [&](int64_t j) { if constexpr (RZ) return vol[j]; else return T(1); };
+      auto AREA = [&](int64_t j) { if constexpr (RZ) return area[j]; else return T(1); };
       T* __restrict hr = hb + i * ny;
       T* __restrict dK = DK ? a.dK + i * ny : nullptr;
       T* __restrict dbx = DBX ? a.dbx + i * ny : nullptr;  // face i: rows i - 1, i
@@ -1500,11 +1505,11 @@ void adjoint_chunk_run(const AdjointChunkArgs<T>& a) {
       // (ps, pn_, us, un: the low and high y neighbours of p(n - 1) and u)
       auto cell = [&](int64_t j, T ps, T pn_, T us, T un) {
         const T q = pr[j], w = u0[j];
-        const T lp = (bxh[j] * (pq[j] - q) - bxl[j] * (q - pm[j])) + (mh[j] * byr[j + 1] * (pn_ - q) - ml[j] * byr[j] * (q - ps));
-        const T lu = (bxh[j] * (up[j] - w) - bxl[j] * (w - um[j])) + (mh[j] * byr[j + 1] * (un - w) - ml[j] * byr[j] * (w - us));
-        if constexpr (DK) dK[j] += vol[j] * x0[j] * lp;
-        if constexpr (DBX) dbx[j] += -vol[j] * (q - pm[j]) * (w - um[j]);
-        if constexpr (DBY) dby[j] += -area[j] * (q - ps) * (w - us);
+        const T lp = (bxh[j] * (pq[j] - q) - bxl[j] * (q - pm[j])) + (MH(j) * byr[j + 1] * (pn_ - q) - ML(j) * byr[j] * (q - ps));
+        const T lu = (bxh[j] * (up[j] - w) - bxl[j] * (w - um[j])) + (MH(j) * byr[j + 1] * (un - w) - ML(j) * byr[j] * (w - us));
+        if constexpr (DK) dK[j] += VOL(j) * x0[j] * lp;
+        if constexpr (DBX) dbx[j] += -VOL(j) * (q - pm[j]) * (w - um[j]);
+        if constexpr (DBY) dby[j] += -AREA(j) * (q - ps) * (w - us);
         pn[j] = (T(2) * q - pn[j]) + kr[j] * lp;
         hr[j] = (T(2) * x0[j] + lu) - hr[j];
       };
@@ -1516,22 +1521,22 @@ void adjoint_chunk_run(const AdjointChunkArgs<T>& a) {
         for (int64_t j = 1; j < ny - 1; ++j) {  // the same as `cell`, written out so that it vectorises
           const T q = pr[j], w = u0[j];
           const T lp = (bxh[j] * (pq[j] - q) - bxl[j] * (q - pm[j])) +
-                       (mh[j] * byr[j + 1] * (pr[j + 1] - q) - ml[j] * byr[j] * (q - pr[j - 1]));
+                       (MH(j) * byr[j + 1] * (pr[j + 1] - q) - ML(j) * byr[j] * (q - pr[j - 1]));
           const T lu = (bxh[j] * (up[j] - w) - bxl[j] * (w - um[j])) +
-                       (mh[j] * byr[j + 1] * (u0[j + 1] - w) - ml[j] * byr[j] * (w - u0[j - 1]));
-          if constexpr (DK) dK[j] += vol[j] * x0[j] * lp;
-          if constexpr (DBX) dbx[j] += -vol[j] * (q - pm[j]) * (w - um[j]);
-          if constexpr (DBY) dby[j] += -area[j] * (q - pr[j - 1]) * (w - u0[j - 1]);
+                       (MH(j) * byr[j + 1] * (u0[j + 1] - w) - ML(j) * byr[j] * (w - u0[j - 1]));
+          if constexpr (DK) dK[j] += VOL(j) * x0[j] * lp;
+          if constexpr (DBX) dbx[j] += -VOL(j) * (q - pm[j]) * (w - um[j]);
+          if constexpr (DBY) dby[j] += -AREA(j) * (q - pr[j - 1]) * (w - u0[j - 1]);
           pn[j] = (T(2) * q - pn[j]) + kr[j] * lp;
           hr[j] = (T(2) * x0[j] + lu) - hr[j];
         }
         cell(ny - 1, pr[ny - 2], T(0), u0[ny - 2], T(0));
       }
-      if constexpr (DBY) dby[ny] += -area[ny] * (T(0) - pr[ny - 1]) * (T(0) - u0[ny - 1]);  // the last face
+      if constexpr (DBY) dby[ny] += -AREA(ny) * (T(0) - pr[ny - 1]) * (T(0) - u0[ny - 1]);  // the last face
       if constexpr (DBX) {
         if (i == nx - 1) {  // face nx: row nx - 1 and the zero beyond
           T* e = a.dbx + nx * ny;
-          for (int64_t j = 0; j < ny; ++j) e[j] += -vol[j] * (T(0) - pr[j]) * (T(0) - u0[j]);
+          for (int64_t j = 0; j < ny; ++j) e[j] += -VOL(j) * (T(0) - pr[j]) * (T(0) - u0[j]);
         }
       }
       for (int64_t u = srcs.start[i]; u < srcs.start[i + 1]; ++u) {
@@ -1553,9 +1558,10 @@ template <typename T>
 void adjoint_chunk(const AdjointChunkArgs<T>& a) {
   const int w = (a.dK ? 4 : 0) | (a.dbx ? 2 : 0) | (a.dby ? 1 : 0);
   switch (w) {
-#define DL_W(N, A, B, C) \
-  case N:                \
-    return adjoint_chunk_run<T, A, B, C>(a);
+#define DL_W(N, A, B, C)                              \
+  case N:                                             \
+    if (a.ml) return adjoint_chunk_run<T, A, B, C, true>(a); \
+    return adjoint_chunk_run<T, A, B, C, false>(a);
     DL_W(0, false, false, false)
     DL_W(1, false, false, true)
     DL_W(2, false, true, false)
@@ -1828,8 +1834,10 @@ ffi::Error adjoint_chunk_typed(ffi::AnyBuffer p_end, ffi::AnyBuffer pp_end, ffi:
   const char* bad = "difflattice_adjoint_chunk: an argument has the wrong size";
   if (p_end.element_count() != size_t(nx * ny) || pp_end.element_count() != size_t(nx * ny) ||
       h.element_count() != size_t(nx * ny) || bx.element_count() != size_t((nx + 1) * ny) ||
-      by.element_count() != size_t(nx * (ny + 1)) || ml.element_count() != size_t(ny) ||
-      mh.element_count() != size_t(ny) || vol.element_count() != size_t(ny) || area.element_count() != size_t(ny + 1) ||
+      by.element_count() != size_t(nx * (ny + 1)) ||
+      (ml.element_count() &&  // the ring metric, or none (a plane grid: four empty arrays)
+       (ml.element_count() != size_t(ny) || mh.element_count() != size_t(ny) || vol.element_count() != size_t(ny) ||
+        area.element_count() != size_t(ny + 1))) ||
       (dK.element_count() && dK.element_count() != size_t(nx * ny)) ||
       (dbx.element_count() && dbx.element_count() != size_t((nx + 1) * ny)) ||
       (dby.element_count() && dby.element_count() != size_t(nx * (ny + 1))) || n_steps < 1 ||
@@ -1853,10 +1861,12 @@ ffi::Error adjoint_chunk_typed(ffi::AnyBuffer p_end, ffi::AnyBuffer pp_end, ffi:
   a.pp_end = ptr(pp_end);
   a.bx = ptr(bx);
   a.by = ptr(by);
-  a.ml = ptr(ml);
-  a.mh = ptr(mh);
-  a.vol = ptr(vol);
-  a.area = ptr(area);
+  if (ml.element_count()) {
+    a.ml = ptr(ml);
+    a.mh = ptr(mh);
+    a.vol = ptr(vol);
+    a.area = ptr(area);
+  }
   a.x = out_from<T>(x_o, x);
   a.h = out_from<T>(h_o, h);
   a.dK = out_from<T>(dK_o, dK);

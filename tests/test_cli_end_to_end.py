@@ -75,15 +75,39 @@ def test_bad_scene_files_name_file_and_key(tmp_path, capsys, patch, message):
     assert str(scene) in err and message in err, err
 
 
-def test_fit_config_is_reproducible(tmp_path):
+def test_fit_config_is_reproducible(tmp_path, monkeypatch):
+    """Two runs of a config agree to round-off: the first with the error budget's second-resolution
+    transfer simulated in a background thread beside the fit (once, and used by the budget), the
+    second with it simulated when the budget asks (no prefetch)."""
+    import threading
+
+    import difflattice.fit.config as fc
+    import difflattice.fit.transfer as ft
+
+    calls = []
+    real = ft.free_field_transfer
+    monkeypatch.setattr(
+        ft,
+        "free_field_transfer",
+        lambda **k: calls.append((k["cells_per_wavelength"], threading.current_thread().name)) or real(**k),
+    )
     cfg = load_config(ROOT / "fitting" / "polaroid_like.toml")
     a = run_fit(cfg, out=tmp_path / "a", quick=True, verbose=False)
+    assert [c for c, _ in calls] == [12.0, 18.0], calls  # quick: 12 cells/wavelength, the budget's at 1.5x
+    assert calls[1][1].startswith("difflattice-prefetch"), calls
+    assert a["budget"]["resolution"]["measured"]
+    calls.clear()
+    monkeypatch.setattr(fc, "_Prefetched", lambda make, cpw: make)
     b = run_fit(cfg, out=tmp_path / "b", quick=True, verbose=False)
+    assert [c for c, _ in calls] == [12.0, 18.0] and calls[1][1] == threading.current_thread().name, calls
     pa, pb = a["fit"]["parameters"], b["fit"]["parameters"]
     assert a["fit"]["converged"]
     # deterministic pipeline: identical to round-off
     assert abs(pa["diameter_m"] - pb["diameter_m"]) < 1e-12
     assert max(abs(x - y) for x, y in zip(pa["lags_s"], pb["lags_s"])) < 1e-15
+    assert len(a["budget"]["scalars"]) == len(b["budget"]["scalars"]) > 0
+    for sa, sb in zip(a["budget"]["scalars"], b["budget"]["scalars"]):
+        assert sa["name"] == sb["name"] and (sa["total"] == sb["total"] or abs(sa["total"] - sb["total"]) < 1e-12)
     prov = a["provenance"]
     assert len(prov["config_sha256"]) == 64 and all(len(h) == 64 for h in prov["data_sha256"].values())
     assert "jax" in prov["versions"]

@@ -859,9 +859,10 @@ def _warn_unused_uncertainty(cfg: FitConfig) -> None:
             )
 
 
-def _fit_line(cfg: FitConfig, lobe, wave, f: float, c: float, ppw: float, opts, verbose: bool):
+def _fit_line(cfg: FitConfig, lobe, wave, f: float, c: float, ppw: float, opts, verbose: bool, prefetch):
     """The line model's transfer, fit and untuned uniform fit: (fitted, uniform, transfer,
-    make_transfer(cells_per_wavelength), transfer time in s)."""
+    make_transfer(cells_per_wavelength), transfer time in s). `prefetch`: a resolution (cells per
+    wavelength) whose transfer the error budget will ask for, simulated beside the fit (or None)."""
     from .model import ModelSpec
     from .solve import fit
     from .transfer import free_field_transfer
@@ -876,7 +877,7 @@ def _fit_line(cfg: FitConfig, lobe, wave, f: float, c: float, ppw: float, opts, 
             f"wavelength ({dx * 1e3:.2f} mm); the line needs >= 3 cells; fix: give the face length in metres",
         )
 
-    def make_transfer(cpw: float):
+    def simulate_transfer(cpw: float):
         return free_field_transfer(
             frequency_hz=f,
             c_m_s=c,
@@ -889,8 +890,9 @@ def _fit_line(cfg: FitConfig, lobe, wave, f: float, c: float, ppw: float, opts, 
         )
 
     t0 = time.perf_counter()
-    transfer = make_transfer(ppw)
+    transfer = simulate_transfer(ppw)
     t_transfer = time.perf_counter() - t0
+    make_transfer = _Prefetched(simulate_transfer, prefetch)
     try:
         spec = ModelSpec(
             n_cells=n_cells,
@@ -921,7 +923,30 @@ def _fit_line(cfg: FitConfig, lobe, wave, f: float, c: float, ppw: float, opts, 
     return fitted, uniform, transfer, make_transfer, t_transfer
 
 
-def _fit_disc(cfg: FitConfig, lobe, wave, f: float, c: float, ppw: float, opts, verbose: bool):
+class _Prefetched:
+    """`make_transfer` with the transfer at one resolution (`cells_per_wavelength`; None: none)
+    simulated in a background thread from now on: the error budget's second resolution runs while
+    the main fit traces its programs (one core each; the native kernels and XLA release the GIL).
+    A call for that resolution waits for the thread and returns its result (or raises its error)."""
+
+    def __init__(self, make, cells_per_wavelength: float | None):
+        import concurrent.futures
+
+        self.make = make
+        self.cpw = cells_per_wavelength
+        self.future = None
+        if cells_per_wavelength is not None:
+            pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="difflattice-prefetch")
+            self.future = pool.submit(make, cells_per_wavelength)
+            pool.shutdown(wait=False)
+
+    def __call__(self, cells_per_wavelength: float):
+        if self.future is not None and cells_per_wavelength == self.cpw:
+            return self.future.result()
+        return self.make(cells_per_wavelength)
+
+
+def _fit_disc(cfg: FitConfig, lobe, wave, f: float, c: float, ppw: float, opts, verbose: bool, prefetch):
     """The disc model's (`fit.disc`) transfer on the axisymmetric lattice, fit and untuned uniform
     piston fit, as `_fit_line`; `line_length_m` is the modelled disc's diameter."""
     from .solve import fit
@@ -951,11 +976,12 @@ def _fit_disc(cfg: FitConfig, lobe, wave, f: float, c: float, ppw: float, opts, 
     except ValueError as e:
         raise cfg.error("model", str(e)) from None
     t_transfer = time.perf_counter() - t0
+    make_transfer = _Prefetched(setup.make_transfer, prefetch)
     spec, transfer = setup.spec, cast(Any, setup.transfer)  # a DiscTransfer: the interface of a Transfer
     params0 = spec.init_params() if (m.fit_diameter and m.diameter_m is not None) else None
     fitted = fit(spec, transfer, lobe, wave, opts, progress=verbose, params0=params0)
     uniform = fit(setup.uniform_spec, transfer, lobe, wave, opts)
-    return fitted, uniform, transfer, setup.make_transfer, t_transfer
+    return fitted, uniform, transfer, make_transfer, t_transfer
 
 
 def run_fit(cfg: FitConfig, *, out: str | Path | None = None, quick: bool = False, verbose: bool = True) -> dict:
@@ -983,7 +1009,9 @@ def run_fit(cfg: FitConfig, *, out: str | Path | None = None, quick: bool = Fals
     opts = fit_options(cfg)
     _warn_unused_uncertainty(cfg)
     fit_model = _fit_disc if m.model == "disc" else _fit_line
-    fitted, uniform, transfer, make_transfer, t_transfer = fit_model(cfg, lobe, wave, f, c, ppw, opts, verbose)
+    # the error budget's second resolution (as `error_budget` picks it), simulated beside the fit
+    m2 = float((None if quick else cfg.uncertainty.second_cells_per_wavelength) or 1.5 * ppw)
+    fitted, uniform, transfer, make_transfer, t_transfer = fit_model(cfg, lobe, wave, f, c, ppw, opts, verbose, m2)
     fitted.warnings[:0] = [f"data: {n}" for n in data.notes]
     out_dir = Path(out) if out is not None else Path(cfg.output.dir)
     # the figures that do not need the error budget are drawn in a worker process meanwhile

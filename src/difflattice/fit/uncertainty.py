@@ -53,6 +53,7 @@ bound", ">= x") with the fix, not as a value +- 0.00.
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
 import math
 from collections.abc import Callable, Mapping, Sequence
@@ -615,10 +616,12 @@ def error_budget(
     window = np.asarray(ph["weights"]) / np.asarray(ph["weights_raw"])
     active = window >= 0.5  # cells inside the active aperture
 
-    # resolution
+    # resolution: the refit at a second resolution runs in a background thread while the
+    # model-family refits run here (XLA's compilation and the solver's steps release the GIL)
     sys_res: dict[str, float] | None = None
     resolution: dict = {"measured": False}
     m1 = float(transfer.info.get("cells_per_wavelength", transfer.grid.cells_per_wavelength))
+    refit2 = None
     if make_transfer is None:
         resolution["reason"] = "no second transfer (make_transfer) given"
     else:
@@ -631,26 +634,10 @@ def error_budget(
         say(f"[budget] refit at {m2:g} cells per wavelength (resolution error)")
         T2 = make_transfer(m2)
         spec2 = dataclasses.replace(spec, n_cells=T2.n_cells, dx_m=T2.grid.dx_m)
-        f2 = fit(spec2, T2, lobe, wave, options, params0=map_params(spec, params, spec2))
-        factor = 1.0 / abs(1.0 - (m1 / m2) ** 2)
-        other = _on_nominal(spec, spec2, _values(spec2, f2.params))
-        # the gain and the phase offset refer to the lattice's unit source cell, whose strength and
-        # phase change with the cell size: not a property of the transducer, so no resolution term
-        sys_res = {k: factor * abs(other[k] - val) for k, val in zip(names, v) if k in other and k not in NUISANCE}
-        resolution = {
-            "measured": True,
-            "cells_per_wavelength": m1,
-            "second_cells_per_wavelength": m2,
-            "richardson_factor": factor,
-            "chi2_reduced": f2.chi2_reduced,
-            "converged": f2.converged,
-            "values": {k: other[k] for k in ("diameter_mm", "gain_db", "phase0_deg") if k in other},
-        }
-        if not f2.converged:
-            notes.append(
-                f"the refit at {m2:g} cells per wavelength did not converge ({f2.result_code}): its "
-                "resolution estimate is uncertain"
-            )
+        pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="difflattice-budget")
+        refit2 = pool.submit(fit, spec2, T2, lobe, wave, options, params0=map_params(spec, params, spec2))
+        pool.shutdown(wait=False)
+    notes_at = len(notes)  # the resolution's notes go before the families'
 
     # model families
     fams = default_families(spec) if model_families is None else [_family(spec, f) for f in model_families]
@@ -728,6 +715,29 @@ def error_budget(
             notes.append(
                 f"an alternative model family fits much better (delta QAIC of the nominal {q[0] - best:+.1f}): "
                 "consider it (see the families below)"
+            )
+
+    if refit2 is not None:
+        f2 = refit2.result()
+        factor = 1.0 / abs(1.0 - (m1 / m2) ** 2)
+        other = _on_nominal(spec, spec2, _values(spec2, f2.params))
+        # the gain and the phase offset refer to the lattice's unit source cell, whose strength and
+        # phase change with the cell size: not a property of the transducer, so no resolution term
+        sys_res = {k: factor * abs(other[k] - val) for k, val in zip(names, v) if k in other and k not in NUISANCE}
+        resolution = {
+            "measured": True,
+            "cells_per_wavelength": m1,
+            "second_cells_per_wavelength": m2,
+            "richardson_factor": factor,
+            "chi2_reduced": f2.chi2_reduced,
+            "converged": f2.converged,
+            "values": {k: other[k] for k in ("diameter_mm", "gain_db", "phase0_deg") if k in other},
+        }
+        if not f2.converged:
+            notes.insert(
+                notes_at,
+                f"the refit at {m2:g} cells per wavelength did not converge ({f2.result_code}): its "
+                "resolution estimate is uncertain",
             )
 
     # estimates before identifiability

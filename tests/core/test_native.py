@@ -211,6 +211,39 @@ def test_threads_and_blocking_do_not_change_results(kind, monkeypatch):
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b), err_msg=name)
 
 
+def test_concurrent_runs_from_two_threads_equal_sequential_ones(monkeypatch):
+    """The kernels' worker threads persist between calls and take one call at a time; a call made
+    while another thread's call holds them starts its own threads. Runs of two scenes from two
+    Python threads at once (several rounds, so calls overlap) equal the same runs made one after
+    the other, bitwise."""
+    import threading
+
+    monkeypatch.setenv("DIFFLATTICE_NATIVE_THREADS", "2")
+    scenes = [Stepper.build(*_scene(k, "float32")) for k in ("conservative", "conservative+pml")]
+    fns = [eqx.filter_jit(lambda s: run(s, N, backend="native").final.pressure) for _ in scenes]
+    ref = [np.asarray(f(s)) for f, s in zip(fns, scenes)]
+    got: list[list] = [[], []]
+    errors = []
+
+    def work(k):
+        try:
+            for _ in range(6):
+                got[k].append(np.asarray(fns[k](scenes[k])))
+        except Exception as e:  # re-raised below
+            errors.append(e)
+
+    threads = [threading.Thread(target=work, args=(k,)) for k in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors, errors
+    for k in range(2):
+        assert len(got[k]) == 6
+        for a in got[k]:
+            np.testing.assert_array_equal(a, ref[k])
+
+
 def _uses_native(fn, *args) -> bool:
     text = str(jax.make_jaxpr(fn)(*args))
     return "difflattice_leapfrog" in text or "difflattice_staggered" in text

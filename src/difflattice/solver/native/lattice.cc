@@ -23,12 +23,17 @@
 // file is compiled with -ffp-contract=fast as well).
 #include <algorithm>
 #include <atomic>
+#include <condition_variable>
 #include <cmath>
 #include <cstdint>
 #include <cstring>
 #include <limits>
+#include <mutex>
 #include <thread>
+#include <type_traits>
 #include <vector>
+
+#include <unistd.h>  // getpid
 #if defined(__x86_64__) || defined(_M_X64)
 #include <immintrin.h>
 #define DL_PAUSE() _mm_pause()
@@ -85,6 +90,75 @@ class FlushDenormals {
 #endif
 };
 
+// Worker threads kept between calls. A thread created per call starts beside its creator and is
+// moved to the idle core only later: measured, 840x630 x 1000 steps on two threads in calls of 128
+// steps ran at 4800-5900 MLUPS with threads created per call, 7200-8400 in one call. One job at a
+// time: a call that finds the pool busy (another XLA thread in a kernel) creates its own threads.
+class Pool {
+ public:
+  using Fn = void (*)(void*, int);
+
+  static Pool& get() {  // never destroyed: its threads block in a wait at exit
+    static Pool* pool = new Pool();
+    return *pool;
+  }
+
+  // run fn(ctx, t) for t = 1 .. n - 1 on the workers and fn(ctx, 0) here; false (nothing run)
+  // when the pool is busy or this is a forked child (whose workers do not exist)
+  bool run(int n, Fn fn, void* ctx) {
+    std::unique_lock<std::mutex> busy(busy_, std::try_to_lock);
+    if (!busy.owns_lock() || getpid() != pid_) return false;
+    {
+      std::lock_guard<std::mutex> lk(m_);
+      while (int(workers_.size()) < n - 1) {
+        const int t = int(workers_.size()) + 1;
+        workers_.emplace_back([this, t] { loop(t); });
+        workers_.back().detach();
+      }
+      fn_ = fn;
+      ctx_ = ctx;
+      n_ = n;
+      pending_ = n - 1;
+      ++gen_;
+    }
+    cv_.notify_all();
+    fn(ctx, 0);
+    std::unique_lock<std::mutex> lk(m_);
+    done_.wait(lk, [this] { return pending_ == 0; });
+    return true;
+  }
+
+ private:
+  Pool() : pid_(getpid()) {}
+
+  void loop(int t) {
+    uint64_t seen = 0;
+    for (;;) {
+      Fn fn;
+      void* ctx;
+      {
+        std::unique_lock<std::mutex> lk(m_);
+        cv_.wait(lk, [&] { return gen_ != seen && t < n_; });
+        seen = gen_;
+        fn = fn_;
+        ctx = ctx_;
+      }
+      fn(ctx, t);
+      std::lock_guard<std::mutex> lk(m_);
+      if (--pending_ == 0) done_.notify_one();
+    }
+  }
+
+  const pid_t pid_;
+  std::mutex busy_, m_;
+  std::condition_variable cv_, done_;
+  std::vector<std::thread> workers_;
+  Fn fn_ = nullptr;
+  void* ctx_ = nullptr;
+  int n_ = 0, pending_ = 0;
+  uint64_t gen_ = 0;
+};
+
 template <typename F>
 void parallel(int n_threads, F&& body) {
   FlushDenormals ftz;
@@ -92,6 +166,12 @@ void parallel(int n_threads, F&& body) {
     body(0);
     return;
   }
+  using B = std::remove_reference_t<F>;
+  auto call = [](void* ctx, int t) {
+    FlushDenormals ftz_thread;
+    (*static_cast<B*>(ctx))(t);
+  };
+  if (Pool::get().run(n_threads, call, const_cast<void*>(static_cast<const void*>(&body)))) return;
   std::vector<std::thread> pool;
   pool.reserve(n_threads - 1);
   for (int t = 1; t < n_threads; ++t)

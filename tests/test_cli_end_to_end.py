@@ -113,6 +113,19 @@ def test_fit_config_is_reproducible(tmp_path, monkeypatch):
     assert "jax" in prov["versions"]
 
 
+def test_the_command_ends_with_its_exit_code_and_all_its_output(tmp_path):
+    """`python -m difflattice.cli` ends with `os._exit` after `main` (no slow interpreter
+    shutdown): the exit code and what was printed still arrive. Here a config error: code 2 and
+    the `error:` line naming the missing file (`test_demo_quick` runs a whole job this way)."""
+    bad = tmp_path / "bad.toml"
+    bad.write_text((ROOT / "fitting" / "polaroid_like.toml").read_text().replace("lobe.csv", "no_such_lobe.csv"))
+    r = subprocess.run(
+        [sys.executable, "-m", "difflattice.cli", "fit", str(bad)], capture_output=True, text=True, timeout=300
+    )
+    assert r.returncode == 2, (r.returncode, r.stderr[-2000:])
+    assert "error:" in r.stderr and "no_such_lobe.csv" in r.stderr, r.stderr[-2000:]
+
+
 def test_demo_quick(tmp_path):
     """The main job on a coarse setting: emulator process, pseudo-terminal capture, fit, report."""
     out = tmp_path / "demo"

@@ -1010,7 +1010,9 @@ def run_fit(cfg: FitConfig, *, out: str | Path | None = None, quick: bool = Fals
     _warn_unused_uncertainty(cfg)
     fit_model = _fit_disc if m.model == "disc" else _fit_line
     # the error budget's second resolution (as `error_budget` picks it), simulated beside the fit
-    m2 = float((None if quick else cfg.uncertainty.second_cells_per_wavelength) or 1.5 * ppw)
+    from .uncertainty import error_budget, second_resolution
+
+    m2 = second_resolution(ppw, None if quick else cfg.uncertainty.second_cells_per_wavelength)
     fitted, uniform, transfer, make_transfer, t_transfer = fit_model(cfg, lobe, wave, f, c, ppw, opts, verbose, m2)
     fitted.warnings[:0] = [f"data: {n}" for n in data.notes]
     out_dir = Path(out) if out is not None else Path(cfg.output.dir)
@@ -1018,8 +1020,6 @@ def run_fit(cfg: FitConfig, *, out: str | Path | None = None, quick: bool = Fals
     field_image = cfg.output.field_image and not quick  # a line on the 2-D lattice, a disc on the rz lattice
     figures = start_figures(out_dir, fitted, uniform, transfer, lobe, wave, field_image=field_image)
     # error budget (fit.uncertainty): refits at a second resolution and with other model families
-    from .uncertainty import error_budget
-
     t1 = time.perf_counter()
     try:
         budget = error_budget(

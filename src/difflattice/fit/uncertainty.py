@@ -567,6 +567,12 @@ def _qaic(r: FitResult, c: float) -> float:
 
 
 # -- the budget ----------------------------------------------------------------------------
+def second_resolution(cells_per_wavelength: float, second: float | None = None) -> float:
+    """The resolution (cells per wavelength) of the error budget's refit: `second`, else 1.5 x the
+    fit's."""
+    return float(second or 1.5 * cells_per_wavelength)
+
+
 def error_budget(
     fitted: FitResult,
     transfer: Transfer,
@@ -625,7 +631,7 @@ def error_budget(
     if make_transfer is None:
         resolution["reason"] = "no second transfer (make_transfer) given"
     else:
-        m2 = float(second_cells_per_wavelength or 1.5 * m1)
+        m2 = second_resolution(m1, second_cells_per_wavelength)
         if not (m2 > 0 and math.isfinite(m2)) or abs(m2 - m1) < 1e-9:
             raise ValueError(
                 f"second_cells_per_wavelength = {m2:g} must be > 0 and differ from the fit's {m1:g} "

@@ -21,11 +21,22 @@ import math
 from dataclasses import dataclass
 from typing import Literal
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array
 
 from ..transforms import logit
+
+
+def device_array(x) -> Array:
+    """`x` (NumPy or Python values) as a strongly typed JAX array, by a plain transfer. Host
+    values through `jnp.asarray` (or `jnp.zeros` and the like, outside a program) each run a
+    one-operation XLA program, compiled anew for every shape in a fresh process (~10 ms each,
+    ~20 per fit); a JAX array or tracer is returned as it is."""
+    return x if isinstance(x, jax.Array) else jax.device_put(np.asarray(x))
+
 
 Profile = Literal["uniform", "free", "symmetric", "smooth"]
 PROFILES = ("uniform", "free", "symmetric", "smooth")
@@ -111,17 +122,17 @@ class ModelSpec:
     # -- parameters -------------------------------------------------------------------
     def init_params(self) -> dict:
         """Initial raw parameters: uniform weights 1, no lags, the initial diameter."""
-        p = {"gain_db": jnp.asarray(0.0), "phase0": jnp.asarray(0.0)}
+        p = {"gain_db": device_array(0.0), "phase0": device_array(0.0)}
         nw = self._n_params(self.weights, pinned=True)
         if nw:
-            p["w"] = jnp.zeros(nw)
+            p["w"] = device_array(np.zeros(nw))
         nl = self._n_params(self.lags, pinned=True)
         if nl:
-            p["lag"] = jnp.zeros(nl)
+            p["lag"] = device_array(np.zeros(nl))
         if self.fit_diameter:
             d0 = self.diameter_m or 0.97 * self.d_max_m
             frac = min(max(d0 / self.d_max_m, 1e-3), 1 - 1e-3)
-            p["diam"] = jnp.asarray(logit(frac))
+            p["diam"] = device_array(logit(frac))
         return p
 
     def physical(self, params: dict) -> dict:
@@ -212,13 +223,13 @@ class ModelSpec:
                 pinned = ~np.any(E != 0, axis=1)  # cells held at 0 (the centre of free/symmetric)
                 if pinned.any():
                     v = v - v[pinned].mean()
-                out[key] = jnp.asarray(np.linalg.lstsq(E, v, rcond=None)[0])
+                out[key] = device_array(np.linalg.lstsq(E, v, rcond=None)[0])
         if self.fit_diameter:
             frac = min(max((diameter_m or 0.97 * self.d_max_m) / self.d_max_m, 1e-3), 1 - 1e-3)
-            out["diam"] = jnp.asarray(logit(frac))
+            out["diam"] = device_array(logit(frac))
         for key in ("gain_db", "phase0"):
             if key in template:
-                out[key] = jnp.asarray(template[key])
+                out[key] = device_array(template[key])
         return out
 
     def symmetries(self) -> dict:
@@ -234,7 +245,7 @@ class ModelSpec:
             E = self.expansion(profile)
             v = E @ np.asarray(p, float)
             v = sign * (v[::-1] if flip else v)
-            return jnp.asarray(np.linalg.lstsq(E, v, rcond=None)[0])
+            return device_array(np.linalg.lstsq(E, v, rcond=None)[0])
 
         def make(flip: bool, reverse: bool):
             def g(params: dict) -> dict:
@@ -244,7 +255,7 @@ class ModelSpec:
                 if "lag" in q:
                     q["lag"] = per_cell("lag", self.lags, q["lag"], -1.0 if reverse else 1.0, flip)
                 if "phase0" in q and reverse:
-                    q["phase0"] = -jnp.asarray(q["phase0"])
+                    q["phase0"] = device_array(-np.asarray(q["phase0"]))
                 return q
 
             return g
@@ -263,6 +274,13 @@ class ModelSpec:
 def soft_floor_db(level_db, floor_db):
     """10 log10(10^(L/10) + 10^(F/10)): equals L well above the floor, F at deep nulls, smooth."""
     return jnp.logaddexp(level_db * (math.log(10) / 10), floor_db * (math.log(10) / 10)) * (10 / math.log(10))
+
+
+@eqx.filter_jit
+def physical_of(spec: ModelSpec, params: dict) -> dict:
+    """`spec.physical(params)` as one program (called outside a program, each of its ~15
+    operations would compile a program of its own in a fresh process)."""
+    return spec.physical(params)
 
 
 def lobe_model_db(spec: ModelSpec, params: dict, lobe_transfer):

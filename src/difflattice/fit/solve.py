@@ -52,7 +52,7 @@ from jax.flatten_util import ravel_pytree
 
 from ..transforms import logit
 from .data import LobeData, WaveData
-from .model import ModelSpec, lobe_model_db, soft_floor_db, wave_model_phase
+from .model import ModelSpec, device_array, lobe_model_db, physical_of, soft_floor_db, wave_model_phase
 from .transfer import Transfer
 
 Solver = Literal["levenberg_marquardt", "dogleg", "gauss_newton", "bfgs"]
@@ -288,13 +288,13 @@ def build_problem(
         raise ValueError(f"transfer has {transfer.n_cells} cells but the model {spec.n_cells}")
     return Problem(
         spec=spec,
-        lobe_T=None if lobe is None else jnp.asarray(transfer.lobe),
-        lobe_db=None if lobe is None else jnp.asarray(lobe.level_db),
-        lobe_sigma=None if lobe is None else jnp.asarray(lobe.sigma_db),
+        lobe_T=None if lobe is None else device_array(transfer.lobe),
+        lobe_db=None if lobe is None else device_array(lobe.level_db),
+        lobe_sigma=None if lobe is None else device_array(lobe.sigma_db),
         lobe_floor=None if lobe is None else float(np.max(lobe.level_db) - o.floor_db),
-        wave_T=None if wave is None else jnp.asarray(transfer.wave),
-        wave_phase=None if wave is None else jnp.asarray(wave.phase_rad),
-        wave_sigma=None if wave is None else jnp.asarray(wave.sigma_rad),
+        wave_T=None if wave is None else device_array(transfer.wave),
+        wave_phase=None if wave is None else device_array(wave.phase_rad),
+        wave_sigma=None if wave is None else device_array(wave.sigma_rad),
         w_lobe=o.lobe_weight,
         w_wave=o.wave_weight,
         smoothness_sigma=o.smoothness_sigma,
@@ -312,6 +312,15 @@ def _cost(problem: Problem, params: dict):
 @eqx.filter_jit
 def _residuals(problem: Problem, params: dict):
     return problem.residuals(params)
+
+
+@eqx.filter_jit
+def _models(problem: Problem, params: dict):
+    """(model lobe level in dB, model wave phase) at the data points (None where there are no
+    data), as one program."""
+    lobe = None if problem.lobe_T is None else lobe_model_db(problem.spec, params, problem.lobe_T)
+    wave = None if problem.wave_T is None else wave_model_phase(problem.spec, params, problem.wave_T)
+    return lobe, wave
 
 
 @eqx.filter_jit
@@ -333,7 +342,7 @@ def initial_params(problem: Problem, params=None) -> dict:
     if "diam" in p and params is None:
         best: tuple[float, dict] | None = None
         for frac in np.linspace(0.5, 0.98, 25):
-            q = _with_offsets(problem, {**p, "diam": jnp.asarray(logit(frac))})
+            q = _with_offsets(problem, {**p, "diam": device_array(logit(frac))})
             c = float(_cost(problem, q))
             if np.isfinite(c) and (best is None or c < best[0]):
                 best = (c, q)
@@ -343,17 +352,16 @@ def initial_params(problem: Problem, params=None) -> dict:
 
 
 def _with_offsets(problem: Problem, p: dict) -> dict:
-    spec = problem.spec
     p = dict(p)
     if "gain_db" in p:
-        m = np.asarray(lobe_model_db(spec, {**p, "gain_db": jnp.asarray(0.0)}, problem.lobe_T))
+        m = np.asarray(_models(problem, {**p, "gain_db": device_array(0.0)})[0])
         data = np.asarray(problem.lobe_db)
         top = data > data.max() - 10
-        p["gain_db"] = jnp.asarray(float(np.median(data[top] - m[top])))
+        p["gain_db"] = device_array(float(np.median(data[top] - m[top])))
     if "phase0" in p:
-        m = np.asarray(wave_model_phase(spec, {**p, "phase0": jnp.asarray(0.0)}, problem.wave_T))
+        m = np.asarray(_models(problem, {**p, "phase0": device_array(0.0)})[1])
         d = np.asarray(problem.wave_phase) - m
-        p["phase0"] = jnp.asarray(float(np.angle(np.mean(np.exp(1j * d)))))
+        p["phase0"] = device_array(float(np.angle(np.mean(np.exp(1j * d)))))
     return p
 
 
@@ -454,7 +462,7 @@ def _run_stage(problem: Problem, y0: dict, options: FitOptions, *, fixed: dict, 
     """Step the solver from `y0` until optimistix's test or ours says converged, or max_steps."""
     solver = _make_solver(options)
     # strongly typed leaves: a weakly typed start would make the second step compile again
-    y0 = jax.tree_util.tree_map(lambda v: jnp.asarray(np.asarray(v)), y0)
+    y0 = jax.tree_util.tree_map(lambda v: device_array(np.asarray(v)), y0)
     args = (problem, fixed)
     w = CONVERGENCE_WINDOW
     r0 = np.asarray(_residuals(problem, {**fixed, **y0}))
@@ -767,11 +775,11 @@ def _result(problem: Problem, spec: ModelSpec, stages, options: FitOptions, lobe
             "underestimated sigmas); the error budget's model term inflates the errors by sqrt(chi2_red)"
         )
 
-    phys = {k: np.asarray(v) for k, v in spec.physical(params).items()}
+    phys = {k: np.asarray(v) for k, v in physical_of(spec, params).items()}
     rms = {}
     curves = {}
     if lobe is not None:
-        mdb = np.asarray(lobe_model_db(spec, params, problem.lobe_T))
+        mdb = np.asarray(_models(problem, params)[0])
         curves["lobe_db"] = mdb
         above = lobe.level_db > problem.lobe_floor
         sm = np.asarray(soft_floor_db(mdb, problem.lobe_floor))
@@ -780,7 +788,7 @@ def _result(problem: Problem, spec: ModelSpec, stages, options: FitOptions, lobe
         rms["lobe_db_all_points_soft_floor"] = float(np.sqrt(np.mean((sm - sd) ** 2)))
         rms["lobe_normalised"] = float(np.sqrt(np.mean(((sm - sd) / lobe.sigma_db) ** 2)))
     if wave is not None:
-        mph = np.asarray(wave_model_phase(spec, params, problem.wave_T))
+        mph = np.asarray(_models(problem, params)[1])
         curves["wave_phase_rad"] = mph
         d = np.angle(np.exp(1j * (mph - wave.phase_rad)))
         rms["wave_phase_deg"] = float(np.degrees(np.sqrt(np.mean(d**2))))
@@ -859,9 +867,18 @@ def physical_vector(spec: ModelSpec, params: dict):
 
 
 def _physical_vector(spec: ModelSpec, params: dict):
+    labels = (
+        [f"w[{k}]" for k in range(spec.n_cells)]
+        + [f"lag_us[{k}]" for k in range(spec.n_cells)]
+        + ["diameter_mm", "gain_db", "phase0_deg"]
+    )
+    return _physical_array(spec, params), labels
+
+
+@eqx.filter_jit
+def _physical_array(spec: ModelSpec, params: dict):
     ph = spec.physical(params)
-    n = spec.n_cells
-    vec = jnp.concatenate(
+    return jnp.concatenate(
         [
             ph["weights"],
             ph["lags_s"] * 1e6,
@@ -870,10 +887,6 @@ def _physical_vector(spec: ModelSpec, params: dict):
             jnp.atleast_1d(jnp.degrees(ph["phase0_rad"])),
         ]
     )
-    labels = (
-        [f"w[{k}]" for k in range(n)] + [f"lag_us[{k}]" for k in range(n)] + ["diameter_mm", "gain_db", "phase0_deg"]
-    )
-    return vec, labels
 
 
 def physical_jacobian(spec: ModelSpec, params: dict) -> np.ndarray:

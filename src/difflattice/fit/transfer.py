@@ -23,7 +23,7 @@ import time
 from dataclasses import dataclass, field
 from typing import Literal
 
-import jax.numpy as jnp
+import jax
 import numpy as np
 
 from ..lattice.coefficients import Edges
@@ -67,7 +67,7 @@ def _lagrange4(t):
 
 def _source_spectrum(sig, grid: Grid, n_steps: int) -> complex:
     n = np.arange(1, n_steps + 1)
-    s = np.asarray(sig(jnp.asarray(n * grid.dt_s)))
+    s = np.asarray(jax.jit(sig)(jax.device_put(n * grid.dt_s)))  # one program, not one per operation
     return complex(np.sum(s * np.exp(1j * grid.omega * n)))
 
 
@@ -136,7 +136,10 @@ def free_field_transfer(
     cells = np.concatenate(parts)
     sig = ToneBurst(frequency_hz, 4.0)
     src = PointSources(
-        cells=np.array([(xs, yc)]), signal=sig, weights=jnp.ones(1, grid.jnp_dtype), lags_s=jnp.zeros(1, grid.jnp_dtype)
+        cells=np.array([(xs, yc)]),
+        signal=sig,
+        weights=jax.device_put(np.ones(1, grid.dtype)),
+        lags_s=jax.device_put(np.zeros(1, grid.dtype)),
     )
     reach = math.hypot(nx - xs, half) / grid.courant
     n_steps = int(reach + 10 * grid.steps_per_period)
@@ -160,9 +163,9 @@ def free_field_transfer(
         # observation points seen from each cell: shift by -offset along y
         obs = np.stack([xs + r * np.cos(th), yc + r * np.sin(th)], -1)  # (A, 2)
         pts = obs[:, None, :] - np.stack([np.zeros(n_cells), offsets], -1)[None, :, :]  # (A, N, 2)
-        lobe = np.asarray(
-            field_at(jnp.asarray(ph[:m2]), contour, grid, pts.reshape(-1, 2), dispersion=dispersion)
-        ).reshape(len(th), n_cells)
+        lobe = np.asarray(field_at(ph[:m2], contour, grid, pts.reshape(-1, 2), dispersion=dispersion)).reshape(
+            len(th), n_cells
+        )
     if wave_x_m is not None:
         blk = ph[m2:].reshape(4, 2 * half + 1)
         tz = zc - iz

@@ -68,7 +68,7 @@ from jax.flatten_util import ravel_pytree
 
 from ..transforms import sigmoid
 from .data import LobeData, WaveData
-from .model import PROFILES, ModelSpec
+from .model import PROFILES, ModelSpec, device_array, physical_of
 from .solve import FitOptions, FitResult, _flat_jacobian, fit
 from .transfer import Transfer
 
@@ -460,7 +460,7 @@ def _implied_coefficients(spec: ModelSpec, active: np.ndarray, other: FitResult)
     keys = [(k, p) for k, p in (("w", spec.weights), ("lag", spec.lags)) if p == "smooth"]
     if not keys or not active.any():
         return {}, {}
-    ospec, y_nom, y_other = other.spec, jnp.asarray(spec.y_m[active]), jnp.asarray(other.spec.y_m)
+    ospec, y_nom, y_other = other.spec, device_array(spec.y_m[active]), device_array(other.spec.y_m)
     cov = np.asarray(other.covariance_raw) * max(other.variance_factor, 1.0)
     vals, ses = {}, {}
     step = 2 if spec.symmetric else 1
@@ -484,7 +484,7 @@ def map_params(spec_from: ModelSpec, params: dict, spec_to: ModelSpec) -> dict:
     """A warm start for `spec_to` from a fit of `spec_from` (another resolution or family): the
     per-cell log weights and lag arguments interpolated at the new cells and projected on the new
     parameterisation."""
-    ph = spec_from.physical(params)
+    ph = physical_of(spec_from, params)
     logw = np.log(np.asarray(ph["weights_raw"]))
     arg = np.arctanh(np.clip(2 * np.asarray(ph["lags_s"]) / spec_from.period_s, -0.999999, 0.999999))
     y0, y1 = spec_from.y_m, spec_to.y_m
@@ -618,7 +618,7 @@ def error_budget(
     )
     sys_chi2 = stat * math.sqrt(max(vf - 1.0, 0.0))
     notes: list[str] = []
-    ph = spec.physical(params)
+    ph = physical_of(spec, params)
     window = np.asarray(ph["weights"]) / np.asarray(ph["weights_raw"])
     active = window >= 0.5  # cells inside the active aperture
 

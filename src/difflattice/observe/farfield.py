@@ -92,7 +92,7 @@ def _hankel(nu: int, z):
     a3 = a2 * (mu - 25) / (3 * 8)
     iz = 1j / z
     series = 1 + a1 * iz + a2 * iz**2 + a3 * iz**3
-    return jnp.sqrt(2 / (math.pi * z)) * jnp.exp(1j * (z - nu * math.pi / 2 - math.pi / 4)) * series
+    return np.sqrt(2 / (math.pi * z)) * np.exp(1j * (z - nu * math.pi / 2 - math.pi / 4)) * series
 
 
 def far_field(
@@ -115,7 +115,7 @@ def far_field(
 
 
 def field_at(
-    phasors: Complex[Array, " two_m"],
+    phasors: Complex[Array, " two_m"] | Complex[np.ndarray, " two_m"],
     contour: BoxContour,
     grid: Grid,
     points_cells: Float[np.ndarray, "a 2"],
@@ -124,7 +124,8 @@ def field_at(
     dispersion: Literal["lattice", "continuum"] = "lattice",
     frequency_hz: float | None = None,
 ) -> Complex[Array, " a"]:
-    """Complex pressure at points outside the contour (positions in cells)."""
+    """Complex pressure at points outside the contour (positions in cells); NumPy phasors give a
+    NumPy result (no XLA program), JAX ones a JAX array (differentiable)."""
     inner, outer, pts, normals = contour.samples()
     m = len(inner)
     if phasors.shape[-1] != 2 * m:
@@ -151,8 +152,9 @@ def field_at(
     dR_dn = -(d * normals[None]).sum(-1) / R  # derivative of R with respect to x' along n'
     G = 0.25j * _hankel(0, kR)
     dG_dR = -0.25j * k[:, None] * _hankel(1, kR)
-    kernel_p = jnp.asarray(dG_dR * dR_dn)
-    kernel_dp = jnp.asarray(-G)
+    # host kernels (NumPy): NumPy phasors give a NumPy field with no XLA program at all
+    kernel_p = dG_dR * dR_dn
+    kernel_dp = -G
     return p @ kernel_p.T + dpdn @ kernel_dp.T
 
 

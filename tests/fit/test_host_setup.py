@@ -1,0 +1,92 @@
+"""Host-side set-up compiles no per-operation XLA programs (issue 15, fit start-up).
+
+Outside a program, every `jnp` operation on host values (and `jnp.asarray` of a NumPy array)
+compiles a one-operation program per new shape; a fresh process pays ~10 ms for each, which
+added up to ~135 programs per fit. These tests count the backend compilations JAX reports
+(`jax.monitoring`) around the host-side steps, and check that the NumPy paths give the same
+numbers as the JAX ones.
+"""
+
+import contextlib
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from difflattice.fit.model import ModelSpec, device_array
+from difflattice.fit.solve import FitOptions, build_problem, initial_params
+from difflattice.fit.transfer import Transfer
+from difflattice.lattice.grid import make_grid
+from difflattice.observe.farfield import BoxContour, field_at
+
+COMPILE_EVENT = "/jax/core/compile/backend_compile_duration"
+
+
+@contextlib.contextmanager
+def count_compiles():
+    n = [0]
+
+    def listener(event, duration_secs, **kwargs):
+        if event == COMPILE_EVENT:
+            n[0] += 1
+
+    jax.monitoring.register_event_duration_secs_listener(listener)
+    try:
+        yield n
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listener)
+
+
+def test_device_array_is_a_plain_transfer():
+    # shapes no other test uses, so a compile would be new here
+    with count_compiles() as n:
+        a = device_array(np.arange(7.0, dtype=np.float32).reshape(1, 7))
+        b = device_array(0.25)
+    assert n[0] == 0
+    assert isinstance(a, jax.Array) and a.dtype == jnp.float32 and a.shape == (1, 7)
+    assert not b.weak_type and float(b) == 0.25
+    assert device_array(a) is a  # a JAX array passes through
+
+
+def test_far_field_of_host_phasors_is_numpy_and_equals_the_jax_path():
+    grid = make_grid(frequency_hz=40e3, cells_per_wavelength=20, c_max_m_s=343.0, shape=(61, 61))
+    contour = BoxContour(25, 35, 25, 35)
+    m2 = len(contour.cells)
+    rng = np.random.default_rng(3)
+    ph = rng.normal(size=m2) + 1j * rng.normal(size=m2)
+    pts = np.stack([30 + 900 * np.cos(np.linspace(-1, 1, 13)), 30 + 900 * np.sin(np.linspace(-1, 1, 13))], 1)
+    with count_compiles() as n:
+        host = field_at(ph, contour, grid, pts, dispersion="continuum")
+    assert n[0] == 0
+    assert isinstance(host, np.ndarray)
+    dev = np.asarray(field_at(jnp.asarray(ph), contour, grid, pts, dispersion="continuum"))
+    # same products summed in another order: complex128 round-off
+    np.testing.assert_allclose(host, dev, rtol=1e-12, atol=1e-12 * np.abs(dev).max())
+
+
+def test_initial_parameters_compile_whole_functions_only():
+    """The diameter scan and the closed-form offsets: 25 diameters x (cost, lobe and wave model)
+    evaluated through two jitted functions (`_cost`, `_models`), i.e. at most a handful of
+    programs for one model structure (op-by-op evaluation compiled ~40)."""
+    n_cells, n_ang, n_wave = 23, 41, 17  # shapes of no other test
+    rng = np.random.default_rng(0)
+    grid = make_grid(frequency_hz=40e3, cells_per_wavelength=20, c_max_m_s=343.0, shape=(3, 3))
+    spec = ModelSpec(n_cells=n_cells, dx_m=grid.dx_m, frequency_hz=40e3, n_basis=2)
+    lobe_T = rng.normal(size=(n_ang, n_cells)) + 1j * rng.normal(size=(n_ang, n_cells))
+    wave_T = rng.normal(size=(n_wave, n_cells)) + 1j * rng.normal(size=(n_wave, n_cells))
+    tr = Transfer(grid=grid, n_cells=n_cells, cell_offset_m=spec.y_m, lobe=lobe_T, wave=wave_T)
+
+    class Lobe:
+        level_db = 20 * np.log10(np.abs(lobe_T.sum(1)))
+        sigma_db = np.full(n_ang, 0.3)
+
+    class Wave:
+        phase_rad = -np.angle(wave_T.sum(1))
+        sigma_rad = np.full(n_wave, 0.01)
+
+    problem = build_problem(spec, tr, Lobe(), Wave(), FitOptions())  # type: ignore[arg-type]
+    with count_compiles() as n:
+        p0 = initial_params(problem)
+    assert n[0] <= 4, f"{n[0]} programs compiled for the initial parameters"
+    assert set(p0) == {"gain_db", "phase0", "w", "lag", "diam"}
+    assert all(np.isfinite(np.asarray(v)).all() for v in p0.values())

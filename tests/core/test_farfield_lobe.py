@@ -73,3 +73,23 @@ def test_single_cell_is_nearly_isotropic():
         spread.append(np.ptp(np.asarray(level_db(far_field(ph, box, g, ang, 1.0, centre)))))
     assert spread[0] < 0.02
     assert 3.0 < spread[0] / spread[1] < 5.0
+
+
+def test_hankel_expansion_against_scipy():
+    """The four-term large-argument expansion of H0 and H1 against scipy's Bessel functions over
+    the transform's range k R >= 30. Bound: the first two omitted terms, |a4| / z^4 + |a5| / z^5
+    (a4 = 0.112 for H0 and -0.144 for H1: 1.4e-7 and 1.8e-7 at z = 30), plus the rounding of the
+    phase z (z eps relative: 1.1e-12 at z = 5000)."""
+    import scipy.special as sp
+
+    from difflattice.observe.farfield import _hankel
+
+    z = np.geomspace(30.0, 5000.0, 400)
+    for nu in (0, 1):
+        mu = 4.0 * nu * nu
+        a = [1.0]
+        for k in range(1, 6):
+            a.append(a[-1] * (mu - (2 * k - 1) ** 2) / (k * 8))
+        bound = abs(a[4]) / z**4 + abs(a[5]) / z**5 + z * np.finfo(float).eps * 2
+        err = np.abs(_hankel(nu, z) - sp.hankel1(nu, z)) / np.abs(sp.hankel1(nu, z))
+        assert np.all(err <= bound), (nu, float(np.max(err / bound)))

@@ -52,7 +52,7 @@ from jax.flatten_util import ravel_pytree
 
 from ..transforms import logit
 from .data import LobeData, WaveData
-from .model import ModelSpec, device_array, lobe_model_db, physical_of, soft_floor_db, wave_model_phase
+from .model import ModelSpec, device_array, lobe_model_db, soft_floor_db, wave_model_phase
 from .transfer import Transfer
 
 Solver = Literal["levenberg_marquardt", "dogleg", "gauss_newton", "bfgs"]
@@ -315,17 +315,31 @@ def _residuals(problem: Problem, params: dict):
 
 
 @eqx.filter_jit
+def _result_arrays(problem: Problem, params: dict) -> dict:
+    """What `_result` reports beyond the residuals and their Jacobian, as one program (five
+    programs' tracing, lowering and cache reads would be Python work in every new process):
+    the physical vector's Jacobian, the data residuals, the physical quantities and the
+    models at the data points."""
+    spec = problem.spec
+    jac = jax.jacfwd(lambda p: _physical_values(spec, p))(params)
+    lobe = None if problem.lobe_T is None else lobe_model_db(spec, params, problem.lobe_T)
+    wave = None if problem.wave_T is None else wave_model_phase(spec, params, problem.wave_T)
+    return {
+        "G": _flat_jacobian(jac, params),
+        "data_res": problem.data_residuals(params),
+        "phys": spec.physical(params),
+        "lobe_db": lobe,
+        "wave_phase": wave,
+    }
+
+
+@eqx.filter_jit
 def _models(problem: Problem, params: dict):
     """(model lobe level in dB, model wave phase) at the data points (None where there are no
     data), as one program."""
     lobe = None if problem.lobe_T is None else lobe_model_db(problem.spec, params, problem.lobe_T)
     wave = None if problem.wave_T is None else wave_model_phase(problem.spec, params, problem.wave_T)
     return lobe, wave
-
-
-@eqx.filter_jit
-def _data_residuals(problem: Problem, params: dict):
-    return problem.data_residuals(params)
 
 
 def initial_params(problem: Problem, params=None) -> dict:
@@ -693,6 +707,12 @@ def outlier_diagnostics(data_residuals: dict) -> dict:
     return out
 
 
+def _soft_floor_db_host(level_db, floor_db: float) -> np.ndarray:
+    """`model.soft_floor_db` in NumPy (host arrays: no program)."""
+    k = math.log(10) / 10
+    return np.logaddexp(np.asarray(level_db) * k, floor_db * k) / k
+
+
 def _result(problem: Problem, spec: ModelSpec, stages, options: FitOptions, lobe, wave, wall: float) -> FitResult:
     last = stages[-1][1]
     params = jax.block_until_ready(last.y)
@@ -744,10 +764,11 @@ def _result(problem: Problem, spec: ModelSpec, stages, options: FitOptions, lobe
     se_raw = np.sqrt(np.clip(np.diag(cov_raw), 0, None))
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov_raw / np.outer(se_raw, se_raw)
-    phys_vec, phys_labels = _physical_vector(spec, params)
-    G = np.asarray(_physical_jacobian(spec, params))
+    arrays = jax.tree_util.tree_map(np.asarray, _result_arrays(problem, params))
+    phys_labels = _physical_labels(spec)
+    G = arrays["G"]
     # residual statistics: RMS per observable, outliers, chi2 of all data points
-    data_res = {k: np.asarray(v) for k, v in _data_residuals(problem, params).items()}
+    data_res = arrays["data_res"]
     chi2_data, var_factor = _chi2_and_variance_factor(data_res, options, npar, chi2)
     se = np.sqrt(np.clip(np.diag(G @ cov_raw @ G.T), 0, None) * max(var_factor, 1.0))
     stderr = {lab: float(v) for lab, v in zip(phys_labels, se)}
@@ -775,20 +796,22 @@ def _result(problem: Problem, spec: ModelSpec, stages, options: FitOptions, lobe
             "underestimated sigmas); the error budget's model term inflates the errors by sqrt(chi2_red)"
         )
 
-    phys = {k: np.asarray(v) for k, v in physical_of(spec, params).items()}
+    phys = arrays["phys"]
     rms = {}
     curves = {}
     if lobe is not None:
-        mdb = np.asarray(_models(problem, params)[0])
+        mdb = arrays["lobe_db"]
         curves["lobe_db"] = mdb
-        above = lobe.level_db > problem.lobe_floor
-        sm = np.asarray(soft_floor_db(mdb, problem.lobe_floor))
-        sd = np.asarray(soft_floor_db(lobe.level_db, problem.lobe_floor))
+        floor = problem.lobe_floor
+        assert floor is not None  # set with the lobe data (build_problem)
+        above = lobe.level_db > floor
+        sm = _soft_floor_db_host(mdb, floor)
+        sd = _soft_floor_db_host(lobe.level_db, floor)
         rms["lobe_db"] = float(np.sqrt(np.mean((mdb[above] - lobe.level_db[above]) ** 2)))
         rms["lobe_db_all_points_soft_floor"] = float(np.sqrt(np.mean((sm - sd) ** 2)))
         rms["lobe_normalised"] = float(np.sqrt(np.mean(((sm - sd) / lobe.sigma_db) ** 2)))
     if wave is not None:
-        mph = np.asarray(_models(problem, params)[1])
+        mph = arrays["wave_phase"]
         curves["wave_phase_rad"] = mph
         d = np.angle(np.exp(1j * (mph - wave.phase_rad)))
         rms["wave_phase_deg"] = float(np.degrees(np.sqrt(np.mean(d**2))))
@@ -867,16 +890,23 @@ def physical_vector(spec: ModelSpec, params: dict):
 
 
 def _physical_vector(spec: ModelSpec, params: dict):
-    labels = (
+    return _physical_array(spec, params), _physical_labels(spec)
+
+
+def _physical_labels(spec: ModelSpec) -> list[str]:
+    return (
         [f"w[{k}]" for k in range(spec.n_cells)]
         + [f"lag_us[{k}]" for k in range(spec.n_cells)]
         + ["diameter_mm", "gain_db", "phase0_deg"]
     )
-    return _physical_array(spec, params), labels
 
 
 @eqx.filter_jit
 def _physical_array(spec: ModelSpec, params: dict):
+    return _physical_values(spec, params)
+
+
+def _physical_values(spec: ModelSpec, params: dict):
     ph = spec.physical(params)
     return jnp.concatenate(
         [

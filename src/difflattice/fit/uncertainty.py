@@ -398,6 +398,14 @@ def _quantity_jacobian(spec: ModelSpec, params: dict):
     return _flat_jacobian(jac, params)
 
 
+@eqx.filter_jit
+def _quantities_and_jacobian(spec: ModelSpec, params: dict):
+    """(values, names, units, d values / d raw parameters) as one program (two would each be
+    traced, lowered and read from the cache in every new process)."""
+    v, names, units = quantities(spec, params)
+    return v, names, units, _quantity_jacobian(spec, params)
+
+
 def _values(spec: ModelSpec, params: dict) -> dict:
     v, names, _ = _quantities(spec, params)
     return dict(zip(names, np.asarray(v).tolist()))
@@ -406,8 +414,8 @@ def _values(spec: ModelSpec, params: dict) -> dict:
 def _stats(r: FitResult) -> dict:
     """Statistical errors of a fit's quantities, inflated by its variance factor (its own total
     as far as the noise and its own chi2 go)."""
-    v, names, _ = _quantities(r.spec, r.params)
-    G = np.asarray(_quantity_jacobian(r.spec, r.params))
+    v, names, _, G = _quantities_and_jacobian(r.spec, r.params)
+    G = np.asarray(G)
     cov = np.asarray(r.covariance_raw)
     s = np.sqrt(np.clip(np.einsum("ij,jk,ik->i", G, cov, G), 0, None) * max(r.variance_factor, 1.0))
     return dict(zip(names, s.tolist()))
@@ -609,9 +617,8 @@ def error_budget(
     options = options or fitted.options or FitOptions()
     say = print if progress else (lambda *a, **k: None)
     vf = fitted.variance_factor
-    v, names, units = _quantities(spec, params)
-    v = np.asarray(v)
-    G = np.asarray(_quantity_jacobian(spec, params))
+    v, names, units, G = _quantities_and_jacobian(spec, params)
+    v, G = np.asarray(v), np.asarray(G)
     cov = fitted.covariance_raw
     stat = (
         np.sqrt(np.clip(np.einsum("ij,jk,ik->i", G, cov, G), 0, None)) if cov is not None else np.full(len(v), np.nan)
@@ -672,7 +679,9 @@ def error_budget(
         for (ov, fspec, ff), qf, used, wk in zip(fam_fits, q[1:], used_all[1:], akaike[1:]):
             dq = qf - best
             why = "" if used else ("did not converge" if not ff.converged else f"delta QAIC > {SUPPORTED_DELTA_QAIC:g}")
-            other = _on_nominal(spec, fspec, _values(fspec, ff.params))
+            # values (and, where used, their errors) from one program per family
+            fv, fnames, _, _ = _quantities_and_jacobian(fspec, ff.params)
+            other = _on_nominal(spec, fspec, dict(zip(fnames, np.asarray(fv).tolist())))
             if used:
                 # model averaging's unconditional variance about the reported (nominal) value:
                 # the Akaike-weighted shift to each family's value plus the extra variance of a

@@ -18,6 +18,7 @@ from difflattice.fit.solve import FitOptions, build_problem, initial_params
 from difflattice.fit.transfer import Transfer
 from difflattice.lattice.grid import make_grid
 from difflattice.observe.farfield import BoxContour, field_at
+from difflattice.observe.farfield_rz import CylinderSurface, far_field_rz, field_at_rz
 
 COMPILE_EVENT = "/jax/core/compile/backend_compile_duration"
 
@@ -62,6 +63,26 @@ def test_far_field_of_host_phasors_is_numpy_and_equals_the_jax_path():
     dev = np.asarray(field_at(jnp.asarray(ph), contour, grid, pts, dispersion="continuum"))
     # same products summed in another order: complex128 round-off
     np.testing.assert_allclose(host, dev, rtol=1e-12, atol=1e-12 * np.abs(dev).max())
+
+
+def test_rz_far_fields_of_host_phasors_are_numpy_and_equal_the_jax_path():
+    grid = make_grid(frequency_hz=40e3, cells_per_wavelength=20, c_max_m_s=343.0, shape=(60, 40), kind="rz")
+    surf = CylinderSurface(5, 25, 17)
+    m2 = len(surf.cells)
+    rng = np.random.default_rng(5)
+    ph = rng.normal(size=m2) + 1j * rng.normal(size=m2)
+    pts = np.stack([15 + 400 * np.cos(np.linspace(0.1, 1.4, 7)), 400 * np.sin(np.linspace(0.1, 1.4, 7))], 1)
+    angles = np.linspace(0.0, 80.0, 9)
+    with count_compiles() as n:
+        near = field_at_rz(ph, surf, grid, pts)
+        far = far_field_rz(ph, surf, grid, angles)
+    assert n[0] == 0
+    assert isinstance(near, np.ndarray) and isinstance(far, np.ndarray)
+    for host, dev in (
+        (near, field_at_rz(jnp.asarray(ph), surf, grid, pts)),
+        (far, far_field_rz(jnp.asarray(ph), surf, grid, angles)),
+    ):
+        np.testing.assert_allclose(host, np.asarray(dev), rtol=1e-12, atol=1e-12 * np.abs(np.asarray(dev)).max())
 
 
 def test_initial_parameters_compile_whole_functions_only():

@@ -126,7 +126,7 @@ def _split(phasors, m: int):
 
 
 def far_field_rz(
-    phasors: Complex[Array, " two_m"],
+    phasors: Complex[Array, " two_m"] | Complex[np.ndarray, " two_m"],
     surface: CylinderSurface,
     grid: Grid,
     angles_deg: Float[np.ndarray, " a"],
@@ -137,7 +137,8 @@ def far_field_rz(
 ) -> Complex[Array, " a"]:
     """Far-field pattern F(theta) at `angles_deg` from the +z axis (the limit of R p(R, theta)
     exp(-i k R) as R -> infinity, in Pa x cells), from surface phasors ordered as
-    `surface.cells`. "continuum" (default) continues the surface field with k = omega / c: the
+    `surface.cells` (NumPy phasors give a NumPy result, no XLA program; JAX ones a JAX array).
+    "continuum" (default) continues the surface field with k = omega / c: the
     surface lies within a few cells of the source, where the lattice's phase error is small, so
     this is the physical far field (baffled 38.4 mm piston at 50 kHz, 20 cells per wavelength:
     first null within 0.0001 deg of 2 J1(x)/x, side lobe within 0.003 dB). "lattice" uses the
@@ -167,13 +168,14 @@ def far_field_rz(
     if surface.baffled:  # the image source of the rigid baffle z = 0
         gi, dgi = term(-z, -nz)
         g, dg = g + gi, dg + dgi
-    kernel_p = jnp.asarray(dg * ds / (4 * math.pi))
-    kernel_dp = jnp.asarray(-g * ds / (4 * math.pi))
+    # host kernels: NumPy phasors give a NumPy field (no XLA program), JAX ones a JAX array
+    kernel_p = dg * ds / (4 * math.pi)
+    kernel_dp = -g * ds / (4 * math.pi)
     return p @ kernel_p.T + dpdn @ kernel_dp.T
 
 
 def field_at_rz(
-    phasors: Complex[Array, " two_m"],
+    phasors: Complex[Array, " two_m"] | Complex[np.ndarray, " two_m"],
     surface: CylinderSurface,
     grid: Grid,
     points_cells: Float[np.ndarray, "a 2"],
@@ -184,7 +186,8 @@ def field_at_rz(
     n_phi: int | None = None,
 ) -> Complex[Array, " a"]:
     """Complex pressure at points (z, rho) in cells (rho >= 0, the distance from the axis) outside
-    the surface, at any range, from surface phasors ordered as `surface.cells`. The azimuth
+    the surface, at any range, from surface phasors ordered as `surface.cells` (NumPy phasors: a
+    NumPy result, no XLA program). The azimuth
     integral uses `n_phi` trapezoidal nodes (default: enough for k r' + 16 < n_phi / 2)."""
     inner, _, pts, nrm, width = surface.samples()
     p, dpdn = _split(phasors, len(inner))
@@ -218,7 +221,7 @@ def field_at_rz(
         ds = pts[:, 1] * width
         kp.append(gp * ds)
         kd.append(-gd * ds)
-    return p @ jnp.asarray(np.array(kp)).T + dpdn @ jnp.asarray(np.array(kd)).T
+    return p @ np.array(kp).T + dpdn @ np.array(kd).T  # NumPy phasors: a NumPy field
 
 
 # ------------------------------------------------------------------------------------------

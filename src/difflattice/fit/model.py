@@ -272,8 +272,10 @@ class ModelSpec:
 
 
 def soft_floor_db(level_db, floor_db):
-    """10 log10(10^(L/10) + 10^(F/10)): equals L well above the floor, F at deep nulls, smooth."""
-    return jnp.logaddexp(level_db * (math.log(10) / 10), floor_db * (math.log(10) / 10)) * (10 / math.log(10))
+    """10 log10(10^(L/10) + 10^(F/10)): equals L well above the floor, F at deep nulls, smooth.
+    JAX arrays (and tracers) in, JAX out; host values in, NumPy out (no XLA program)."""
+    xp = jnp if isinstance(level_db, jax.Array) else np
+    return xp.logaddexp(level_db * (math.log(10) / 10), floor_db * (math.log(10) / 10)) * (10 / math.log(10))
 
 
 @eqx.filter_jit

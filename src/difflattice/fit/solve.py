@@ -321,11 +321,10 @@ def _result_arrays(problem: Problem, params: dict) -> dict:
     the physical vector's Jacobian, the data residuals, the physical quantities and the
     models at the data points."""
     spec = problem.spec
-    jac = jax.jacfwd(lambda p: _physical_values(spec, p))(params)
     lobe = None if problem.lobe_T is None else lobe_model_db(spec, params, problem.lobe_T)
     wave = None if problem.wave_T is None else wave_model_phase(spec, params, problem.wave_T)
     return {
-        "G": _flat_jacobian(jac, params),
+        "G": _physical_jacobian_of(spec, params),
         "data_res": problem.data_residuals(params),
         "phys": spec.physical(params),
         "lobe_db": lobe,
@@ -436,10 +435,12 @@ def _jacobian(problem: Problem, fixed: dict, params: dict):
     return _flat_jacobian(jac, params)
 
 
-@eqx.filter_jit
-def _physical_jacobian(spec: ModelSpec, params: dict):
-    jac = jax.jacfwd(lambda p: _physical_vector(spec, p)[0])(params)
+def _physical_jacobian_of(spec: ModelSpec, params: dict):
+    jac = jax.jacfwd(lambda p: _physical_values(spec, p))(params)
     return _flat_jacobian(jac, params)
+
+
+_physical_jacobian = eqx.filter_jit(_physical_jacobian_of)
 
 
 def _stationarity(problem: Problem, fixed: dict, y: dict, r: np.ndarray) -> tuple[float, float]:
@@ -707,12 +708,6 @@ def outlier_diagnostics(data_residuals: dict) -> dict:
     return out
 
 
-def _soft_floor_db_host(level_db, floor_db: float) -> np.ndarray:
-    """`model.soft_floor_db` in NumPy (host arrays: no program)."""
-    k = math.log(10) / 10
-    return np.logaddexp(np.asarray(level_db) * k, floor_db * k) / k
-
-
 def _result(problem: Problem, spec: ModelSpec, stages, options: FitOptions, lobe, wave, wall: float) -> FitResult:
     last = stages[-1][1]
     params = jax.block_until_ready(last.y)
@@ -805,8 +800,8 @@ def _result(problem: Problem, spec: ModelSpec, stages, options: FitOptions, lobe
         floor = problem.lobe_floor
         assert floor is not None  # set with the lobe data (build_problem)
         above = lobe.level_db > floor
-        sm = _soft_floor_db_host(mdb, floor)
-        sd = _soft_floor_db_host(lobe.level_db, floor)
+        sm = soft_floor_db(mdb, floor)
+        sd = soft_floor_db(lobe.level_db, floor)
         rms["lobe_db"] = float(np.sqrt(np.mean((mdb[above] - lobe.level_db[above]) ** 2)))
         rms["lobe_db_all_points_soft_floor"] = float(np.sqrt(np.mean((sm - sd) ** 2)))
         rms["lobe_normalised"] = float(np.sqrt(np.mean(((sm - sd) / lobe.sigma_db) ** 2)))

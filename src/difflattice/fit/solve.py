@@ -321,8 +321,7 @@ def _result_arrays(problem: Problem, params: dict) -> dict:
     the physical vector's Jacobian, the data residuals, the physical quantities and the
     models at the data points."""
     spec = problem.spec
-    lobe = None if problem.lobe_T is None else lobe_model_db(spec, params, problem.lobe_T)
-    wave = None if problem.wave_T is None else wave_model_phase(spec, params, problem.wave_T)
+    lobe, wave = _model_curves(problem, params)
     return {
         "G": _physical_jacobian_of(spec, params),
         "data_res": problem.data_residuals(params),
@@ -332,13 +331,15 @@ def _result_arrays(problem: Problem, params: dict) -> dict:
     }
 
 
-@eqx.filter_jit
-def _models(problem: Problem, params: dict):
+def _model_curves(problem: Problem, params: dict):
     """(model lobe level in dB, model wave phase) at the data points (None where there are no
-    data), as one program."""
+    data)."""
     lobe = None if problem.lobe_T is None else lobe_model_db(problem.spec, params, problem.lobe_T)
     wave = None if problem.wave_T is None else wave_model_phase(problem.spec, params, problem.wave_T)
     return lobe, wave
+
+
+_models = eqx.filter_jit(_model_curves)  # as one program
 
 
 def initial_params(problem: Problem, params=None) -> dict:

@@ -209,14 +209,6 @@ def surface_pairs(phasors, order: int = 4):
     return np.concatenate([p - 0.5 * dpdn, p + 0.5 * dpdn], axis=-1)
 
 
-def _source_spectrum(sig, dt_s: float, omega: float, n_steps: int) -> complex:
-    import jax
-
-    n = np.arange(1, n_steps + 1)
-    s = np.asarray(jax.jit(sig)(jax.device_put(n * dt_s)))  # one program, not one per operation
-    return complex(np.sum(s * np.exp(1j * omega * n)))
-
-
 @dataclass(frozen=True)
 class _HousingLayout:
     surface: Any  # observe.farfield_rz.CylinderSurface
@@ -317,6 +309,7 @@ def disc_transfer(
     from ..solver.loop import check_finite, simulate
     from ..solver.sensors import Sensors
     from ..solver.sources import ToneBurst, disc_housing, disc_transducer
+    from .transfer import _source_spectrum
 
     if wave_method not in ("transform", "lattice"):
         raise ValueError(f"wave_method = {wave_method!r}; allowed: 'transform', 'lattice'")
@@ -386,7 +379,7 @@ def disc_transfer(
         parts.append(np.asarray(ph_s))
     ph = np.concatenate(parts)
     sim_s = time.perf_counter() - t0
-    ph = ph / _source_spectrum(sig, grid.dt_s, grid.omega, n_steps)
+    ph = ph / _source_spectrum(sig, grid, n_steps)
     pairs = np.asarray(surface_pairs(ph[:, :m_surf], surface_order))  # host: the far fields in NumPy
     k = 2 * math.pi / cells_per_wavelength  # continuum wavenumber, radians per cell
     r_src = surf.jr + 1.0  # outermost surface radius, cells

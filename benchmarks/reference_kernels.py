@@ -19,14 +19,21 @@ CLI (stable; `benchmarks/kernel_benchmark.py` calls it as a subprocess):
     compile_s, mlups}], agreement: [{dtype, nx, ny, steps, max_abs_diff: {kernel: vs numpy_inplace},
     max_abs_field}], float32_vs_float64_max_abs_diff ({"NXxNYxSTEPS": max abs difference of the
     numba_serial fields}).
-  kernel is one of "numpy_inplace", "numba_serial", "numba_parallel".
+  kernel is one of "numpy_inplace", "numba_serial", "numba_parallel" and, with --kernel only,
+  "numba_serial_rz", "numba_parallel_rz" (the axisymmetric lattice, below).
 
 Scheme: p_new = 2 p - p_prev + c2 (p[i+1,j] + p[i-1,j] + p[i,j+1] + p[i,j-1] - 4 p), c2 = 0.5
 (Courant number 1/sqrt(2), squared), p = 0 on the outermost ring (Dirichlet), unit impulse at
 the centre at t = 0 with p_prev = 0. Every kernel evaluates it as
 p_new = ((2 - 4 c2) p - p_prev) + c2 (((p[i+1,j] + p[i-1,j]) + p[i,j+1]) + p[i,j-1]), in that
 order, in the arrays' dtype; c2 and 2 - 4 c2 are run-time arguments (so no kernel can drop the
-centre term, which is 0 for c2 = 0.5, at compile time). Sizes: 840x630 x 1000 steps and
+centre term, which is 0 for c2 = 0.5, at compile time). The axisymmetric (rz) kernels run the
+same update with the ring metric on the radial neighbours (`rz_serial`): rows are z, column j >= 1
+is ring r = j - 1 (the axis at j = 1; column 0 a zero ghost, so the loop has no branch), and the
+radial terms are weighted by the ring's face areas over its volume, mh = (r + 1) / (r + 1/2) and
+ml = r / (r + 1/2), whose sum is 2 (so the centre term is the 2-D one): difflattice's rz leapfrog
+in its ring form, the same arithmetic per cell (tests/core/test_bench_reference.py checks it
+against difflattice's rz stepper). Sizes: 840x630 x 1000 steps and
 2048x2048 x 200 steps (--quick: a tenth of the steps). Timing: one short warm-up run (numba
 compiles there; its time is `compile_s`), then the median of 3 timed runs from the same initial
 state. MLUPS = nx ny steps / time / 1e6. Agreement: the final fields of the numba kernels
@@ -94,6 +101,32 @@ def numpy_run(p, q, c2, centre, steps):
     return P, Q  # (latest, previous)
 
 
+def rz_metric(ny, dtype):
+    """(ml, mh): the radial neighbours' weights per column of an rz reference field (column 0 a
+    zero ghost, column j >= 1 ring r = j - 1): r / (r + 1/2) and (r + 1) / (r + 1/2), zero at 0."""
+    import numpy as np
+
+    r = np.arange(ny, dtype=np.float64) - 1.0
+    v = np.maximum(r + 0.5, 0.5)
+    ml = np.where(r >= 0, r / v, 0.0).astype(dtype)
+    mh = np.where(r >= 0, (r + 1.0) / v, 0.0).astype(dtype)
+    return ml, mh
+
+
+def rz_serial(p, q, c2, centre, steps, ml, mh):
+    """The axisymmetric leapfrog (plain Python; `make_numba_kernels` compiles it): as `serial`
+    with the radial neighbours weighted by the ring metric (`rz_metric`)."""
+    nx, ny = p.shape
+    for _ in range(steps):
+        for i in range(1, nx - 1):
+            for j in range(1, ny - 1):
+                q[i, j] = (centre * p[i, j] - q[i, j]) + c2 * (
+                    ((p[i + 1, j] + p[i - 1, j]) + mh[j] * p[i, j + 1]) + ml[j] * p[i, j - 1]
+                )
+        p, q = q, p
+    return p, q
+
+
 def make_numba_kernels():
     """Same arithmetic, same order as numpy_run. c2 and centre arrive as scalars of the array's
     dtype and no integer literal enters the update, so float32 stays float32 throughout."""
@@ -124,6 +157,25 @@ def make_numba_kernels():
         return p, q
 
     return serial, parallel
+
+
+def make_numba_rz_kernels():
+    """`rz_serial` compiled, and its row-parallel twin (numba's prange over z rows)."""
+    import numba as nb
+
+    @nb.njit(parallel=True, cache=False)
+    def parallel(p, q, c2, centre, steps, ml, mh):
+        nx, ny = p.shape
+        for _ in range(steps):
+            for i in nb.prange(1, nx - 1):
+                for j in range(1, ny - 1):
+                    q[i, j] = (centre * p[i, j] - q[i, j]) + c2 * (
+                        ((p[i + 1, j] + p[i - 1, j]) + mh[j] * p[i, j + 1]) + ml[j] * p[i, j - 1]
+                    )
+            p, q = q, p
+        return p, q
+
+    return nb.njit(cache=False)(rz_serial), parallel
 
 
 # --- driver ----------------------------------------------------------------------------------
@@ -177,11 +229,22 @@ def one_case(args) -> dict:
 
     load_start = list(os.getloadavg())
     numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
-    serial, parallel = make_numba_kernels()
-    fn = {"numpy_inplace": numpy_run, "numba_serial": serial, "numba_parallel": parallel}[args.kernel]
     nx, ny, steps = (int(v) for v in args.size.lower().split("x"))
-    row, _ = measure(args.kernel, fn, nx, ny, steps, args.dtypes[0], repeats=args.repeats)
-    row["threads"] = numba.get_num_threads() if args.kernel == "numba_parallel" else 1
+    if args.kernel.endswith("_rz"):  # ny rings plus the ghost column
+        serial_rz, parallel_rz = make_numba_rz_kernels()
+        ml, mh = rz_metric(ny + 1, args.dtypes[0])
+        k = serial_rz if args.kernel == "numba_serial_rz" else parallel_rz
+
+        def fn(p, q, c2, centre, n):
+            return k(p, q, c2, centre, n, ml, mh)
+
+        row, _ = measure(args.kernel, fn, nx, ny + 1, steps, args.dtypes[0], repeats=args.repeats)
+        row["ny"], row["mlups"] = ny, nx * ny * steps / row["time_s"] / 1e6  # the rings, not the ghost
+    else:
+        serial, parallel = make_numba_kernels()
+        fn = {"numpy_inplace": numpy_run, "numba_serial": serial, "numba_parallel": parallel}[args.kernel]
+        row, _ = measure(args.kernel, fn, nx, ny, steps, args.dtypes[0], repeats=args.repeats)
+    row["threads"] = numba.get_num_threads() if args.kernel.startswith("numba_parallel") else 1
     return {
         "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "numba": numba.__version__,
@@ -260,7 +323,7 @@ def main():
     ap.add_argument("--dtypes", default="float32,float64")
     ap.add_argument(
         "--kernel",
-        choices=["numpy_inplace", "numba_serial", "numba_parallel"],
+        choices=["numpy_inplace", "numba_serial", "numba_parallel", "numba_serial_rz", "numba_parallel_rz"],
         default=None,
         help="run this kernel only, at --size (one case per process)",
     )

@@ -4,8 +4,9 @@ average recorded.
 
 Cases (float32): the bare homogeneous leapfrog (rigid window, one line source, no sensors) at
 840 x 630 x 1000 steps and 2048 x 2048 x 200 steps, and a full-featured scene at 840 x 630 x 1000
-(density and speed maps, a rigid obstacle, 20-cell PML, probes and phasors); on a GPU also
-4096 x 4096 x 200. Implementations: "native" (the C++ kernels, all cores), "native-1thread",
+(density and speed maps, a rigid obstacle, 20-cell PML, probes and phasors); the same two
+840 x 630 scenes on the axisymmetric lattice (grid "840x630 rz": 840 cells along z, 630 rings, a
+disc source); on a GPU also 4096 x 4096 x 200. Implementations: "native" (the C++ kernels, all cores), "native-1thread",
 "jax" (the XLA loop); `reference=True` adds the numba (1 thread and all cores) and NumPy loops of
 `benchmarks/reference_kernels.py` (their own virtual environment; numba is never a dependency of
 difflattice), interleaved in the same run, and the ratios.
@@ -37,13 +38,20 @@ class Case:
     ny: int
     steps: int
     dtype: str = "float32"
+    kind: str = "2d"  # "2d" or "rz" (the axisymmetric lattice: nx along z, ny rings)
 
     @property
     def grid(self) -> str:
-        return f"{self.nx}x{self.ny}"
+        return f"{self.nx}x{self.ny}" + ("" if self.kind == "2d" else f" {self.kind}")
 
 
-CPU_CASES = (Case("homogeneous", 840, 630, 1000), Case("homogeneous", 2048, 2048, 200), Case("full", 840, 630, 1000))
+CPU_CASES = (
+    Case("homogeneous", 840, 630, 1000),
+    Case("homogeneous", 2048, 2048, 200),
+    Case("full", 840, 630, 1000),
+    Case("homogeneous", 840, 630, 1000, kind="rz"),
+    Case("full", 840, 630, 1000, kind="rz"),
+)
 GPU_CASES = (Case("homogeneous", 4096, 4096, 200),)
 OWN_IMPLS = ("native", "native-1thread", "jax")
 REFERENCE_IMPLS = ("numba-1thread", "numba", "numpy")
@@ -68,13 +76,30 @@ def scene(case: Case):
     from ..lattice.grid import make_grid
     from ..lattice.medium import Medium
     from ..solver.sensors import Sensors
-    from ..solver.sources import ToneBurst, line_transducer
+    from ..solver.sources import ToneBurst, disc_transducer, line_transducer
 
     nx, ny = case.nx, case.ny
-    g = make_grid(frequency_hz=50e3, cells_per_wavelength=20, c_max_m_s=343.0, shape=(nx, ny), dtype=case.dtype)  # type: ignore[arg-type]
-    src = line_transducer(g, (40 * g.dx_m, ny / 2 * g.dx_m), n_cells=104, signal=ToneBurst(50e3, 5))
+    rz = case.kind == "rz"
+    g = make_grid(
+        frequency_hz=50e3,
+        cells_per_wavelength=20,
+        c_max_m_s=343.0,
+        shape=(nx, ny),
+        dtype=case.dtype,  # type: ignore[arg-type]
+        kind="rz" if rz else "2d",
+    )
+    if rz:  # a disc of 52 rings (the line's 104 cells as a diameter) facing +z
+        src = disc_transducer(g, radius_m=52 * g.dx_m, z_m=40 * g.dx_m, signal=ToneBurst(50e3, 5), baffle="none")
+    else:
+        src = line_transducer(g, (40 * g.dx_m, ny / 2 * g.dx_m), n_cells=104, signal=ToneBurst(50e3, 5))
     if case.name == "homogeneous":
-        return g, Medium(343.0, 1.2), src, Sensors(), Edges.all("rigid")
+        return (
+            g,
+            Medium(343.0, 1.2),
+            src,
+            Sensors(),
+            Edges.axisymmetric("rigid", "rigid", "rigid") if rz else Edges.all("rigid"),
+        )
     dt = g.jnp_dtype
     x = jnp.arange(nx, dtype=dt)[:, None] * jnp.ones((1, ny), dt)
     rho = jnp.where(x > nx * 0.6, 2.0, 1.2).astype(dt)
@@ -83,7 +108,7 @@ def scene(case: Case):
     probes = np.array([(nx // 2, ny // 2), (nx // 2 + 50, ny // 2)])
     arc = np.array([(nx // 2, j) for j in range(30, ny - 30, 10)])
     sens = Sensors(probes=probes, phasor_cells=arc)  # type: ignore[arg-type]
-    return g, Medium(c, rho, rigid=rigid), src, sens, Edges()
+    return g, Medium(c, rho, rigid=rigid), src, sens, Edges.axisymmetric() if rz else Edges()
 
 
 def time_case(case: Case, impl: str, repeats: int = INNER_REPEATS) -> dict:
@@ -127,6 +152,7 @@ def _child(case: Case, impl: str) -> dict:
     else:
         script = reference_script()
         kernel = {"numba-1thread": "numba_serial", "numba": "numba_parallel", "numpy": "numpy_inplace"}[impl]
+        kernel += "_rz" if case.kind == "rz" else ""
         threads = 1 if impl == "numba-1thread" else _cpus()
         cmd = [
             sys.executable,
@@ -196,8 +222,8 @@ def bench(
     for _ in range(rounds):  # interleaved: every implementation of a case, then the next case
         for case in cases:
             for impl in impls:
-                if impl in REFERENCE_IMPLS and case.name != "homogeneous":
-                    continue  # the reference loops are the bare homogeneous leapfrog only
+                if impl in REFERENCE_IMPLS and (case.name != "homogeneous" or (impl == "numpy" and case.kind != "2d")):
+                    continue  # the reference loops: the bare homogeneous leapfrog (rz: numba only)
                 samples.setdefault((case, impl), []).append(_child(case, impl))
     rows = []
     for (case, impl), runs in samples.items():

@@ -381,8 +381,11 @@ def _with_offsets(problem: Problem, p: dict) -> dict:
 
 # -- the stepped solve ---------------------------------------------------------------------
 def _residual_aux(y, args):
-    problem, fixed = args
-    return problem.residuals({**fixed, **y}), None
+    """The residuals at `y`, with the parameters `free` marks False taken from `held` instead
+    (their Jacobian columns are zero, so the solver's steps leave them alone): which parameters
+    a stage holds is data, so every stage of a fit runs the same compiled solver programs."""
+    problem, held, free = args
+    return problem.residuals({k: jnp.where(free[k], v, held[k]) for k, v in y.items()}), None
 
 
 def _cost_aux(y, args):
@@ -417,6 +420,10 @@ def _step(solver, y, state, args):
     r, _ = _residual_aux(y_new, args)
     moved = jnp.any(ravel_pytree(y_new)[0] != ravel_pytree(y)[0])
     return y_new, state, done, result, r, moved
+
+
+def _free(y: dict, hold: frozenset) -> dict:
+    return {k: v for k, v in y.items() if k not in hold}
 
 
 def _flat_jacobian(jac: dict, params: dict) -> jnp.ndarray:
@@ -474,15 +481,20 @@ class _Stage:
     step_s: list
 
 
-def _run_stage(problem: Problem, y0: dict, options: FitOptions, *, fixed: dict, stage: int, bar=None) -> _Stage:
-    """Step the solver from `y0` until optimistix's test or ours says converged, or max_steps."""
+def _run_stage(
+    problem: Problem, y0: dict, options: FitOptions, *, hold: frozenset = frozenset(), stage: int, bar=None
+) -> _Stage:
+    """Step the solver from `y0` (every parameter) until optimistix's test or ours says converged,
+    or max_steps; the parameters named in `hold` keep their values in `y0`."""
     solver = _make_solver(options)
     # strongly typed leaves: a weakly typed start would make the second step compile again
     y0 = jax.tree_util.tree_map(lambda v: device_array(np.asarray(v)), y0)
-    args = (problem, fixed)
+    free = {k: device_array(np.asarray(k not in hold)) for k in y0}
+    args = (problem, y0, free)
+    fixed = {k: y0[k] for k in hold}  # for the stationarity test's Jacobian (the free ones only)
     w = CONVERGENCE_WINDOW
-    r0 = np.asarray(_residuals(problem, {**fixed, **y0}))
-    npar = int(ravel_pytree(y0)[0].size)
+    r0 = np.asarray(_residuals(problem, y0))
+    npar = int(sum(np.size(v) for k, v in y0.items() if k not in hold))
     dof = max(len(r0) - npar, 1)
     hist = [(0.5 * float(r0 @ r0), r0)]  # accepted iterates (cost, residuals), the start included
     costs, accepted, times = [], [], []
@@ -527,7 +539,7 @@ def _run_stage(problem: Problem, y0: dict, options: FitOptions, *, fixed: dict, 
                 )
                 break
         if since >= 2 * w:  # many rejections in a row: test for a stationary point
-            rc, se = _stationarity(problem, fixed, y, r)
+            rc, se = _stationarity(problem, fixed, _free(y, hold), r)
             if rc <= options.rtol_cost and se <= options.rtol_step:
                 conv, code = True, "stationary"
                 reason = (
@@ -538,7 +550,7 @@ def _run_stage(problem: Problem, y0: dict, options: FitOptions, *, fixed: dict, 
                 break
             since = 0
     else:
-        rc, se = _stationarity(problem, fixed, y, np.asarray(_residuals(problem, {**fixed, **y})))
+        rc, se = _stationarity(problem, fixed, _free(y, hold), np.asarray(_residuals(problem, {**y, **fixed})))
         if rc <= options.rtol_cost and se <= options.rtol_step:
             conv, code = True, "stationary"
             reason = (
@@ -564,7 +576,7 @@ def _run_stage(problem: Problem, y0: dict, options: FitOptions, *, fixed: dict, 
         dt[:2] -= extra
     n_acc = len(hist) - 1
     return _Stage(
-        y=y,
+        y={**y, **fixed},  # the held parameters exactly as given (the solver never moves them)
         converged=conv,
         code=code,
         reason=reason,
@@ -631,17 +643,16 @@ def fit(
 def _fit_stages(problem: Problem, p0: dict, options: FitOptions, scan: bool, bar) -> list[tuple[int, _Stage]]:
     out = []
     start = p0
-    profiles = {k: v for k, v in p0.items() if k in ("w", "lag")}
+    profiles = frozenset(k for k in p0 if k in ("w", "lag"))
     if profiles and scan and "diam" in p0:
-        coarse = {k: v for k, v in p0.items() if k not in profiles}
-        s1 = _run_stage(_relaxed(problem), coarse, options, fixed=profiles, stage=1, bar=bar)
+        s1 = _run_stage(_relaxed(problem), p0, options, hold=profiles, stage=1, bar=bar)
         out.append((1, s1))
         if _finite(s1.y):
-            start = {**profiles, **s1.y}
-    s2 = _run_stage(_relaxed(problem), start, options, fixed={}, stage=2, bar=bar)
+            start = s1.y
+    s2 = _run_stage(_relaxed(problem), start, options, stage=2, bar=bar)
     out.append((2, s2))
     start = s2.y if _finite(s2.y) else start
-    out.append((3, _run_stage(problem, start, options, fixed={}, stage=3, bar=bar)))
+    out.append((3, _run_stage(problem, start, options, stage=3, bar=bar)))
     return out
 
 

@@ -13,8 +13,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from difflattice.fit.model import ModelSpec, device_array
 from difflattice.fit import solve
+from difflattice.fit.model import ModelSpec, device_array
 from difflattice.fit.solve import FitOptions, build_problem, initial_params
 from difflattice.fit.transfer import Transfer
 from difflattice.lattice.grid import make_grid

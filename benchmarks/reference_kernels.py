@@ -114,7 +114,7 @@ def rz_metric(ny, dtype):
 
 
 def rz_serial(p, q, c2, centre, steps, ml, mh):
-    """The axisymmetric leapfrog (plain Python; `make_numba_kernels` compiles it): as `serial`
+    """The axisymmetric leapfrog (plain Python; `make_numba_rz_kernels` compiles it): as `serial`
     with the radial neighbours weighted by the ring metric (`rz_metric`)."""
     nx, ny = p.shape
     for _ in range(steps):

@@ -6,8 +6,9 @@ Cases (float32): the bare homogeneous leapfrog (rigid window, one line source, n
 840 x 630 x 1000 steps and 2048 x 2048 x 200 steps, and a full-featured scene at 840 x 630 x 1000
 (density and speed maps, a rigid obstacle, 20-cell PML, probes and phasors); the same two
 840 x 630 scenes on the axisymmetric lattice (grid "840x630 rz": 840 cells along z, 630 rings, a
-disc source); on a GPU also 4096 x 4096 x 200. Implementations: "native" (the C++ kernels, all cores), "native-1thread",
-"jax" (the XLA loop); `reference=True` adds the numba (1 thread and all cores) and NumPy loops of
+disc source); on a GPU also 4096 x 4096 x 200. Implementations: "native" (the C++ kernels, all
+cores), "native-1thread", "jax" (the XLA loop); `reference=True` adds the numba (1 thread and all
+cores; on the rz lattice numba's rz loops) and NumPy (2-D only) loops of
 `benchmarks/reference_kernels.py` (their own virtual environment; numba is never a dependency of
 difflattice), interleaved in the same run, and the ratios.
 

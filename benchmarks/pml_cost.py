@@ -24,7 +24,6 @@ import os
 import statistics
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 VARIANTS = ("rigid", "pml", "full")
@@ -33,12 +32,10 @@ NX, NY = 840, 630
 
 
 def child(variant: str, repeats: int) -> dict:
-    import jax
-
     from difflattice.apps import bench
     from difflattice.lattice import Edges
     from difflattice.lattice.medium import Medium
-    from difflattice.solver import Stepper, run
+    from difflattice.solver import Stepper
     from difflattice.solver.sensors import Sensors
 
     g, medium, src, sens, edges = bench.scene(bench.Case("full", NX, NY, STEPS, "float32"))
@@ -46,16 +43,8 @@ def child(variant: str, repeats: int) -> dict:
         medium, sens = Medium(343.0, 1.2), Sensors()
     elif variant == "rigid":
         medium, sens, edges = Medium(343.0, 1.2), Sensors(), Edges.all("rigid")
-    stepper = Stepper.build(g, medium, src, sens, edges)
-    f = jax.jit(lambda s: run(s, STEPS, backend="native").final.pressure)
-    jax.block_until_ready(f(stepper))  # compile
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        jax.block_until_ready(f(stepper))
-        times.append(time.perf_counter() - t0)
-    t = statistics.median(times)
-    return {"variant": variant, "mlups": NX * NY * STEPS / t / 1e6, "times_s": times}
+    _, times = bench.time_run(Stepper.build(g, medium, src, sens, edges), STEPS, "native", repeats)
+    return {"variant": variant, "mlups": NX * NY * STEPS / statistics.median(times) / 1e6, "times_s": times}
 
 
 def main() -> None:

@@ -112,18 +112,14 @@ def scene(case: Case):
     return g, Medium(c, rho, rigid=rigid), src, sens, Edges.axisymmetric() if rz else Edges()
 
 
-def time_case(case: Case, impl: str, repeats: int = INNER_REPEATS) -> dict:
-    """Compile, then time `repeats` runs of `case` with `impl` in this process."""
+def time_run(stepper, steps: int, backend: str, repeats: int) -> tuple[float, list[float]]:
+    """(first call's seconds, compile included; seconds of each of `repeats` timed runs) of
+    `steps` steps of `stepper` in this process."""
     import jax
 
-    from ..solver import Stepper, run
+    from ..solver import run
 
-    if impl == "native-1thread":
-        os.environ["DIFFLATTICE_NATIVE_THREADS"] = "1"
-    backend = "jax" if impl == "jax" else "native"
-    g, medium, src, sens, edges = scene(case)
-    stepper = Stepper.build(g, medium, src, sens, edges)
-    f = jax.jit(lambda s: run(s, case.steps, backend=backend).final.pressure)  # type: ignore[arg-type]
+    f = jax.jit(lambda s: run(s, steps, backend=backend).final.pressure)  # type: ignore[arg-type]
     t0 = time.perf_counter()
     jax.block_until_ready(f(stepper))
     compile_s = time.perf_counter() - t0
@@ -132,6 +128,20 @@ def time_case(case: Case, impl: str, repeats: int = INNER_REPEATS) -> dict:
         t0 = time.perf_counter()
         jax.block_until_ready(f(stepper))
         times.append(time.perf_counter() - t0)
+    return compile_s, times
+
+
+def time_case(case: Case, impl: str, repeats: int = INNER_REPEATS) -> dict:
+    """Compile, then time `repeats` runs of `case` with `impl` in this process."""
+    import jax
+
+    from ..solver import Stepper
+
+    if impl == "native-1thread":
+        os.environ["DIFFLATTICE_NATIVE_THREADS"] = "1"
+    backend = "jax" if impl == "jax" else "native"
+    stepper = Stepper.build(*scene(case))
+    compile_s, times = time_run(stepper, case.steps, backend, repeats)
     t = statistics.median(times)
     return {
         "time_s": t,

@@ -21,7 +21,7 @@ def _simulate(args) -> int:
         print(f"error: --cells-per-wavelength {args.cells_per_wavelength:g}: give a resolution > 0", file=sys.stderr)
         return 2
     scene = load_scene_at(args.scene, args.cells_per_wavelength)
-    if scene.grid["kind"] == "3d":
+    if scene.kind.ndim == 3:
         return _simulate_3d(args, scene)
     if args.render_every is not None:
         scene.output["render_every_cells"] = args.render_every

@@ -39,6 +39,8 @@ def field_image(
     size_m: tuple[float, float] | None = None,
     colorbar: bool | None = None,
     units: str = "Pa",
+    axis_labels: tuple[str, str] = ("x (mm)", "y (mm)"),
+    origin_m: tuple[float, float] = (0.0, 0.0),
 ):
     """Grayscale pressure image with a symmetric scale (white = +, black = -), rendering every
     `every`-th cell (the paper used every third; `render_stride` picks it from the resolution),
@@ -47,7 +49,9 @@ def field_image(
     scale as a fraction of max |p|. `dx_m` is the simulation's cell (obstacles and source cells
     are in its cells); `size_m` is the window's size, default `p.shape * dx_m` (give it when `p`
     was already thinned, e.g. a snapshot kept at every n-th cell, with `every=1`). `colorbar`:
-    default on for a new figure, off when drawing into a given `ax` (panels, animations)."""
+    default on for a new figure, off when drawing into a given `ax` (panels, animations).
+    `axis_labels`: the lattice kind's (`LatticeKind.axis_labels`, e.g. z/r on an rz grid);
+    `origin_m`: coordinates of the image's low corner (e.g. (0, -R) for a mirrored rz section)."""
     p = np.asarray(p)
     if isinstance(every, bool) or int(every) != every or every < 1:
         raise ValueError(f"every = {every!r}: render every n-th cell, n a whole number >= 1")
@@ -60,21 +64,22 @@ def field_image(
         ax = fig.add_subplot()
     if colorbar is None:
         colorbar = fig is not None
-    ext_mm = [0, w_m * 1e3, 0, h_m * 1e3]
+    x0, y0 = (o * 1e3 for o in origin_m)
+    ext_mm = [x0, x0 + w_m * 1e3, y0, y0 + h_m * 1e3]
     im = ax.imshow(sub.T, origin="lower", cmap="gray", vmin=-vmax, vmax=vmax, extent=ext_mm, interpolation="nearest")
     if colorbar:
         ax.figure.colorbar(im, ax=ax, shrink=0.8, extend="both", label=f"pressure ({units})")
     if obstacles is not None:
         occ = np.asarray(obstacles)
         if occ.max() > 0:
-            x = (np.arange(occ.shape[0]) + 0.0) * dx_m * 1e3
-            y = (np.arange(occ.shape[1]) + 0.0) * dx_m * 1e3
+            x = x0 + np.arange(occ.shape[0]) * dx_m * 1e3
+            y = y0 + np.arange(occ.shape[1]) * dx_m * 1e3
             ax.contour(x, y, occ.T, levels=[0.5], colors="tab:orange", linewidths=1.0)
     for cells in sources:
         c = np.asarray(cells)
-        ax.plot(c[:, 0] * dx_m * 1e3, c[:, 1] * dx_m * 1e3, color="tab:red", lw=2)
-    ax.set_xlabel("x (mm)")
-    ax.set_ylabel("y (mm)")
+        ax.plot(x0 + c[:, 0] * dx_m * 1e3, y0 + c[:, 1] * dx_m * 1e3, color="tab:red", lw=2)
+    ax.set_xlabel(axis_labels[0])
+    ax.set_ylabel(axis_labels[1])
     stamp = []
     if step is not None:
         stamp.append(f"step {step}")
@@ -86,25 +91,36 @@ def field_image(
     return fig if fig is not None else ax.figure
 
 
-def _db_image(a, dx_m: float, floor_db: float):
+def _db_image(a, dx_m: float, floor_db: float, origin_m: tuple[float, float] = (0.0, 0.0)):
     """A 2-D magnitude map in dB re its peak (floored at `floor_db`), axes in mm, with a colour bar."""
     db = 20 * np.log10(np.maximum(a / max(float(a.max()), 1e-30), 10 ** (floor_db / 20)))
     fig = Figure(figsize=(7, 7 * a.shape[1] / a.shape[0] + 0.6))
     ax = fig.add_subplot()
-    extent = (0, a.shape[0] * dx_m * 1e3, 0, a.shape[1] * dx_m * 1e3)
+    x0, y0 = (o * 1e3 for o in origin_m)
+    extent = (x0, x0 + a.shape[0] * dx_m * 1e3, y0, y0 + a.shape[1] * dx_m * 1e3)
     im = ax.imshow(db.T, origin="lower", cmap="magma", vmin=floor_db, vmax=0, extent=extent)
     fig.colorbar(im, ax=ax, label="dB")
     return fig, ax
 
 
-def level_image(p_max, dx_m: float, *, floor_db: float = -60.0, sources=(), title="peak level (dB re max)"):
-    """Peak |p| map in dB (for beam patterns)."""
-    fig, ax = _db_image(np.asarray(p_max), dx_m, floor_db)
+def level_image(
+    p_max,
+    dx_m: float,
+    *,
+    floor_db: float = -60.0,
+    sources=(),
+    title="peak level (dB re max)",
+    axis_labels: tuple[str, str] = ("x (mm)", "y (mm)"),
+    origin_m: tuple[float, float] = (0.0, 0.0),
+):
+    """Peak |p| map in dB (for beam patterns); `axis_labels` and `origin_m` as in `field_image`."""
+    fig, ax = _db_image(np.asarray(p_max), dx_m, floor_db, origin_m)
+    x0, y0 = (o * 1e3 for o in origin_m)
     for cells in sources:
         c = np.asarray(cells)
-        ax.plot(c[:, 0] * dx_m * 1e3, c[:, 1] * dx_m * 1e3, color="cyan", lw=2)
-    ax.set_xlabel("x (mm)")
-    ax.set_ylabel("y (mm)")
+        ax.plot(x0 + c[:, 0] * dx_m * 1e3, y0 + c[:, 1] * dx_m * 1e3, color="cyan", lw=2)
+    ax.set_xlabel(axis_labels[0])
+    ax.set_ylabel(axis_labels[1])
     ax.set_title(title)
     return fig
 

@@ -27,6 +27,10 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from ..lattice.kinds import LatticeKind
 
 MAX_LOAD = 1.0
 INNER_REPEATS = 3  # timed runs per process (after a compiling run); the process reports their median
@@ -42,8 +46,14 @@ class Case:
     kind: str = "2d"  # "2d" or "rz" (the axisymmetric lattice: nx along z, ny rings)
 
     @property
+    def lattice(self) -> LatticeKind:
+        from ..lattice.kinds import as_kind
+
+        return as_kind(self.kind)
+
+    @property
     def grid(self) -> str:
-        return f"{self.nx}x{self.ny}" + ("" if self.kind == "2d" else f" {self.kind}")
+        return f"{self.nx}x{self.ny}" + (f" {self.kind}" if self.lattice.ring_metric else "")
 
 
 CPU_CASES = (
@@ -80,14 +90,14 @@ def scene(case: Case):
     from ..solver.sources import ToneBurst, disc_transducer, line_transducer
 
     nx, ny = case.nx, case.ny
-    rz = case.kind == "rz"
+    rz = case.lattice.ring_metric
     g = make_grid(
         frequency_hz=50e3,
         cells_per_wavelength=20,
         c_max_m_s=343.0,
         shape=(nx, ny),
         dtype=case.dtype,  # type: ignore[arg-type]
-        kind="rz" if rz else "2d",
+        kind=case.lattice,
     )
     if rz:  # a disc of 52 rings (the line's 104 cells as a diameter) facing +z
         src = disc_transducer(g, radius_m=52 * g.dx_m, z_m=40 * g.dx_m, signal=ToneBurst(50e3, 5), baffle="none")
@@ -163,7 +173,7 @@ def _child(case: Case, impl: str) -> dict:
     else:
         script = reference_script()
         kernel = {"numba-1thread": "numba_serial", "numba": "numba_parallel", "numpy": "numpy_inplace"}[impl]
-        kernel += "_rz" if case.kind == "rz" else ""
+        kernel += "_rz" if case.lattice.ring_metric else ""
         threads = 1 if impl == "numba-1thread" else _cpus()
         cmd = [
             sys.executable,
@@ -233,7 +243,9 @@ def bench(
     for _ in range(rounds):  # interleaved: every implementation of a case, then the next case
         for case in cases:
             for impl in impls:
-                if impl in REFERENCE_IMPLS and (case.name != "homogeneous" or (impl == "numpy" and case.kind != "2d")):
+                if impl in REFERENCE_IMPLS and (
+                    case.name != "homogeneous" or (impl == "numpy" and case.lattice.ring_metric)
+                ):
                     continue  # the reference loops: the bare homogeneous leapfrog (rz: numba only)
                 samples.setdefault((case, impl), []).append(_child(case, impl))
     rows = []

@@ -11,6 +11,7 @@ import platform
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import equinox as eqx
 import jax
@@ -132,7 +133,7 @@ def run_in_pieces(
 
 
 def run_scene(scene: Scene, *, progress: bool = True) -> SceneRun:
-    if scene.grid["kind"] == "3d":  # 3-D scenes have their own run and outputs (A-scans, slices, projections)
+    if scene.kind.ndim == 3:  # 3-D scenes have their own run and outputs (A-scans, slices, projections)
         raise SceneError(f'{scene.path}: [grid.kind] = "3d": run it with apps.scenes3d.run_scene3d')
     built = scene.build()
     grid, medium, sources, sensors, edges, n_steps = built[:6]
@@ -277,9 +278,12 @@ def write_outputs(
 
     obst = obstacle_map(st)
     src_cells = [s.cells_array for s in st.sources]
-    view = (lambda f: f) if g.kind != "rz" else _mirror_rz  # rz: show the whole meridian section
-    size_m = (g.size_m[0], g.size_m[1]) if g.kind != "rz" else (g.size_m[0], 2 * g.size_m[1])
-    if g.kind == "rz":
+    mirrored = g.kind.mirrored_view  # rz: show the whole meridian section, r from -R to R
+    view = _mirror_rz if mirrored else (lambda f: f)
+    size_m = (g.size_m[0], (2 if mirrored else 1) * g.size_m[1])
+    labels = g.kind.axis_labels()
+    look: dict[str, Any] = {"axis_labels": labels, "origin_m": (0.0, -g.size_m[1] if mirrored else 0.0)}
+    if mirrored:
         nr = g.shape[1]
         obst = None if obst is None else _mirror_rz(obst)
         src_cells = [np.concatenate([c[:, :1], nr + c[:, 1:]], axis=1) for c in src_cells] + [
@@ -287,20 +291,27 @@ def write_outputs(
         ]
     n_steps = sr.summary["run"]["n_steps"]
     fig = plots.field_image(
-        view(res.final.pressure), g.dx_m, every=every, step=n_steps, dt_s=g.dt_s, obstacles=obst, sources=src_cells
+        view(res.final.pressure),
+        g.dx_m,
+        every=every,
+        step=n_steps,
+        dt_s=g.dt_s,
+        obstacles=obst,
+        sources=src_cells,
+        **look,
     )
     files["field"] = str(plots.save(fig, out / "field.png"))
     if sr.moments:
         moment_files = []
         for step, f in sorted(sr.moments.items()):
             fig = plots.field_image(
-                view(f), g.dx_m, every=every, step=step, dt_s=g.dt_s, obstacles=obst, sources=src_cells
+                view(f), g.dx_m, every=every, step=step, dt_s=g.dt_s, obstacles=obst, sources=src_cells, **look
             )
             moment_files.append(str(plots.save(fig, out / f"moment_{step:06d}.png")))
         files["moments"] = moment_files
     if res.p_max is not None:
         files["peak_level"] = str(
-            plots.save(plots.level_image(view(res.p_max), g.dx_m, sources=src_cells), out / "peak_level.png")
+            plots.save(plots.level_image(view(res.p_max), g.dx_m, sources=src_cells, **look), out / "peak_level.png")
         )
     if sr.lobe is not None:
         a, lv = sr.lobe
@@ -315,7 +326,15 @@ def write_outputs(
             for k, (f, s) in enumerate(zip(sr.snapshots, sr.snapshot_steps)):
                 plots.save(
                     plots.field_image(
-                        view(f), g.dx_m, every=1, step=s, dt_s=g.dt_s, obstacles=obst, sources=src_cells, size_m=size_m
+                        view(f),
+                        g.dx_m,
+                        every=1,
+                        step=s,
+                        dt_s=g.dt_s,
+                        obstacles=obst,
+                        sources=src_cells,
+                        size_m=size_m,
+                        **look,
                     ),
                     out / "frames" / f"frame_{k:04d}.png",
                 )
@@ -332,6 +351,7 @@ def write_outputs(
                     obstacles=obst,
                     sources=src_cells,
                     size_m=size_m,
+                    **look,
                 )
             )
     sr.summary["files"] = files

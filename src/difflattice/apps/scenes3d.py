@@ -41,6 +41,7 @@ from ..air import SPEED_OF_SOUND_20C_M_S
 from ..lattice.coefficients import Edges
 from ..lattice.geometry3d import Shape3D, Union3D
 from ..lattice.grid import Grid
+from ..lattice.kinds import KINDS
 from ..lattice.medium import Medium
 from ..scene.model import BuiltScene, Scene, SceneError, SceneTooLargeError, load_scene, parse_scene, shape3d
 from ..scene.schema import ARRAY_SECTIONS, SECTIONS
@@ -495,10 +496,15 @@ def load_scene3d(path) -> Scene3D:
     except tomllib.TOMLDecodeError as e:
         raise SceneError(f"{p}: not valid TOML: {e}") from None
     kind = (data.get("grid") or {}).get("kind")
-    if kind != "3d":
+    if not _is_volume(kind):
         raise SceneError(f'{p}: [grid.kind] = {kind!r}; this loader reads 3-D scenes (kind = "3d")')
     scene = load_scene(p)
     return _scene3d(scene, scene.build(), p.stem, data)
+
+
+def _is_volume(kind) -> bool:
+    """Whether a scene file's raw `[grid] kind` names a 3-D lattice."""
+    return isinstance(kind, str) and kind in KINDS and KINDS[kind].ndim == 3
 
 
 def scaled_scene_data(data: dict, cells_per_wavelength: float) -> dict:
@@ -512,7 +518,7 @@ def scaled_scene_data(data: dict, cells_per_wavelength: float) -> dict:
         raise SceneError(f"cells_per_wavelength = {cells_per_wavelength}: give a resolution > 0")
     out = scale_scene_data(data, cells_per_wavelength / cpw0)
     out["grid"]["cells_per_wavelength"] = float(cells_per_wavelength)
-    if (data.get("grid") or {}).get("kind") == "3d":
+    if _is_volume((data.get("grid") or {}).get("kind")):
         for t_new, t_old in zip(out.get("transducers", []), data.get("transducers", [])):
             for key in ("weights", "lags_s"):
                 if key in t_old:
@@ -586,7 +592,7 @@ def run_scene3d(
     from ..solver.loop import check_result, run
     from ..solver.stepper import Stepper
 
-    if scene.grid["kind"] != "3d":
+    if scene.kind.ndim != 3:
         raise SceneError(f'{scene.path}: [grid.kind] = {scene.grid["kind"]!r}; run_scene3d runs kind = "3d" scenes')
     t0 = time.perf_counter()
     built = scene.build(available_bytes=available_bytes)

@@ -30,6 +30,7 @@ import numpy as np
 from ..lattice.coefficients import Edges
 from ..lattice.geometry import rasterise
 from ..lattice.grid import Grid, make_grid
+from ..lattice.kinds import AXISYMMETRIC, PLANE, LatticeKind, as_kind
 from ..lattice.medium import Medium, air, material
 from ..observe.farfield import BoxContour, far_field
 from ..observe.farfield_rz import CylinderSurface, field_at_rz
@@ -39,7 +40,7 @@ from ..solver.sources import PointSources, ToneBurst, line_transducer, ring_frac
 from .objectives import Goal, pattern_metrics
 from .shapes import HornLimits, ReflectorLimits
 
-LATTICES = ("2d", "rz")
+LATTICES = (PLANE, AXISYMMETRIC)
 """Lattice kinds of a design problem: the 2-D plane (wedges, troughs) or axisymmetric (cones, dishes)."""
 
 WALLS = ("rigid", "soft")
@@ -66,14 +67,14 @@ class DesignProblem(eqx.Module):
     sector_deg: float = eqx.field(static=True)
     reference_on_axis: float | None = eqx.field(static=True, default=None)
     ramp_cells: float = eqx.field(static=True, default=1.0)
-    lattice: str = eqx.field(static=True, default="2d")
+    lattice: LatticeKind = eqx.field(static=True, default=PLANE, converter=as_kind)
     face_m: float = eqx.field(static=True, default=0.0)
 
     # -- pieces --------------------------------------------------------------------------------
     def source(self):
         g = self.grid
         sig = ToneBurst(g.frequency_hz, self.cycles)
-        if self.lattice == "rz":  # a transparent disc of ring cells (n_cells rings), the 2-D line's counterpart
+        if self.lattice.ring_metric:  # a transparent disc of ring cells (n_cells rings), the 2-D line's counterpart
             i_s = int(round(self.anchor_m[0] / g.dx_m - 0.5))
             cells = np.stack([np.full(self.n_cells, i_s), np.arange(self.n_cells)], 1)
             w = ring_fractions(jnp.asarray(0.5 * self.face_m / g.dx_m, g.jnp_dtype), self.n_cells).astype(g.jnp_dtype)
@@ -84,7 +85,7 @@ class DesignProblem(eqx.Module):
 
     @property
     def edges(self) -> Edges:
-        if self.lattice == "rz":
+        if self.lattice.has_axis_edge:
             return Edges.axisymmetric(thickness_cells=self.pml_cells)
         return Edges(thickness_cells=self.pml_cells)
 
@@ -130,7 +131,7 @@ class DesignProblem(eqx.Module):
         )
         phasors, contour = r.phasors, self.contour
         assert phasors is not None  # recorded: the sensors ask for them
-        if self.lattice == "rz":
+        if self.lattice.ring_metric:
             return self._pattern_rz(phasors, ranges_m)
         assert isinstance(contour, BoxContour)  # a 2-D problem's contour (`_layout`)
         centre = (self.anchor_m[0] / g.dx_m, self.anchor_m[1] / g.dx_m)
@@ -187,7 +188,9 @@ class DesignProblem(eqx.Module):
         return np.asarray(r.snapshots), np.asarray(r.snapshot_steps), np.asarray(r.p_max)
 
 
-def _grid(frequency_hz, cells_per_wavelength, wall, shape, dtype, kind="2d", stencil="standard") -> Grid:
+def _grid(
+    frequency_hz, cells_per_wavelength, wall, shape, dtype, kind: LatticeKind = PLANE, stencil="standard"
+) -> Grid:
     """A grid whose cell size resolves air at `cells_per_wavelength`, whatever the wall material."""
     c_air = air(20.0).speed_m_s
     c_max = c_air
@@ -228,7 +231,7 @@ def _finish(
     field_of_view_deg,
     sector_deg,
     reference,
-    lattice="2d",
+    lattice: LatticeKind = PLANE,
     face_m=0.0,
 ) -> DesignProblem:
     n_a = int(round(360.0 / angle_step_deg))
@@ -236,7 +239,9 @@ def _finish(
         raise ValueError(f"angle_step_deg = {angle_step_deg} must divide 180 deg")
     angles = tuple(float(a) for a in -180.0 + angle_step_deg * np.arange(n_a))
     # an even line is centred between two cells: put the anchor (throat / focus) there too
-    if lattice == "rz":  # the disc centre: on the axis, at the source row's cell centre (rz cell centres are at + 1/2)
+    if (
+        lattice.ring_metric
+    ):  # the disc centre: on the axis, at the source row's cell centre (rz cell centres are at + 1/2)
         anchor = ((anchor_cells[0] + 0.5) * grid.dx_m, 0.0)
     else:
         anchor = (anchor_cells[0] * grid.dx_m, (anchor_cells[1] + 0.5 * (n_cells % 2 == 0)) * grid.dx_m)
@@ -284,16 +289,19 @@ def _check_wall_resolved(wall_min_m: float, dx: float) -> None:
         )
 
 
-def _check_lattice(lattice: str, wall: str) -> None:
-    if lattice not in LATTICES:
+def _check_lattice(lattice: LatticeKind | str, wall: str) -> LatticeKind:
+    """The design's lattice kind (plane or axisymmetric), refused with the reason otherwise."""
+    kind = as_kind(lattice)
+    if kind not in LATTICES:
         raise ValueError(
-            f"lattice = {lattice!r}; allowed: {', '.join(map(repr, LATTICES))} (2-D plane or axisymmetric)"
+            f"lattice = {lattice!r}; allowed: {', '.join(repr(k.name) for k in LATTICES)} (2-D plane or axisymmetric)"
         )
-    if lattice == "rz" and wall == "soft":
+    if "speed_zero" not in kind.boundary_models and wall == "soft":
         raise ValueError(
             "wall = 'soft' (the paper's speed-zero walls) has no ring-volume form on an rz lattice: "
             "use wall = 'rigid' or a fluid material with lattice = 'rz'"
         )
+    return kind
 
 
 def _layout(
@@ -306,19 +314,19 @@ def _layout(
     cells_per_wavelength,
     wall,
     dtype,
-    lattice="2d",
+    lattice: LatticeKind = PLANE,
     stencil="standard",
 ):
     """Grid and contour around a transducer anchored `back` cells behind and `fwd` cells before
     the walls' reach, `half` cells either side (rz: `half` rings out from the axis); returns
     (grid, contour, anchor cell)."""
-    if lattice == "rz":
+    if lattice.ring_metric:
         iz0 = pml_cells + 3
         iz_s = iz0 + gap_cells + back
         iz1 = iz_s + fwd + gap_cells
         jr = half + gap_cells
         grid = _grid(
-            frequency_hz, cells_per_wavelength, wall, (iz1 + 3 + pml_cells, jr + 3 + pml_cells), dtype, "rz", stencil
+            frequency_hz, cells_per_wavelength, wall, (iz1 + 3 + pml_cells, jr + 3 + pml_cells), dtype, lattice, stencil
         )
         return grid, CylinderSurface(iz0, iz1, jr, False), (iz_s, 0)
     ix0 = iy0 = pml_cells + 3
@@ -327,7 +335,7 @@ def _layout(
     iy_s = iy0 + gap_cells + half
     iy1 = iy_s + half + gap_cells
     grid = _grid(
-        frequency_hz, cells_per_wavelength, wall, (ix1 + 3 + pml_cells, iy1 + 3 + pml_cells), dtype, "2d", stencil
+        frequency_hz, cells_per_wavelength, wall, (ix1 + 3 + pml_cells, iy1 + 3 + pml_cells), dtype, lattice, stencil
     )
     return grid, BoxContour(ix0, ix1, iy0, iy1), (ix_s, iy_s)
 
@@ -349,7 +357,7 @@ def horn_design(
     traversals: float = 1.5,
     dtype: str = "float64",
     reference: bool = True,
-    lattice: str = "2d",
+    lattice: LatticeKind | str = "2d",
     stencil: str = "standard",
 ) -> DesignProblem:
     """A horn problem: a line transducer of diameter `face_m` facing +x at the throat of any horn
@@ -357,15 +365,15 @@ def horn_design(
     revolution). The run lasts `traversals` crossings of the contour plus the burst and six
     periods, so the burst has left the contour when the phasors are read. `reference` runs the bare
     transducer once for the gain's reference (False skips it: `on_axis_db` is then 0 for every design)."""
-    _check_lattice(lattice, wall)
+    lattice = _check_lattice(lattice, wall)
     dx = _dx(frequency_hz, cells_per_wavelength)
     n_cells = max(1, int(round(face_m / dx)))
-    if lattice == "rz" and limits.throat_min_m < face_m - 1e-12:
+    if lattice.ring_metric and limits.throat_min_m < face_m - 1e-12:
         raise ValueError(
             f"throat_min_m = {limits.throat_min_m:.6g} m is narrower than the disc (face_m = {face_m:.6g} m): "
             "the walls would cover source rings"
         )
-    if lattice == "2d" and limits.throat_min_m < n_cells * dx - 1e-12:
+    if not lattice.ring_metric and limits.throat_min_m < n_cells * dx - 1e-12:
         raise ValueError(
             f"throat_min_m = {limits.throat_min_m:.6g} m is narrower than the transducer "
             f"({n_cells} cells = {n_cells * dx:.6g} m at this resolution): the walls would cover source cells"
@@ -416,14 +424,14 @@ def reflector_design(
     traversals: float = 2.0,
     dtype: str = "float64",
     reference: bool = True,
-    lattice: str = "2d",
+    lattice: LatticeKind | str = "2d",
     stencil: str = "standard",
 ) -> DesignProblem:
     """A reflector problem: a line transducer of diameter `face_m` at the focus of a parabolic
     mirror opening towards +x, facing the vertex (as the paper's Fig. 10); ``lattice="rz"``: a disc
     of diameter `face_m` at the focus of a paraboloidal dish opening towards +z (a transparent disc
     radiates both ways, as the 2-D line does)."""
-    _check_lattice(lattice, wall)
+    lattice = _check_lattice(lattice, wall)
     dx = _dx(frequency_hz, cells_per_wavelength)
     n_cells = max(1, int(round(face_m / dx)))
     _check_wall_resolved(limits.wall_min_m, dx)
@@ -468,6 +476,6 @@ def reflector_design(
     )
 
 
-def _n_source(lattice: str, n_cells: int, face_m: float, dx: float) -> int:
+def _n_source(lattice: LatticeKind, n_cells: int, face_m: float, dx: float) -> int:
     """Source cells: the 2-D line's `n_cells`, or the rings a disc of diameter `face_m` touches."""
-    return max(1, math.ceil(0.5 * face_m / dx - 1e-9)) if lattice == "rz" else n_cells
+    return max(1, math.ceil(0.5 * face_m / dx - 1e-9)) if lattice.ring_metric else n_cells

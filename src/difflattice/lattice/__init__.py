@@ -5,9 +5,19 @@ Nothing here knows about time loops, sources or sensors (`difflattice.solver` bu
 
 from .coefficients import PML, AxisymMetric, Edges, Lattice, RadialPML, build_lattice
 from .grid import MAX_COURANT, MAX_COURANT_3D, PAPER_COURANT, Grid, check_courant, make_grid, stability_limit
+from .kinds import AXISYMMETRIC, KINDS, PLANE, VOLUME, Axisymmetric, LatticeKind, Plane, Volume, as_kind
 from .medium import MATERIALS, Material, Medium, air, homogeneous, material
 
 __all__ = [
+    "AXISYMMETRIC",
+    "KINDS",
+    "PLANE",
+    "VOLUME",
+    "Axisymmetric",
+    "LatticeKind",
+    "Plane",
+    "Volume",
+    "as_kind",
     "MATERIALS",
     "MAX_COURANT",
     "MAX_COURANT_3D",

@@ -34,6 +34,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .grid import Grid, GridKind, StencilKind, check_courant, stability_limit
+from .kinds import LatticeKind, as_kind
 from .medium import Medium
 
 EdgeKind = Literal["pml", "mur", "sponge", "rigid", "soft", "axis"]
@@ -118,15 +119,16 @@ class Edges(eqx.Module):
         A rigid baffle is `z_lo="rigid"` (the closed face z = 0)."""
         return cls(x_lo=z_lo, x_hi=z_hi, y_lo="axis", y_hi=r_hi, **kwargs)
 
-    def check_kind(self, kind: str) -> None:
+    def check_kind(self, kind: LatticeKind | str) -> None:
         """Refuse edges that do not fit a grid of `kind` ("2d", "rz" or "3d")."""
-        if kind == "rz" and self.y_lo != "axis":
+        kind = as_kind(kind)
+        if kind.has_axis_edge and self.y_lo != "axis":
             raise ValueError(
                 f"on an rz grid the y_lo side is the axis r = 0, got y_lo = {self.y_lo!r} (an absorbing "
                 "or reflecting layer cannot lie on the axis): use Edges.axisymmetric(z_lo=..., z_hi=..., "
                 "r_hi=...) or Edges(..., y_lo='axis')"
             )
-        if kind != "rz" and "axis" in self.kinds():
+        if not kind.has_axis_edge and "axis" in self.kinds():
             raise ValueError(f"edge 'axis' is only for rz grids (Grid.kind = 'rz'); a {kind} grid has none")
 
     def kinds(self) -> set[str]:
@@ -281,7 +283,7 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
     with PML, sponge, rigid and soft edges; the paper's eq. 10 models are 2-D only."""
     edges = edges.for_rank(grid.ndim)
     edges.check_kind(grid.kind)
-    if grid.kind in ("rz", "3d") and medium.boundary_model != "conservative":
+    if medium.boundary_model not in grid.kind.boundary_models:
         raise ValueError(
             f"boundary_model = {medium.boundary_model!r} is not available on an {grid.kind} grid: only the "
             "'conservative' (finite-volume) model has a ring-volume and a 3-D form; use "
@@ -411,7 +413,7 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
     mur = tuple(getattr(edges, s) == "mur" for s in sides)
     sponge = _sponge(grid, edges, dtype) if "sponge" in edges.kinds() else None
     pml = _pml(grid, edges, dtype) if edges.uses_pml else None
-    metric = AxisymMetric.build(ny, dtype) if grid.kind == "rz" else None
+    metric = AxisymMetric.build(ny, dtype) if grid.kind.ring_metric else None
     return Lattice(
         K=K,
         q_scale=q_scale,
@@ -493,13 +495,13 @@ def _uniform(v) -> bool:
         return False
 
 
-def speed_limit(lat: Lattice, kind: GridKind) -> float:
+def speed_limit(lat: Lattice, kind: LatticeKind | GridKind) -> float:
     """The largest stable lattice speed for these coefficients: `stability_limit(kind, stencil)`,
     except that the isotropic stencil with obstacles or a density contrast keeps the standard limit."""
     return stability_limit(kind, lat.stencil if lat.uniform_faces else "standard")
 
 
-def _check_speed(c, kind: GridKind = "2d", stencil: StencilKind = "standard", why: str = "") -> None:
+def _check_speed(c, kind: LatticeKind | GridKind = "2d", stencil: StencilKind = "standard", why: str = "") -> None:
     try:
         cmax = float(jnp.max(c))
     except Exception:  # traced: checked at run time by the solver
@@ -527,7 +529,7 @@ def _pml(grid: Grid, edges: Edges, dtype) -> PML:
             shape = _axis_shape(axis, ndim)
             out[f"a{key}_{where}"] = jnp.asarray(av.reshape(shape), dtype)
             out[f"b{key}_{where}"] = jnp.asarray(bv.reshape(shape), dtype)
-    radial = _radial_pml(ny, L, m, smax, dtype) if grid.kind == "rz" and edges.y_hi == "pml" else None
+    radial = _radial_pml(ny, L, m, smax, dtype) if grid.kind.ring_metric and edges.y_hi == "pml" else None
     return PML(**out, radial=radial)
 
 

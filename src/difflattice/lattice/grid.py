@@ -35,34 +35,41 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 
-MAX_COURANT = 1.0 / math.sqrt(2.0)
-"""Stability limit of the 2-D five-point leapfrog in cells/step (also the r-z lattice's)."""
+from .kinds import (
+    DEFAULT_COURANT_3D,
+    KINDS,
+    MAX_COURANT,
+    MAX_COURANT_3D,
+    MAX_COURANT_ISOTROPIC,
+    PAPER_COURANT,
+    STENCILS,
+    LatticeKind,
+    StencilKind,
+    as_kind,
+)
 
-MAX_COURANT_3D = 1.0 / math.sqrt(3.0)
-"""Stability limit of the 3-D seven-point leapfrog in cells/step."""
-
-DEFAULT_COURANT_3D = 0.577
-"""The 3-D default courant: 0.06 % under 1/sqrt(3), as the paper's 0.707 is under 1/sqrt(2)."""
+__all__ = [
+    "DEFAULT_COURANT_3D",
+    "GRID_KINDS",
+    "MAX_COURANT",
+    "MAX_COURANT_3D",
+    "MAX_COURANT_ISOTROPIC",
+    "PAPER_COURANT",
+    "STENCILS",
+    "Grid",
+    "GridKind",
+    "LatticeKind",
+    "StencilKind",
+    "check_courant",
+    "make_grid",
+    "stability_limit",
+]
 
 GridKind = Literal["2d", "rz", "3d"]
-GRID_KINDS = ("2d", "rz", "3d")
-
-StencilKind = Literal["standard", "isotropic"]
-STENCILS = ("standard", "isotropic")
-"""The spatial stencil (`Grid.stencil`, static). "standard": the paper's 5-point (3-D: 7-point)
-flux stencil. "isotropic" (plane and rz grids): each face flux is averaged across the face by the
-compact filter [1, 10, 1] / 12 (area-weighted on an rz grid), which makes the operator the
-Mehrstellen 9-point Laplacian ``L5 + (1/6) dx^2 dy^2``: its leading error is isotropic, so waves at
-every angle travel at one speed to O((k dx)^4), and the leapfrog is stable up to sqrt(3)/2 (one
-density, no obstacles; otherwise 1/sqrt(2)). The native CPU kernels run it (leapfrog and
-split-field PML); in air at 0.7x the 5-point kernels per step, with obstacles or a speed/density
-map (face-conductance arrays) at 0.2-0.5x."""
-
-MAX_COURANT_ISOTROPIC = math.sqrt(3.0) / 2.0
-"""Stability limit of the leapfrog with the isotropic (9-point) stencil, plane and rz grids."""
+GRID_KINDS = tuple(KINDS)
 
 
-def stability_limit(kind: GridKind = "2d", stencil: StencilKind = "standard") -> float:
+def stability_limit(kind: LatticeKind | GridKind = "2d", stencil: StencilKind = "standard") -> float:
     """Largest stable lattice speed (cells/step) of the leapfrog on a grid of `kind` with the
     spatial `stencil`.
 
@@ -91,21 +98,7 @@ def stability_limit(kind: GridKind = "2d", stencil: StencilKind = "standard") ->
       symmetric matrix; measured spectral radius of the actual rz operator
       (`tests/core/test_isotropic_stencil.py`): below 16/3 for every size tried.
     """
-    if kind not in GRID_KINDS:
-        raise ValueError(f"grid kind = {kind!r}; allowed: {', '.join(map(repr, GRID_KINDS))}")
-    if stencil not in STENCILS:
-        raise ValueError(f"stencil = {stencil!r}; allowed: {', '.join(map(repr, STENCILS))}")
-    if stencil == "isotropic":
-        if kind == "3d":
-            raise ValueError(
-                "stencil = 'isotropic' is implemented for plane and rz grids only; use stencil='standard' on a 3-D grid"
-            )
-        return MAX_COURANT_ISOTROPIC
-    return MAX_COURANT_3D if kind == "3d" else MAX_COURANT
-
-
-PAPER_COURANT = 0.707
-"""The paper's choice: just below the limit."""
+    return as_kind(kind).stability_limit(stencil)
 
 
 class Grid(eqx.Module):
@@ -133,29 +126,17 @@ class Grid(eqx.Module):
     c_max_m_s: float = eqx.field(static=True)
     courant: float = eqx.field(static=True, default=PAPER_COURANT)
     dtype: Literal["float32", "float64"] = eqx.field(static=True, default="float32")
-    kind: GridKind = eqx.field(static=True, default="2d")
+    kind: LatticeKind = eqx.field(static=True, default="2d", converter=as_kind)
     stencil: StencilKind = eqx.field(static=True, default="standard")
 
     def __check_init__(self):
-        if self.kind not in GRID_KINDS:
-            raise ValueError(f"grid kind = {self.kind!r}; allowed: {', '.join(map(repr, GRID_KINDS))}")
-        if self.kind == "3d":
-            if len(self.shape) != 3 or min(self.shape) < 3:
-                raise ValueError(f"a 3-D grid needs shape (nx, ny, nz) with at least 3 cells each, got {self.shape}")
-        else:
-            if len(self.shape) != 2:
-                raise ValueError(
-                    f"a {self.kind} grid needs shape (nx, ny), got {self.shape} (for a 3-D grid set kind='3d')"
-                )
-            nx, ny = self.shape
-            if nx < 3 or ny < 1:
-                raise ValueError(f"grid shape {self.shape} is too small: need at least 3 x 1 cells")
+        self.kind.check_shape(self.shape)
         if not (self.frequency_hz > 0 and self.cells_per_wavelength > 0 and self.c_max_m_s > 0):
             raise ValueError(
                 "frequency_hz, cells_per_wavelength and c_max_m_s must be positive, got "
                 f"{self.frequency_hz}, {self.cells_per_wavelength}, {self.c_max_m_s}"
             )
-        stability_limit(self.kind, self.stencil)  # refuses an unknown stencil or one the kind lacks
+        self.kind.check_stencil(self.stencil)
         check_courant(
             self.courant, what="grid courant (the fastest medium's speed)", kind=self.kind, stencil=self.stencil
         )
@@ -168,7 +149,7 @@ class Grid(eqx.Module):
             "shape": list(self.shape),
             "dx_m": self.dx_m,
             "dt_s": self.dt_s,
-            "kind": self.kind,
+            "kind": self.kind.name,
             "stencil": self.stencil,
             "size_m": list(self.size_m),
             "frequency_hz": self.frequency_hz,
@@ -186,7 +167,7 @@ class Grid(eqx.Module):
     @property
     def max_courant(self) -> float:
         """The stability limit of this kind of lattice and stencil, cells/step (`stability_limit`)."""
-        return stability_limit(self.kind, self.stencil)
+        return self.kind.stability_limit(self.stencil)
 
     # --- scales -------------------------------------------------------------------------
     @property
@@ -244,9 +225,10 @@ class Grid(eqx.Module):
 
     @property
     def origin_cells(self) -> float:
-        """Offset of cell centres from the origin, in cells: 0 for "2d" (the origin is the centre
-        of cell (0, 0)), 1/2 for "rz" (the origin is its low corner: the axis and z = 0)."""
-        return 0.5 if self.kind == "rz" else 0.0
+        """Offset of cell centres from the origin, in cells (`LatticeKind.origin_cells`: 0 for a
+        plane or volume, whose origin is the centre of cell 0; 1/2 for rz, whose origin is the
+        axis and z = 0)."""
+        return self.kind.origin_cells
 
     def cell_of(self, position_m) -> tuple[int, ...]:
         """Index of the cell containing a point (x_m, y_m[, z_m]), or (z_m, r_m) for "rz"."""
@@ -254,34 +236,33 @@ class Grid(eqx.Module):
             raise ValueError(
                 f"position {tuple(position_m)} has {len(position_m)} coordinates; this grid has {self.ndim}"
             )
-        if self.kind == "rz":
-            iz, ir = (int(math.floor(p / self.dx_m)) for p in position_m)
-            return iz, ir
-        return tuple(int(round(p / self.dx_m)) for p in position_m)  # nearest cell centre
+        return tuple(int(i) for i in self.kind.cells_of(np.asarray([position_m], dtype=float), self.dx_m)[0])
+
+    def cells_of(self, points_m) -> np.ndarray:
+        """Indices (n, ndim) of the cells containing points given in metres (`cell_of` for many)."""
+        pts = np.asarray(points_m, dtype=float).reshape(-1, self.ndim)
+        return self.kind.cells_of(pts, self.dx_m)
 
     def coordinates_m(self) -> tuple[np.ndarray, ...]:
         """Cell-centre coordinates per axis (x_m of shape (nx,), y_m of shape (ny,)[, z_m]); for
         "rz" (z_m, r_m) with r_m = (j + 1/2) dx."""
-        o = self.origin_cells
-        return tuple((np.arange(n) + o) * self.dx_m for n in self.shape)
+        return self.kind.coordinates_m(self.shape, self.dx_m)
 
 
 def check_courant(
-    c_lattice: float, what: str = "speed", kind: GridKind = "2d", stencil: StencilKind = "standard"
+    c_lattice: float, what: str = "speed", kind: LatticeKind | GridKind = "2d", stencil: StencilKind = "standard"
 ) -> None:
     """Refuse a lattice speed above `stability_limit(kind, stencil)` cells/step (unstable, not
     merely inaccurate)."""
     if not (c_lattice >= 0):
         raise ValueError(f"{what} = {c_lattice} cells/step: must be >= 0")
-    limit = stability_limit(kind, stencil)
+    k = as_kind(kind)
+    limit = k.stability_limit(stencil)
     if c_lattice > limit * (1 + 1e-12):
-        name = {"2d": "2-D", "rz": "rz", "3d": "3-D"}[kind] + (" isotropic-stencil" if stencil == "isotropic" else "")
-        formula = "1/sqrt(3)" if kind == "3d" else ("sqrt(3)/2" if stencil == "isotropic" else "1/sqrt(2)")
-        usual = f"e.g. {DEFAULT_COURANT_3D}" if kind == "3d" else f"the paper uses {PAPER_COURANT}"
         raise ValueError(
-            f"{what} = {c_lattice:.6f} cells/step exceeds the {name} stability limit "
-            f"{formula} = {limit:.6f}: the leapfrog would grow without bound. Lower `courant` "
-            f"({usual}) or set c_max_m_s to the fastest medium's speed."
+            f"{what} = {c_lattice:.6f} cells/step exceeds the {k.limit_name(stencil)} stability limit "
+            f"{k.limit_formula(stencil)} = {limit:.6f}: the leapfrog would grow without bound. Lower `courant` "
+            f"({k.usual_courant}) or set c_max_m_s to the fastest medium's speed."
         )
 
 
@@ -294,22 +275,20 @@ def make_grid(
     size_m: tuple[float, ...] | None = None,
     courant: float | None = None,
     dtype: Literal["float32", "float64"] = "float32",
-    kind: GridKind = "2d",
+    kind: LatticeKind | GridKind = "2d",
     stencil: StencilKind = "standard",
 ) -> Grid:
     """Build a `Grid` from the paper's scale parameters and either `shape` (cells) or `size_m`
     (for `kind` = "rz": (length along z, radius) in metres; for "3d": three sizes). `courant`
     defaults to the paper's 0.707, and to 0.577 for "3d"."""
-    if kind not in GRID_KINDS:
-        raise ValueError(f"grid kind = {kind!r}; allowed: {', '.join(map(repr, GRID_KINDS))}")
+    k = as_kind(kind)
     if (shape is None) == (size_m is None):
         raise ValueError("give exactly one of shape=(nx, ny[, nz]) cells or size_m=(width_m, height_m[, depth_m])")
     if courant is None:
-        courant = DEFAULT_COURANT_3D if kind == "3d" else PAPER_COURANT
+        courant = k.default_courant
     if shape is None:
         assert size_m is not None
-        dx = c_max_m_s / (frequency_hz * cells_per_wavelength)
-        shape = tuple(max(3 if (i == 0 or kind == "3d") else 1, int(round(s / dx))) for i, s in enumerate(size_m))
+        shape = k.shape_for_size(tuple(size_m), c_max_m_s / (frequency_hz * cells_per_wavelength))
     return Grid(
         shape=tuple(int(n) for n in shape),
         frequency_hz=float(frequency_hz),
@@ -317,6 +296,6 @@ def make_grid(
         c_max_m_s=float(c_max_m_s),
         courant=float(courant),
         dtype=dtype,
-        kind=kind,
+        kind=k,
         stencil=stencil,
     )

@@ -90,8 +90,8 @@ class CylinderSurface(eqx.Module):
     def check_inside(self, grid: Grid, margin: int = 0) -> None:
         """Refuse a surface whose outer cells leave the grid or enter an absorbing layer."""
         nz, nr = grid.shape
-        if grid.kind != "rz":
-            raise ValueError(f"CylinderSurface needs an rz grid, got kind = {grid.kind!r}")
+        if not grid.kind.ring_metric:
+            raise ValueError(f"CylinderSurface needs an rz grid, got kind = {grid.kind.name!r}")
         lo_ok = self.baffled or self.iz0 - 1 >= margin
         if not (lo_ok and self.iz1 + 1 < nz - margin and self.jr + 1 < nr - margin):
             raise ValueError(
@@ -262,8 +262,8 @@ def _lagrange4(u: float):
 def field_sampler(grid: Grid, points_m) -> FieldSampler:
     """The `FieldSampler` of points (z_m, x_m) in metres on an rz grid (z = 0 is the z_lo window
     face, x the signed distance from the axis)."""
-    if grid.kind != "rz":
-        raise ValueError(f"field_sampler needs an rz grid, got kind = {grid.kind!r}")
+    if not grid.kind.ring_metric:
+        raise ValueError(f"field_sampler needs an rz grid, got kind = {grid.kind.name!r}")
     nz, nr = grid.shape
     pts = np.asarray(points_m, float).reshape(-1, 2)
     index: dict[tuple[int, int], int] = {}

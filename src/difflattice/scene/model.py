@@ -23,6 +23,7 @@ if TYPE_CHECKING:
     from ..lattice.coefficients import Edges
     from ..lattice.geometry3d import Shape3D
     from ..lattice.grid import Grid, StencilKind
+    from ..lattice.kinds import LatticeKind
     from ..lattice.medium import Material, Medium
     from ..observe.farfield import BoxContour
     from ..observe.farfield_rz import CylinderSurface
@@ -70,8 +71,9 @@ def _validate_table(path, section: str, table: dict, where: str) -> dict:
 
 
 class SceneTooLargeError(SceneError):
-    """A 3-D scene whose run would not fit in the available memory; the message gives the estimate
-    (`solver.estimate`) and the fix. Raised before any grid-sized array is built."""
+    """A scene (any lattice kind) whose run would not fit in the available memory; the message
+    gives the estimate (`solver.estimate`) and the fix. Raised before any grid-sized array is
+    built."""
 
 
 class Receiver(NamedTuple):
@@ -136,16 +138,38 @@ class Scene:
     raw: dict = field(default_factory=dict)
 
     # ---------------------------------------------------------------------------------------
-    def build(self, *, available_bytes: int | None = None) -> BuiltScene:
-        """Build the solver's objects (`BuiltScene`) for `simulate`. A 3-D scene is first
-        estimated (`solver.estimate`) and refused (`SceneTooLargeError`) when its run would not
-        fit in `available_bytes` (default: the memory available on this machine). Each lattice
-        kind imports only its own pieces (a 2-D scene builds nothing 3-D, and vice versa)."""
-        if self.grid["kind"] == "3d":
-            return self._build_3d(available_bytes)
-        return self._build_plane()
+    @property
+    def kind(self) -> LatticeKind:
+        """The scene's lattice kind (`[grid] kind`)."""
+        from ..lattice.kinds import as_kind
 
-    def _build_plane(self) -> BuiltScene:
+        return as_kind(self.grid["kind"])
+
+    def build(self, *, available_bytes: int | None = None) -> BuiltScene:
+        """Build the solver's objects (`BuiltScene`) for `simulate`. Every scene is first
+        estimated (`solver.estimate`) and refused (`SceneTooLargeError`) when its run would not
+        fit in `available_bytes` (default: the memory available on this machine), before any
+        grid-sized array exists. Each lattice kind imports only its own pieces (a 2-D scene builds
+        nothing 3-D, and vice versa)."""
+        if self.kind.ndim == 3:
+            return self._build_3d(available_bytes)
+        return self._build_plane(available_bytes)
+
+    def _check_fits(self, grid: Grid, n_steps: int, available_bytes: int | None, **features) -> int:
+        """Refuse (`SceneTooLargeError`, naming the estimate and the fix) a run whose memory
+        estimate does not fit; `features` are `solver.estimate.RunFeatures` fields. Returns the
+        estimate in bytes."""
+        from ..solver.estimate import RunFeatures, RunTooLargeError, check_fits, memory_breakdown
+
+        shape = tuple(grid.shape)
+        nbytes = sum(memory_breakdown(shape, n_steps, grid.dtype, RunFeatures(**features)).values())
+        try:
+            check_fits(shape, n_steps, nbytes, available=available_bytes)
+        except RunTooLargeError as err:
+            raise SceneTooLargeError(f"{self.path}: [grid] {' '.join(str(err).split())}") from None
+        return nbytes
+
+    def _build_plane(self, available_bytes: int | None = None) -> BuiltScene:
         """The 2-D and r-z lattices."""
         from ..lattice import geometry as geo
         from ..lattice.coefficients import Edges
@@ -158,7 +182,17 @@ class Scene:
         med = self.medium
         bg, mats = _materials(self)
         grid = _make_grid(self, mats)
-        rz = grid.kind == "rz"
+        ed, s = self.edges, self.sensors
+        self._check_fits(  # before the objects' and media's grid-sized arrays
+            grid,
+            _n_steps(self, grid),
+            available_bytes,
+            pml="pml" in {ed[k] for k in ("kind", *_SIDES_2D, "z_lo", "z_hi", "r_hi")},
+            heterogeneous=bool(self.objects),
+            n_probes=len(s["probes_m"] or ()),
+            field_stats=int(s["p_max"]) + int(s["p_rms"]) + int(s["arrival_threshold_pa"] is not None),
+        )
+        rz = grid.kind.ring_metric
         for i, t in enumerate(self.transducers):
             for k in _TRANSDUCER_KEYS_3D:
                 if t[k] is not None:
@@ -195,7 +229,6 @@ class Scene:
                     _fail(p, f"transducers[{i}]", str(err))
         medium = _medium(self, grid, bg, mats, occupancies, housings, lambda occs: geo.union_occupancy(occs))
 
-        ed = self.edges
         try:
             if rz:
                 for side in _SIDES_2D:
@@ -283,7 +316,6 @@ class Scene:
             except (ValueError, TypeError) as err:
                 _fail(p, where, str(err))
 
-        s = self.sensors
         probes = probe_cells(grid, _points(p, "sensors.probes_m", s["probes_m"], 2)) if s["probes_m"] else None
         contour: BoxContour | CylinderSurface | None = None
         phasor_cells = None
@@ -342,7 +374,6 @@ class Scene:
         (refused before any grid-sized array exists), then the medium maps."""
         from ..lattice import geometry3d as g3
         from ..lattice.coefficients import Edges
-        from ..solver.estimate import RunFeatures, RunTooLargeError, check_fits, memory_breakdown
         from ..solver.sensors import Sensors, probe_cells
         from ..solver.sources import disc_transducer_3d
 
@@ -372,7 +403,7 @@ class Scene:
             edges = Edges(
                 **{s: (ed[s] or ed["kind"]) for s in _SIDES_3D}, thickness_cells=ed["thickness_cells"]
             ).for_rank(3)
-            edges.check_kind("3d")
+            edges.check_kind(grid.kind)
         except ValueError as err:
             _fail(p, "edges", str(err))
         n_steps = _n_steps(self, grid)
@@ -439,7 +470,10 @@ class Scene:
         # the estimate, before the medium maps (the largest arrays a build makes) exist
         shape = tuple(grid.shape)
         n_snap = 0 if s["snapshot_every_steps"] is None else -(-n_steps // min(s["snapshot_every_steps"], n_steps))
-        features = RunFeatures(
+        nbytes = self._check_fits(
+            grid,
+            n_steps,
+            available_bytes,
             pml=edges.uses_pml,
             heterogeneous=bool(self.objects),
             soft=any(m.kind == "soft" for m in mats[1:]) or med["boundary_model"] == "speed_zero",
@@ -449,11 +483,6 @@ class Scene:
             n_snapshots=n_snap,
             field_stats=int(s["p_max"]) + int(s["p_rms"]) + int(s["arrival_threshold_pa"] is not None),
         )
-        nbytes = sum(memory_breakdown(shape, n_steps, grid.dtype, features).values())
-        try:
-            check_fits(shape, n_steps, nbytes, available=available_bytes)
-        except RunTooLargeError as err:
-            raise SceneTooLargeError(f"{p}: [grid] {' '.join(str(err).split())}") from None
 
         occupancies = []
         for i, ob in enumerate(self.objects):
@@ -550,20 +579,22 @@ def _make_grid(scene: Scene, mats: list[Material]) -> Grid:
     """The grid, its cell sized for the fastest simulated fluid; the courant default and limit of
     the lattice kind (refused above it naming `[grid.courant]`); warns for every under-resolved
     fluid."""
-    from ..lattice.grid import DEFAULT_COURANT_3D, PAPER_COURANT, make_grid, stability_limit
+    from ..lattice.grid import make_grid
     from ..lattice.medium import warn_if_under_resolved
 
     p, g = scene.path, scene.grid
-    kind = g["kind"]
-    ndim = 3 if kind == "3d" else 2
+    kind = scene.kind
+    ndim = kind.ndim
     if (g["size_m"] is None) == (g["shape"] is None):
-        dims = "[x, y, z]" if ndim == 3 else "[width, height]"
-        cells = "[nx, ny, nz]" if ndim == 3 else "[nx, ny]"
-        _fail(p, "grid", f"give exactly one of size_m = {dims} (m) or shape = {cells} (cells)")
+        axes = ", ".join(kind.axis_names)
+        _fail(p, "grid", f"give exactly one of size_m = [{axes}] (m) or shape = [{axes}] (cells)")
     for key in ("size_m", "shape"):
         if g[key] is not None and len(g[key]) != ndim:
             _fail(p, f"grid.{key}", f"= {list(g[key])}: a {kind} grid needs {ndim} entries")
-    default = DEFAULT_COURANT_3D if kind == "3d" else PAPER_COURANT
+        for i, v in enumerate(g[key] or ()):
+            if not v > 0:
+                _fail(p, f"grid.{key}", f"= {list(g[key])}: entry {i} ({kind.axis_names[i]}) must be > 0")
+    default = kind.default_courant
     courant = default if g["courant"] is None else float(g["courant"])
     # rz scenes in air (no objects, no housing, one fluid) default to the isotropic stencil: the
     # near field in place, on the native kernels; with obstacles the standard one (the native
@@ -571,18 +602,18 @@ def _make_grid(scene: Scene, mats: list[Material]) -> Grid:
     in_air = not scene.objects and all(
         t.get("type") != "disc" or t.get("baffle", "rigid") == "rigid" for t in scene.transducers
     )
-    stencil: StencilKind = g["stencil"] or ("isotropic" if kind == "rz" and in_air else "standard")
-    if stencil == "isotropic" and kind == "3d":
-        _fail(p, "grid.stencil", '= "isotropic" is implemented for 2d and rz grids: use stencil = "standard" in 3d')
-    limit = stability_limit(kind, stencil)
+    stencil: StencilKind = g["stencil"] or ("isotropic" if kind.ring_metric and in_air else "standard")
+    try:
+        kind.check_stencil(stencil)
+    except ValueError as err:
+        _fail(p, "grid.stencil", str(err))
+    limit = kind.stability_limit(stencil)
     if courant > limit:
-        formula = "1/sqrt(3)" if kind == "3d" else ("sqrt(3)/2" if stencil == "isotropic" else "1/sqrt(2)")
-        name = {"2d": "2-D", "rz": "rz", "3d": "3-D"}[kind]
         _fail(
             p,
             "grid.courant",
-            f"= {courant:g} cells/step exceeds the {name} stability limit {formula} = {limit:.4f} (the leapfrog "
-            f"would grow without bound): set courant = {default} (the default) or less",
+            f"= {courant:g} cells/step exceeds the {kind.label} stability limit {kind.limit_formula(stencil)} = "
+            f"{limit:.4f} (the leapfrog would grow without bound): set courant = {default} (the default) or less",
         )
     fluids = [m for m in mats if m.kind == "fluid"]
     fastest = max(fluids, key=lambda m: m.speed_m_s)

@@ -21,6 +21,7 @@ from jaxtyping import Array, Complex, Float, Int
 
 from ..lattice.coefficients import Edges, speed_limit
 from ..lattice.grid import Grid
+from ..lattice.kinds import PLANE, VOLUME
 from ..lattice.medium import Medium
 from .sensors import Sensors
 from .sources import PointSources
@@ -266,15 +267,10 @@ INSTABILITY_MESSAGE = (
     "density contrast at the stability limit with the conservative model (lower courant by ~1%), "
     "or float32 overflow from extreme source amplitudes (scale the weights or use float64)."
 )
-SPEED_MESSAGE = (
-    "difflattice: a medium speed exceeds the stability limit (2-D and rz: 1/sqrt(2) cells/step, sqrt(3)/2 "
-    "with the isotropic stencil): lower the "
-    "grid courant or set c_max_m_s to the fastest medium's speed."
-)
-SPEED_MESSAGE_3D = (
-    "difflattice: a medium speed exceeds 1/sqrt(3) cells/step, the 3-D stability limit: lower the "
-    "grid courant or set c_max_m_s to the fastest medium's speed."
-)
+SPEED_MESSAGE = PLANE.speed_message
+"""The error of a speed map above the plane (and rz) lattice's limit (`LatticeKind.speed_message`)."""
+SPEED_MESSAGE_3D = VOLUME.speed_message
+"""The same for a 3-D grid."""
 
 
 def check_result(result: Result, stepper: Stepper) -> Result:
@@ -315,13 +311,13 @@ def simulate(
       faster and memory-bounded) or "auto" (see `run`).
     - `throw`: raise on non-finite fields (otherwise inspect `result.peak_history`).
     - `backend`: "auto" (native CPU kernels where supported), "jax" or "native" (see `run`).
-    - `preflight` (3-D grids): "check" (default) refuses a run whose memory estimate does not fit
+    - `preflight` (every lattice kind): "check" (default) refuses a run whose memory estimate does not fit
       in the available memory (`solver.estimate`, a `RunTooLargeError` naming the estimate and the
       fix), "print" also prints the memory and time estimate before the run starts, "off" skips
       both.
     """
     stepper = Stepper.build(grid, medium, sources, sensors, edges)
-    if grid.kind == "3d" and preflight != "off":
+    if preflight != "off":
         from .estimate import preflight as _preflight
 
         _preflight(stepper, n_steps, checkpoint=checkpoint, show=preflight == "print")
@@ -345,7 +341,7 @@ def check_speed(stepper: Stepper) -> None:
     if jnp.ndim(lat.c) != 0:
         limit = speed_limit(lat, stepper.grid.kind)
         if float(jnp.max(lat.c)) > limit * (1 + 1e-6):
-            raise eqx.EquinoxRuntimeError(SPEED_MESSAGE_3D if stepper.grid.kind == "3d" else SPEED_MESSAGE)
+            raise eqx.EquinoxRuntimeError(stepper.grid.kind.speed_message)
 
 
 def check_finite(peak_history) -> None:
@@ -372,8 +368,7 @@ def _simulate(
     if speed_check and (jnp.ndim(lat.c) != 0 or isinstance(lat.c, jax.core.Tracer)):
         # speeds may be traced (e.g. fitted): check the stability limit at run time
         limit = speed_limit(lat, stepper.grid.kind)
-        msg = SPEED_MESSAGE_3D if stepper.grid.kind == "3d" else SPEED_MESSAGE
-        stepper = eqx.error_if(stepper, jnp.max(lat.c) > limit * (1 + 1e-6), msg)
+        stepper = eqx.error_if(stepper, jnp.max(lat.c) > limit * (1 + 1e-6), stepper.grid.kind.speed_message)
     result = run(
         stepper, n_steps, checkpoint=checkpoint, unroll=unroll, sharding=sharding, adjoint=adjoint, backend=backend
     )

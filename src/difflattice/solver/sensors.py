@@ -123,10 +123,7 @@ class Sensors(eqx.Module):
 def probe_cells(grid: Grid, points_m) -> np.ndarray:
     """Cells containing points given in metres ((x, y), (x, y, z) on a 3-D grid, or (z, r) on an
     rz grid), shape (n, 2) or (n, 3)."""
-    pts = np.asarray(points_m, dtype=float).reshape(-1, len(grid.shape))
-    if grid.kind == "rz":
-        return np.floor(pts / grid.dx_m).astype(np.int64)
-    return np.rint(pts / grid.dx_m).astype(np.int64)
+    return grid.cells_of(points_m)
 
 
 def arc_cells(grid: Grid, centre_m, radius_m: float, angles_deg) -> np.ndarray:

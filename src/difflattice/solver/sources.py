@@ -263,9 +263,9 @@ def ring_radii_m(grid: Grid, n_rings: int) -> np.ndarray:
 
 
 def _check_rz(grid: Grid, what: str) -> None:
-    if grid.kind != "rz":
+    if not grid.kind.ring_metric:
         raise ValueError(
-            f"{what} needs an axisymmetric grid (make_grid(..., kind='rz')), got kind = {grid.kind!r}; "
+            f"{what} needs an axisymmetric grid (make_grid(..., kind='rz')), got kind = {grid.kind.name!r}; "
             "on a 2-D grid use line_transducer"
         )
 

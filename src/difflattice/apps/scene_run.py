@@ -189,6 +189,7 @@ def run_scene(scene: Scene, *, progress: bool = True) -> SceneRun:
     if contour is not None and ff is not None:  # a contour is built exactly when the scene has [farfield]
         a0, a1, da = ff["angles_deg"]
         angles = np.arange(a0, a1 + da / 2, da)
+        disp = {} if ff["dispersion"] is None else {"dispersion": ff["dispersion"]}
         if isinstance(contour, CylinderSurface):  # an rz grid
             p = _lobe_rz(
                 result.phasors,
@@ -197,14 +198,15 @@ def run_scene(scene: Scene, *, progress: bool = True) -> SceneRun:
                 angles,
                 ff["range_m"],
                 scene.transducers[built.farfield_source]["centre_m"][0],
+                **disp,
             )
         else:
             src = sources[built.farfield_source]
             centre = tuple(src.cells_array.mean(0))
-            p = far_field(result.phasors, contour, grid, np.asarray(angles), ff["range_m"], centre)
+            p = far_field(result.phasors, contour, grid, np.asarray(angles), ff["range_m"], centre, **disp)
         lv = np.asarray(level_db(p, floor_db=-100))
         lobe = (angles, lv)
-        summary["farfield"] = {"range_m": ff["range_m"], **lobe_metrics(angles, lv)}
+        summary["farfield"] = {"range_m": ff["range_m"], "dispersion": ff["dispersion"], **lobe_metrics(angles, lv)}
     summary["output"] = {
         "render_every_cells": every,
         "pixels_per_wavelength": grid.cells_per_wavelength / every,
@@ -213,7 +215,7 @@ def run_scene(scene: Scene, *, progress: bool = True) -> SceneRun:
     return SceneRun(scene, grid, stepper, result, summary, lobe, snaps, snap_steps, moments, every)
 
 
-def _lobe_rz(phasors, surface, grid: Grid, angles_deg, range_m: float, face_z_m: float):
+def _lobe_rz(phasors, surface, grid: Grid, angles_deg, range_m: float, face_z_m: float, **kwargs):
     """The lobe of an axisymmetric source at `range_m` from the centre of its face (on the axis at
     z = `face_z_m`), by the 3-D Kirchhoff-Helmholtz integral over the recorded cylinder: exact at
     any range. Angles from the +z axis; the pattern is symmetric, so |angle| is used."""
@@ -222,7 +224,7 @@ def _lobe_rz(phasors, surface, grid: Grid, angles_deg, range_m: float, face_z_m:
     th = np.radians(np.asarray(angles_deg, float))
     r_cells = range_m / grid.dx_m
     pts = np.stack([face_z_m / grid.dx_m + r_cells * np.cos(th), r_cells * np.abs(np.sin(th))], axis=1)
-    return field_at_rz(phasors, surface, grid, pts)
+    return field_at_rz(phasors, surface, grid, pts, **kwargs)
 
 
 def _mirror_rz(field):

@@ -2,9 +2,9 @@
 
 The walls are written as polylines (their centre lines and thickness), rasterised "smooth" as in
 the design, in air at 20 C with the conservative boundary model; grid, transducer, burst, PML and
-run length are the design problem's, so the scene reproduces the simulated design. No [farfield]
-section: the runner's far-field contour wraps the transducer only and would cut through a horn or
-a mirror (the design's own contour encloses them).
+run length are the design problem's, so the scene reproduces the simulated design. Its
+[farfield] section asks for the design's lobe (range, angle step): the scene runner's surface
+encloses the transducer and every wall (`Scene.build`), as the design's own contour does.
 """
 
 from __future__ import annotations
@@ -37,6 +37,7 @@ def scene_toml(problem: DesignProblem, params, *, title: str = "", snapshot_ever
         f"cells_per_wavelength = {_num(g.cells_per_wavelength)}",
         f"shape = [{g.shape[0]}, {g.shape[1]}]",
         f"courant = {_num(g.courant)}",
+        f'dtype = "{g.dtype}"',
         "",
         "[medium]",
         'background = "air"',
@@ -68,10 +69,16 @@ def scene_toml(problem: DesignProblem, params, *, title: str = "", snapshot_ever
             f"points_m = {_pts(w.points_m)}",
             "",
         ]
+    step = problem.angles_deg[1] - problem.angles_deg[0]
     lines += [
         "[sensors]",
         "p_max = true",
         f"snapshot_every_steps = {snapshot_every_steps}",
+        "",
+        "[farfield]",
+        f"range_m = {_num(problem.range_m)}",
+        f"angles_deg = [-90.0, 90.0, {_num(step)}]",
+        'dispersion = "continuum"  # as the design evaluated its lobe',
         "",
         "[run]",
         f"n_steps = {problem.n_steps}",

@@ -327,20 +327,31 @@ class Scene:
                 if ff["transducer"] not in names:
                     _fail(p, "farfield.transducer", f"= {ff['transducer']!r}; known: {', '.join(names)}")
                 ff_index = names.index(ff["transducer"])
+            # the surface encloses the transducer and every object (a surface through an object
+            # would integrate a field that is not free space: a wrong lobe), or the scene is refused
+            solids = [np.argwhere(np.asarray(o) > 0) for o in (*occupancies, *housings)]
+            enclosed = np.concatenate([np.asarray(sources[ff_index].cells_array).reshape(-1, 2), *solids])
             if rz:
                 baffled = self.transducers[ff_index]["baffle"] == "rigid"
-                cyl = cylinder_around(sources[ff_index].cells_array, ff["gap_cells"], baffled=baffled)
+                cyl = cylinder_around(enclosed, ff["gap_cells"], baffled=baffled)
                 contour, phasor_cells = cyl, cyl.cells
                 check = cyl.check_inside
             else:
-                box = box_around(sources[ff_index].cells_array, ff["gap_cells"])
+                box = box_around(enclosed, ff["gap_cells"])
                 contour, phasor_cells = box, box.cells
                 check = box.check_inside
             L = edges.thickness_cells if edges.kinds() & {"pml", "sponge"} else 0
             try:
                 check(grid, margin=L)
             except ValueError as err:
-                _fail(p, "farfield.gap_cells", str(err))
+                why = (
+                    f"the far-field surface encloses the transducer and the {len(solids)} object(s) "
+                    f"{ff['gap_cells']} cells out (so that it crosses no object), and then: {err}. Fix: a larger "
+                    "window ([grid] size_m or shape), a smaller gap_cells, or no [farfield] (record probes)"
+                    if solids
+                    else str(err)
+                )
+                _fail(p, "farfield.gap_cells", why)
         try:
             sensors = Sensors(
                 probes=probes if probes is not None else _NO_CELLS,

@@ -282,9 +282,22 @@ class FarfieldSection(Section):
     angles_deg: tuple = setting(
         [-90.0, 90.0, 0.5], kind="list", items="number", unit="deg", doc="[start, stop, step] of the lobe angles"
     )
-    gap_cells: int = setting(4, kind="int", ge=1, unit="cells", doc="contour distance from the transducer cells")
+    gap_cells: int = setting(
+        4,
+        kind="int",
+        ge=1,
+        unit="cells",
+        doc="surface distance from the transducer's cells and every object's (the surface encloses them all)",
+    )
     transducer: str | None = setting(
         None, kind="str", doc="name of the transducer whose lobe is computed (default: first)"
+    )
+    dispersion: str | None = setting(
+        None,
+        kind="str",
+        choices=("lattice", "continuum"),
+        doc="wavenumber of the transform: lattice (continues the lattice's own field) or continuum "
+        "(k = omega / c, as the design problems use); default: the transform's own (2d: lattice, rz: continuum)",
     )
 
 

@@ -212,8 +212,9 @@ def check_fits(
         raise RunTooLargeError(
             f"{est}; this needs {format_bytes(need)} but only {format_bytes(avail)} is available "
             f"(refused above {FIT_FRACTION:.0%}). Fix: fewer cells (a smaller window or fewer cells "
-            "per wavelength: memory ~ (cells per wavelength)^{len(tuple(grid_shape))}), float32 instead of float64, "
-            "snapshots as slices instead of volumes, or split the grid across devices (sharding)."
+            f"per wavelength: memory ~ (cells per wavelength)^{len(tuple(grid_shape))}), float32 instead of float64, "
+            + ("snapshots as slices instead of volumes, " if len(tuple(grid_shape)) == 3 else "")
+            + "or split the grid across devices (sharding)."
         )
 
 

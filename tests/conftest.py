@@ -9,6 +9,9 @@ import jax  # noqa: E402
 import pytest  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
+# strict rank promotion: an implicit broadcast between arrays of different rank (e.g. a (ny,)
+# profile against an (nx, ny) field) is an error in the tests, so the library states its broadcasts
+jax.config.update("jax_numpy_rank_promotion", "raise")
 
 
 @pytest.fixture(autouse=True, scope="module")

@@ -13,257 +13,23 @@ file continues it. Nothing here imports JAX.
 from __future__ import annotations
 
 import dataclasses
-import errno
 import random
 import sys
 import time
 from collections import Counter, deque
 from collections.abc import Callable
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Required, TypedDict, Unpack
 
-import serial
-
 from ..config import ConfigError, specs
 from . import protocol as P
-from .errors import CaptureFileError, PortBusy, PortNotFound, ProtocolVersionError, RigError, RigTimeout
+from .errors import CaptureFileError, PortBusy, ProtocolVersionError, RigError, RigTimeout
 from .files import COLUMNS, HEADER_KEY, HEADER_KEYS, CaptureWriter, Measurement, describe_seqs, utc_now
 from .groundtruth import speed_of_sound
+from .link import LinkDown, LinkStats, RawLog, RigReset, SerialLink, Timeouts
+from .plan import ScanPlan
 
-BAUD = 115_200
 MAX_REQUESTS_PER_POINT = 25
-
-
-@dataclass(frozen=True)
-class Timeouts:
-    """Host timing [s].
-
-    ``link_down_s``: total silence that means the link is down (protocol: 3 s). ``reply_s``: wait
-    for the reply to a command before sending it again. ``retries``: HELLOs sent when first
-    connecting, and sends of any command the rig does not acknowledge. ``reconnect_s``: how long
-    to try to get a lost link back. ``home_s``: homing time limit. ``point_s``: longest wait for
-    the next point while the rig reports that it is scanning. ``poll_s``: read granularity.
-    """
-
-    link_down_s: float = 3.0
-    reply_s: float = 1.0
-    retries: int = 3
-    reconnect_s: float = 30.0
-    home_s: float = 60.0
-    point_s: float = 60.0
-    poll_s: float = 0.02
-
-    @classmethod
-    def scaled(cls, timeout_s: float = 3.0, reconnect_s: float = 30.0) -> Timeouts:
-        """Timeouts derived from the link-down silence ``timeout_s`` (the defaults at 3 s)."""
-        return cls(
-            link_down_s=timeout_s,
-            reply_s=timeout_s / 3,
-            reconnect_s=reconnect_s,
-            home_s=20 * timeout_s,
-            point_s=20 * timeout_s,
-            poll_s=min(0.02, timeout_s / 30),
-        )
-
-
-@dataclass
-class LinkStats:
-    """Counters of a capture session."""
-
-    points: int = 0
-    rerequested: int = 0
-    bad_lines: int = 0
-    junk: int = 0
-    duplicates: int = 0
-    resets: int = 0
-    reconnects: int = 0
-
-    @property
-    def link_events(self) -> int:
-        return self.resets + self.reconnects
-
-
-@dataclass(frozen=True)
-class ScanPlan:
-    """One scan in the rig's integer units: ``n`` points at ``start + seq * step``.
-
-    Lobe: ``start``/``step`` in mdeg. Wave: ``start``/``step`` are ``x0``/``dx`` in um and ``z_um``
-    is the line's distance from the face.
-    """
-
-    kind: str
-    n: int
-    start: int
-    step: int
-    n_avg: int
-    cycles: int
-    freq_hz: int
-    z_um: int = 0
-
-    @classmethod
-    def lobe(
-        cls, start_deg: float, stop_deg: float, step_deg: float, n_avg: int, cycles: int, freq_hz: float
-    ) -> ScanPlan:
-        start, stop, step = (round(v * 1000) for v in (start_deg, stop_deg, step_deg))
-        return cls("lobe", _count(start, stop, step, "deg", 1000), start, step, n_avg, cycles, round(freq_hz))
-
-    @classmethod
-    def wave(
-        cls, x0_m: float, x1_m: float, dx_m: float, z_m: float, n_avg: int, cycles: int, freq_hz: float
-    ) -> ScanPlan:
-        x0, x1, dx = (round(v * 1e6) for v in (x0_m, x1_m, dx_m))
-        n = _count(x0, x1, dx, "m", 1e6)
-        return cls("wave", n, x0, dx, n_avg, cycles, round(freq_hz), round(z_m * 1e6))
-
-    def __post_init__(self) -> None:
-        for name in ("n_avg", "cycles", "freq_hz"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        if self.kind == "wave" and self.z_um <= 0:
-            raise ValueError(f"z_m must be > 0, got {self.z_um * 1e-6}")
-
-    def command(self, scan: int, first: int, n: int) -> P.Lobe | P.Wave:
-        """The scan command for points ``first..n-1``."""
-        if self.kind == "lobe":
-            return P.Lobe(scan, first, n, self.start, self.step, self.n_avg, self.cycles, self.freq_hz)
-        return P.Wave(scan, first, n, self.start, self.step, self.z_um, self.n_avg, self.cycles, self.freq_hz)
-
-    def matches(self, msg: P.Lob | P.Wav) -> bool:
-        """Whether a point line is of this scan's kind and at its seq's position."""
-        if self.kind == "lobe":
-            return isinstance(msg, P.Lob) and msg.angle_mdeg == self.start + msg.seq * self.step
-        return isinstance(msg, P.Wav) and msg.x_um == self.start + msg.seq * self.step and msg.z_um == self.z_um
-
-    def header(self) -> dict[str, int]:
-        """The scan's keys of a capture file header."""
-        keys = ("start_mdeg", "step_mdeg") if self.kind == "lobe" else ("x0_um", "dx_um")
-        head = {"n_points": self.n, keys[0]: self.start, keys[1]: self.step}
-        if self.kind == "wave":
-            head["z_um"] = self.z_um
-        return head | {"n_avg": self.n_avg, "cycles": self.cycles, "freq_hz": self.freq_hz}
-
-    def next_request(self, missing: list[int]) -> tuple[int, int]:
-        """``(first_seq, n)`` for the next command: the first run of missing points, or the rest
-        of the scan from the first missing point when everything after it is missing."""
-        first = end = missing[0]
-        for s in missing[1:]:
-            if s != end + 1:
-                break
-            end = s
-        return first, (self.n if end == self.n - 1 else end + 1)
-
-
-def _count(start: int, stop: int, step: int, unit: str, scale: float) -> int:
-    if step == 0 or (stop - start) * step < 0 or (stop - start) % step:
-        raise ValueError(
-            f"the scan from {start / scale} to {stop / scale} {unit} must be a whole, positive number "
-            f"of steps of {step / scale} {unit}"
-        )
-    return (stop - start) // step + 1
-
-
-class _LinkDown(Exception):
-    """The link failed (serial error or silence); the host reopens the port."""
-
-
-class _Reset(Exception):
-    """The rig was reset or lost its home; the host handshakes and re-homes."""
-
-
-class RawLog:
-    """A timestamped log of every line sent (``>``) and received (``<``; bad ones ``<!``) and of
-    link events (``**``); bytes that are not printable ASCII are written as ``\\xNN``."""
-
-    def __init__(self, path: str | Path) -> None:
-        self.path = Path(path)
-        self._f = open(self.path, "a", encoding="ascii", buffering=1)
-
-    @staticmethod
-    def _escape(raw: bytes) -> str:
-        return "".join(chr(b) if 32 <= b < 127 and b != 92 else f"\\x{b:02x}" for b in raw)
-
-    def write(self, tag: str, raw: bytes) -> None:
-        """Log one line (its final newline left out)."""
-        text = self._escape(raw[:-1] if raw.endswith(b"\n") else raw)
-        self._f.write(f"{utc_now()} {tag} {text}\n")
-
-    def note(self, text: str) -> None:
-        self._f.write(f"{utc_now()} ** {text}\n")
-
-    def close(self) -> None:
-        self._f.close()
-
-
-class _Link:
-    """The serial port: exclusive open, raw reads through a :class:`protocol.LineBuffer`."""
-
-    def __init__(self, port: str, timeouts: Timeouts, log: RawLog | None) -> None:
-        self.port = port
-        self.t = timeouts
-        self.log = log
-        self.ser: serial.Serial | None = None
-        self.buffer = P.LineBuffer()
-        self.last_rx = time.monotonic()
-        self.rx_bytes = 0
-
-    def open(self) -> None:
-        port = self.port
-        try:
-            self.ser = serial.Serial(
-                port, BAUD, timeout=self.t.poll_s, write_timeout=self.t.link_down_s, exclusive=True
-            )
-        except serial.SerialException as exc:
-            if exc.errno == errno.ENOENT:
-                raise PortNotFound(
-                    f"{port}: no such serial port. Is the rig plugged in and powered (or "
-                    f"'difflattice rig emulate' running)? Use its stable path, e.g. under /dev/serial/by-id/."
-                ) from None
-            if exc.errno in (errno.EAGAIN, errno.EBUSY):
-                raise PortBusy(
-                    f"{port}: the port is in use by another process (another capture or a serial "
-                    f"monitor); close it first ('fuser {port}' shows which)."
-                ) from None
-            if exc.errno == errno.EACCES:
-                raise RigError(f"{port}: permission denied; add yourself to the 'dialout' group") from None
-            raise RigError(f"{port}: cannot open the port: {exc}") from None
-        self.buffer = P.LineBuffer()
-        self.last_rx = time.monotonic()
-
-    def close(self) -> None:
-        if self.ser is not None:
-            try:
-                self.ser.close()
-            except OSError:
-                pass
-            self.ser = None
-
-    def send(self, msg: P.Message) -> None:
-        line = P.encode(msg)
-        if self.log:
-            self.log.write(">", line)
-        try:
-            assert self.ser is not None
-            self.ser.write(line)
-        except (OSError, serial.SerialException) as exc:
-            raise _LinkDown(f"write failed: {exc}") from None
-
-    def read(self) -> list[P.Frame | P.BadLine]:
-        """Whatever arrives within ``poll_s``, as frames and bad lines."""
-        try:
-            assert self.ser is not None
-            data = self.ser.read(self.ser.in_waiting or 1)
-        except (OSError, serial.SerialException) as exc:
-            raise _LinkDown(f"read failed: {exc}") from None
-        if not data:
-            return []
-        self.last_rx = time.monotonic()
-        self.rx_bytes += len(data)
-        items = self.buffer.feed(data)
-        if self.log:
-            for item in items:
-                self.log.write("<" if isinstance(item, P.Frame) else f"<! {item.reason}", item.raw)
-        return items
 
 
 class RigHost:
@@ -286,7 +52,7 @@ class RigHost:
         self.on_event = on_event
         self.stats = LinkStats()
         self.info: P.Idn | None = None
-        self._link = _Link(self.port, timeouts, log)
+        self._link = SerialLink(self.port, timeouts, log)
         self._backlog: deque[P.Frame | P.BadLine] = deque()
         self._plan: ScanPlan | None = None
         self._scan_id = -1
@@ -384,7 +150,7 @@ class RigHost:
                     self._handshake(deadline)
                     self._event(f"link back after {time.monotonic() - t0:.2f} s")
                     return
-                except (RigTimeout, _LinkDown):
+                except (RigTimeout, LinkDown):
                     pass
             if time.monotonic() >= deadline:
                 raise RigTimeout(
@@ -406,8 +172,8 @@ class RigHost:
     ) -> P.Message | None:
         """Handle incoming lines until one satisfies ``want`` (returned) or ``deadline`` (None).
 
-        Points of the current scan are recorded whatever is awaited. Raises :class:`_LinkDown` on
-        a serial error or (``watch_silence``) silence, :class:`_Reset` on ``BOOT``
+        Points of the current scan are recorded whatever is awaited. Raises :class:`LinkDown` on
+        a serial error or (``watch_silence``) silence, :class:`RigReset` on ``BOOT``
         (``boot_resets``), :class:`ProtocolVersionError` on an IDN of another version.
         """
         while True:
@@ -416,14 +182,14 @@ class RigHost:
                 if msg is None:
                     continue
                 if boot_resets and isinstance(msg, P.Boot):
-                    raise _Reset(f"BOOT, boot_id {msg.boot_id}, reason {msg.reason}")
+                    raise RigReset(f"BOOT, boot_id {msg.boot_id}, reason {msg.reason}")
                 if want(msg):
                     return msg
             now = time.monotonic()
             if now >= deadline:
                 return None
             if watch_silence and now - self._link.last_rx > self.t.link_down_s:
-                raise _LinkDown(f"nothing received for {self.t.link_down_s:g} s")
+                raise LinkDown(f"nothing received for {self.t.link_down_s:g} s")
             self._backlog.extend(self._link.read())
 
     def _dispatch(self, item: P.Frame | P.BadLine) -> P.Message | None:
@@ -493,7 +259,7 @@ class RigHost:
                     self._event(f"aborted the rig's running scan {running}")
                     break
         else:
-            raise _LinkDown("no answer to STAT/ABORT")
+            raise LinkDown("no answer to STAT/ABORT")
         assert self.info is not None
         self.info = dataclasses.replace(self.info, state="IDLE")
 
@@ -550,14 +316,14 @@ class RigHost:
                     self._abort_running()
                     continue
                 if msg.code == "NOTHOMED":
-                    raise _Reset("the rig is not homed")
+                    raise RigReset("the rig is not homed")
                 raise RigError(
                     f"{self.port}: the rig refused {P.encode(cmd).decode().strip()} with ERR,{msg.code},{msg.detail}"
                     + (": positions outside the axis range" if msg.code == "LIMIT" else ": check the scan options")
                 )
             break
         else:
-            raise _LinkDown(f"no answer to {cmd.TYPE} ({self.t.retries} sent)")
+            raise LinkDown(f"no answer to {cmd.TYPE} ({self.t.retries} sent)")
         progress = time.monotonic()
         next_seq = -1
         while True:
@@ -615,9 +381,9 @@ class RigHost:
                     if not self.info.homed:
                         self._home()
                     self._run_command(plan.command(scan_id, first, n))
-                except _LinkDown as exc:
+                except LinkDown as exc:
                     self._reconnect(str(exc))
-                except _Reset as exc:
+                except RigReset as exc:
                     self._event(f"rig reset or lost its home ({exc})")
                     sync = True
         finally:
@@ -627,7 +393,7 @@ class RigHost:
         """Best effort: tell the rig to stop ``scan_id`` (used when the operator interrupts)."""
         try:
             self._link.send(P.Abort(scan_id))
-        except _LinkDown:
+        except LinkDown:
             pass
 
 

@@ -13,6 +13,7 @@ from difflattice.design import pattern_metrics
 from difflattice.design.export import write_scene
 from difflattice.design.presets import FIG09_CONE, HORN_LIMITS, PAPER_FACE_M
 from difflattice.design.problem import horn_design
+from difflattice.design.study import trust_estimate
 from difflattice.scene import SceneError, load_scene, parse_scene
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -36,6 +37,13 @@ def test_an_exported_horn_simulates_to_the_designs_beam(tmp_path):
     sr = run_scene(scene, progress=False)
     width = sr.summary["farfield"]["width_6db_deg"]
     assert abs(width - design_width) <= 0.3, (width, design_width)
+    # the design's trust estimate is the scene runner's for the same grid and run length, and at
+    # 8 cells per wavelength it is above the threshold (the design says so)
+    trust = trust_estimate(pb)
+    assert trust["expected_phase_error_periods"] == pytest.approx(
+        sr.summary["accuracy"]["expected_phase_error_periods"], rel=1e-12
+    )
+    assert not trust["trustworthy"] and trust["expected_phase_error_periods"] > trust["threshold_periods"]
 
 
 def test_a_surface_that_cannot_enclose_the_objects_is_refused():

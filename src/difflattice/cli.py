@@ -144,7 +144,7 @@ def _design(args) -> int:
         s = presets.design_horn(args.out, target_deg=args.target_deg, **kw)
     else:
         s = presets.design_reflector(args.out, **kw)
-    print(f"{presets.one_line(s)}; wrote {args.out}/report.md")
+    print(f"{presets.one_line(s)}; wrote {args.out}/report.md and the part {s['part']['stl']}")
     return 0
 
 

@@ -9,6 +9,7 @@ from pathlib import Path
 from .objectives import Goal
 from .problem import horn_design, reflector_design
 from .shapes import HornLimits, HornParams, ReflectorLimits, ReflectorParams
+from .study import trust_line
 
 PAPER_FACE_M = 0.0357
 """The Polaroid-like line: 104 cells at 20 cells per wavelength, 50 kHz."""
@@ -98,5 +99,6 @@ def one_line(summary: dict) -> str:
     a, b = o["metrics_start"], o["metrics_best"]
     return (
         f"-6 dB width {a['beam_width_deg']:.2f} -> {b['beam_width_deg']:.2f} deg; on-axis gain {a['on_axis_db']:+.2f} -> "
-        f"{b['on_axis_db']:+.2f} dB; loss {o['loss_start']:.4g} -> {o['loss_best']:.4g}; {o['optimiser_steps']} steps, {o['wall_s']:.0f} s"
+        f"{b['on_axis_db']:+.2f} dB; loss {o['loss_start']:.4g} -> {o['loss_best']:.4g}; {o['optimiser_steps']} steps, "
+        f"{o['wall_s']:.0f} s; converged: {o['converged']}; {trust_line(summary['trust'])}"
     )

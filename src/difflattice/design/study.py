@@ -3,6 +3,7 @@ files and a report (JSON + Markdown + PNGs) in a directory. Used by designs/desi
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import jax
@@ -11,6 +12,7 @@ import numpy as np
 from .export import write_scene
 from .objectives import Goal
 from .optimise import gradient_check, optimise
+from .parts import write_parts
 from .problem import DesignProblem
 from .report import (
     fields_plot,
@@ -44,6 +46,7 @@ def run_study(
     summary = {
         "title": title,
         "resolution": resolution_note(problem),
+        "trust": trust_estimate(problem),
         "machine": machine_info(),
         "problem": {
             "kind": problem.kind,
@@ -73,9 +76,44 @@ def run_study(
     plots.save(fields_plot(problem, {"bare transducer": None, **designs}), out / "fields.png")
     for k, p in designs.items():
         write_scene(problem, p, out / f"{k}.toml", title=f"{title}: {k} design")
+    summary["part"] = write_parts(problem, res.best, out, name=f"optimised_{problem.kind}")
     write_json(out / "report.json", summary)
     (out / "report.md").write_text(markdown(summary, problem))
     return summary
+
+
+def trust_line(t: dict) -> str:
+    """One sentence on the design resolution's trust estimate."""
+    verdict = (
+        "within it"
+        if t["trustworthy"]
+        else "above it: beam figures at this resolution are not trustworthy; raise cells_per_wavelength"
+    )
+    return (
+        f"expected phase error {t['expected_phase_error_periods']:.3f} periods "
+        f"(trust threshold {t['threshold_periods']}: {verdict})"
+    )
+
+
+TRUST_PHASE_ERROR_PERIODS = 0.05
+"""Above this expected phase error (worst direction, at the farthest distance a run's waves
+travel) arrival times and interference patterns are not trustworthy (as `difflattice simulate`
+says)."""
+
+
+def trust_estimate(problem: DesignProblem) -> dict:
+    """The design runs' expected phase error from the lattice's dispersion relation (worst
+    direction, over the distance the waves travel in a run) against the trust threshold."""
+    from ..observe.analytic import phase_error_rad
+
+    g = problem.grid
+    dist_wl = min(g.courant * problem.n_steps, math.hypot(*g.shape)) / g.cells_per_wavelength
+    periods = phase_error_rad(g.cells_per_wavelength, g.courant, dist_wl, stencil=g.stencil) / (2 * math.pi)
+    return {
+        "expected_phase_error_periods": periods,
+        "threshold_periods": TRUST_PHASE_ERROR_PERIODS,
+        "trustworthy": bool(periods <= TRUST_PHASE_ERROR_PERIODS),
+    }
 
 
 def markdown(s: dict, problem: DesignProblem) -> str:
@@ -97,6 +135,7 @@ def markdown(s: dict, problem: DesignProblem) -> str:
         f"- start: {fmt_metrics(o['metrics_start'], problem.sector_deg)} (loss {o['loss_start']:.4g})",
         f"- optimised: {fmt_metrics(o['metrics_best'], problem.sector_deg)} (loss {o['loss_best']:.4g})",
         f"- {o['optimiser_steps']} BFGS steps in {o['wall_s']:.1f} s (compilation included); converged: {o['converged']}",
+        f"- {trust_line(s['trust'])}",
         "",
     ]
     if "gradient_check" in s:
@@ -125,4 +164,13 @@ def markdown(s: dict, problem: DesignProblem) -> str:
         "Scene files: `start.toml`, `optimised.toml` (`difflattice simulate optimised.toml --out DIR`).",
         "",
     ]
+    if "part" in s:
+        part = s["part"]
+        (x0, y0, z0), (x1, y1, z1) = part["bounds_mm"]
+        lines += [
+            f"Part: `{Path(part['stl']).name}` (STL, millimetres; watertight: {part['watertight']}, volume "
+            f"{part['volume'] / 1e3:.2f} cm^3, extent {x1 - x0:.1f} x {y1 - y0:.1f} x {z1 - z0:.1f} mm) and its wall "
+            f"outlines `{Path(part['profile_csv']).name}`.",
+            "",
+        ]
     return "\n".join(lines)

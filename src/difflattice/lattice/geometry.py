@@ -230,7 +230,7 @@ def polyline_distance(x, y, points):
     ax, ay = a[:, 0].reshape((-1,) + (1,) * jnp.ndim(x)), a[:, 1].reshape((-1,) + (1,) * jnp.ndim(x))
     bx, by = b[:, 0].reshape(ax.shape), b[:, 1].reshape(ax.shape)
     abx, aby = bx - ax, by - ay
-    apx, apy = x - ax, y - ay
+    apx, apy = jnp.expand_dims(x, 0) - ax, jnp.expand_dims(y, 0) - ay  # (segments, *grid)
     t = _clip((apx * abx + apy * aby) / (abx * abx + aby * aby + 1e-30), 0.0, 1.0)
     return _min_axis0(_norm(apx - t * abx, apy - t * aby))
 

@@ -122,7 +122,9 @@ def test_rz_images_are_labelled_z_and_r(tmp_path, monkeypatch):
     sr = run_scene(parse_scene(d, "rz-labels"), progress=False)
     figs = {}
     save = plots.save
-    monkeypatch.setattr(plots, "save", lambda fig, path, **kw: (figs.__setitem__(Path(path).name, fig), save(fig, path))[1])
+    monkeypatch.setattr(
+        plots, "save", lambda fig, path, **kw: (figs.__setitem__(Path(path).name, fig), save(fig, path))[1]
+    )
     write_outputs(sr, tmp_path, frames=False, animation="none")
     for name in ("field.png", "peak_level.png"):
         ax = figs[name].axes[0]

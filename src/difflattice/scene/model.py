@@ -204,7 +204,7 @@ class Scene:
 
         occupancies = []
         for i, o in enumerate(self.objects):
-            shape = _shape(p, f"objects[{i}]", o, geo)
+            shape = _shape(p, f"objects[{i}]", o, geo, grid.kind.ring_metric)
             try:
                 occupancies.append(np.asarray(geo.rasterise(shape, grid, med["rasterise"])))
             except ValueError as e:
@@ -760,7 +760,26 @@ def _material(path, key, name, lookup) -> Material:
 # 2-D shapes
 
 
-def _shape(path, where, o: dict, geo):
+def _mesh_shape(path, where, o: dict, geo, axisymmetric: bool):
+    """A mesh file's section (`scene.meshes`) as a union of polygons (holes cut out)."""
+    from .meshes import mesh_outlines
+
+    f = Path(o["file"])
+    f = f if f.is_absolute() else Path(str(path)).parent / f
+    try:
+        polys = mesh_outlines(f, axisymmetric=axisymmetric, unit=o["unit"])
+    except ValueError as err:
+        _fail(path, f"{where}.file", str(err))
+    shapes = []
+    for outer, holes in polys:
+        s = geo.Polygon(outer)
+        for h in holes:
+            s = geo.Difference(s, geo.Polygon(h))
+        shapes.append(s)
+    return shapes[0] if len(shapes) == 1 else geo.Union(tuple(shapes))
+
+
+def _shape(path, where, o: dict, geo, axisymmetric: bool = False):
     kind = o["shape"]
     need = {
         "segment": ("a_m", "b_m", "thickness_m"),
@@ -768,6 +787,7 @@ def _shape(path, where, o: dict, geo):
         "circle": ("centre_m", "radius_m"),
         "polygon": ("vertices_m",),
         "polyline": ("points_m", "thickness_m"),
+        "mesh": ("file",),
     }
     if kind not in need:
         extra = ' (3-D shapes need [grid] kind = "3d")' if kind in _SHAPES_3D else ""
@@ -789,12 +809,15 @@ def _shape(path, where, o: dict, geo):
             "circle": lambda: geo.Circle(a("centre_m"), a("radius_m")),
             "polygon": lambda: geo.Polygon(a("vertices_m")),
             "polyline": lambda: geo.Polyline(a("points_m"), a("thickness_m")),
+            "mesh": lambda: _mesh_shape(path, where, o, geo, axisymmetric),
         }[kind]()
+    except SceneError:
+        raise
     except Exception as e:  # malformed coordinates
         _fail(path, where, f"bad {kind} parameters: {e}")
     if o.get("cut"):
         cut = _validate_table(path, "objects", o["cut"], f"{where}.cut")
-        s = geo.Difference(s, _shape(path, f"{where}.cut", cut, geo))
+        s = geo.Difference(s, _shape(path, f"{where}.cut", cut, geo, axisymmetric))
     return s
 
 

@@ -193,9 +193,16 @@ class ObjectSection(Section):
     SECTION: ClassVar[str] = "objects"
     shape: str = setting(
         kind="str",
-        doc="2d/rz: segment, box, circle, polygon or polyline; 3d: box, sphere, cylinder, halfspace, slab, "
+        doc="2d/rz: segment, box, circle, polygon, polyline or mesh; 3d: box, sphere, cylinder, halfspace, slab, "
         "union or intersection",
     )
+    file: str | None = setting(
+        None,
+        kind="str",
+        doc="mesh: a mesh file (STL, OBJ, ...) relative to the scene file; 2d takes its section at z = 0, rz "
+        "its section through the z axis (a body of revolution's profile)",
+    )
+    unit: str = setting("mm", kind="str", choices=("mm", "m", "um", "cm", "in"), doc="mesh: the file's length unit")
     material: str = setting("rigid", kind="str", doc="material name (rigid, soft, pine, ...)")
     a_m: tuple | None = setting(None, kind="list", items="number", unit="m", doc="segment start [x, y]")
     b_m: tuple | None = setting(None, kind="list", items="number", unit="m", doc="segment end [x, y]")

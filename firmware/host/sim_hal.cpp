@@ -103,7 +103,7 @@ static uint64_t real_ns() {
 }
 
 SimHal::SimHal(const Options& opt, const Truth& truth, const rig::RigConfig& cfg)
-    : opt_(opt), truth_(truth), cfg_(cfg), rng_(opt.seed), real0_ns_(real_ns()) {
+    : opt_(opt), truth_(truth), cfg_(cfg), rng_(opt.seed), real0_ns_(real_ns()), temp_rng_(opt.seed + 1) {
   // the axes stand wherever they were left at power-on; the switches are where the mechanics say
   for (int a = 0; a < rig::kNumAxes; ++a) {
     const rig::AxisConfig& ac = cfg.axis[a];
@@ -276,7 +276,7 @@ double SimHal::units(Axis a) const {
 }
 
 int32_t SimHal::temperature_cC() {
-  return static_cast<int32_t>(std::lround(opt_.temperature_c * 100.0 + 2.0 * gauss_(rng_)));  // +-0.02 degC sensor noise
+  return static_cast<int32_t>(std::lround(opt_.temperature_c * 100.0 + 2.0 * gauss_(temp_rng_)));  // +-0.02 degC sensor noise
 }
 
 void SimHal::warn_once(const std::string& what) {
@@ -290,6 +290,20 @@ void SimHal::warn_once(const std::string& what) {
 bool SimHal::acquire(const rig::BurstRequest& req, uint16_t* samples) {
   if (req.n_total > rig::kMaxSamples) return false;
   for (Motor& m : motor_) update(m);
+  // The noise of an acquisition is a function of (seed, input, gain, axis positions, how many
+  // acquisitions were taken there before): a point measured again after a reset, an abort or a
+  // lost line repeats its values, so a capture does not depend on when faults happened.
+  uint64_t key = 1469598103934665603ull;
+  auto mix = [&key](uint64_t v) { key = (key ^ v) * 1099511628211ull; };
+  mix(static_cast<uint64_t>(input_));
+  mix(gain_);
+  for (const Motor& m : motor_) mix(static_cast<uint64_t>(m.phys));
+  visit_count_ = key == visit_key_ ? visit_count_ + 1 : 0;
+  visit_key_ = key;
+  std::seed_seq seq{static_cast<uint32_t>(opt_.seed), static_cast<uint32_t>(key), static_cast<uint32_t>(key >> 32),
+                    static_cast<uint32_t>(visit_count_)};
+  std::mt19937_64 rng(seq);
+  std::normal_distribution<double> gauss(0.0, 1.0);  // local: a shared one caches draws across engines
   double f = req.freq_hz, fs = rig::kSpp * f, w = 2 * M_PI * f;
   if (std::fabs(f - truth_.freq_hz) > 0.5)
     warn_once("the truth table is for " + std::to_string(truth_.freq_hz) + " Hz, the scan drives " +
@@ -309,8 +323,8 @@ bool SimHal::acquire(const rig::BurstRequest& req, uint16_t* samples) {
   }
   if (!have) amp = 0;
   // this burst: amplitude and phase jitter of the air path
-  double a = amp * (1.0 + opt_.amp_jitter * gauss_(rng_));
-  double phi = lag + opt_.phase_jitter_deg * M_PI / 180.0 * gauss_(rng_);
+  double a = amp * (1.0 + opt_.amp_jitter * gauss(rng));
+  double phi = lag + opt_.phase_jitter_deg * M_PI / 180.0 * gauss(rng);
   // the front end: gain, the anti-alias filter's response at the carrier and its group delay
   const rig::Calibration& cal = cfg_.cal;
   rig::Cplx h = rig::butterworth4(f, cal.aa_cutoff_hz);
@@ -324,7 +338,7 @@ bool SimHal::acquire(const rig::BurstRequest& req, uint16_t* samples) {
     double t = (static_cast<double>(k) - req.n_pre) / fs;
     double u = t - tof - gd;
     double env = u <= 0 ? 0.0 : (u < t_burst ? 1.0 - std::exp(-u / tau) : top * std::exp(-(u - t_burst) / tau));
-    double s_uV = a * h_mag * env * std::cos(w * t - phi - h_lag) + opt_.noise_uV * gauss_(rng_);
+    double s_uV = a * h_mag * env * std::cos(w * t - phi - h_lag) + opt_.noise_uV * gauss(rng);
     double code = std::round(2048.0 + s_uV * counts_per_uV);
     samples[k] = static_cast<uint16_t>(code < 0 ? 0 : (code > 4095 ? 4095 : code));
   }

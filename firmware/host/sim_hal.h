@@ -116,6 +116,9 @@ class SimHal : public rig::Hal {
   rig::MicInput input_ = rig::MicInput::Lobe;
   uint8_t gain_ = 0;
   std::set<std::string> warned_;
+  std::mt19937_64 temp_rng_;
+  uint64_t visit_key_ = 0;    // input, gain and axis positions of the last acquisition
+  uint64_t visit_count_ = 0;  // acquisitions since they last changed
 };
 
 }  // namespace sim

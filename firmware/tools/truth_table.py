@@ -89,9 +89,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--z-mm", type=float, default=16.5, help="wavefront line distance from the face [mm]")
     a = parser.parse_args(argv)
     spec = {"kind": "piston", "diameter_m": a.diameter_mm / 1000, "sensitivity_uV": a.sensitivity_uV}
-    write_truth(
-        a.out, spec, freq_hz=a.freq_hz, temperature_c=a.temperature_c, range_m=a.range_m, z_m=a.z_mm / 1000
-    )
+    write_truth(a.out, spec, freq_hz=a.freq_hz, temperature_c=a.temperature_c, range_m=a.range_m, z_m=a.z_mm / 1000)
     print(a.out)
     return 0
 

@@ -310,14 +310,18 @@ bool Rig::burst(bool ranging) {
   if (ranging) {
     ++ranging_tries_;
     bool settled = ranging_tries_ >= 2 * cal.n_gains;
-    if (!settled && clipped && gain_ > 0) {
+    if (!settled && clipped && gain_ > 0) {  // clipped: the peak is unknown, one step down
       --gain_;
       return true;
     }
-    if (!settled && !clipped && gain_ + 1 < cal.n_gains &&
-        peak * cal.pga_gain[gain_ + 1] / cal.pga_gain[gain_] < 0.6f * 2047.0f) {
-      ++gain_;
-      return true;
+    if (!settled && !clipped) {  // the highest gain that keeps the peak below 60 % of full scale
+      uint8_t best = 0;
+      for (uint8_t g = 0; g < cal.n_gains; ++g)
+        if (peak * cal.pga_gain[g] / cal.pga_gain[gain_] < 0.6 * 2047.0) best = g;
+      if (best != gain_) {
+        gain_ = best;
+        return true;
+      }
     }
     // the gain is right: place the gate on the plateau of this burst (or where it is expected)
     envelope(g_dev, n, g_env);

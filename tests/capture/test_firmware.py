@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from difflattice.capture import protocol as P
 from difflattice.capture.files import Capture, load_capture
 from difflattice.capture.groundtruth import Piston, lag_deg, speed_of_sound
 
@@ -201,3 +202,101 @@ def test_captured_scans_fit_to_the_simulated_diameter(captures: dict) -> None:
     print(f"fitted D = {d['value']:.4f} mm +- {d['total']:.4f} (stat {d['stat']:.4f}, sys {d['systematic']:.4f})")
     assert d["status"] == "determined" and 0 < d["total"] < 0.1, d
     assert abs(d["value"] - D_M * 1e3) <= d["total"], d
+
+
+class _Link:
+    """The test's own end of the firmware's pty: raw lines out, strictly parsed messages in."""
+
+    def __init__(self, path: Path) -> None:
+        import serial
+
+        self.ser = serial.Serial(str(path), 115_200, timeout=0.02, exclusive=True)
+        self.buffer = P.LineBuffer()
+        self.seen: list[P.Message] = []
+
+    def send(self, line: bytes | P.Message) -> None:
+        self.ser.write(line if isinstance(line, bytes) else P.encode(line))
+
+    def expect(self, want, timeout_s: float = 5.0) -> P.Message:
+        """The first message satisfying `want`; every line on the way must be a valid, canonical frame."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            for item in self.buffer.feed(self.ser.read(self.ser.in_waiting or 1)):
+                assert isinstance(item, P.Frame), f"the firmware sent a bad line: {item}"
+                msg = P.parse(item.raw)
+                assert P.encode(msg) == item.raw  # canonical: re-encoding gives the same bytes
+                self.seen.append(msg)
+                if want(msg):
+                    return msg
+        raise AssertionError(f"no matching message within {timeout_s} s; seen: {self.seen[-5:]}")
+
+
+def _err(code: str, detail: str | None = None):
+    return lambda m: isinstance(m, P.Err) and m.code == code and (detail is None or m.detail == detail)
+
+
+def test_firmware_answers_every_command_and_error_as_the_protocol_says(build: Path, tmp_path: Path) -> None:
+    truth = _load_truth_tool().write_truth(tmp_path / "truth.txt", PISTON, freq_hz=F_HZ, temperature_c=T_C)
+    link = tmp_path / "rig"
+    sim = subprocess.Popen(
+        [str(build), "--truth", str(truth), "--link", str(link), "--speed", "20"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert sim.stdout is not None and sim.stdout.readline().strip() == str(link)
+        rig = _Link(link)
+        rig.send(P.Hello(1))
+        idn = rig.expect(lambda m: isinstance(m, P.Idn))
+        assert isinstance(idn, P.Idn) and (idn.proto, idn.homed, idn.state) == (1, False, "IDLE")
+        lobe = P.Lobe(5, 0, 300, -15_000, 100, 2, 16, F_HZ)  # long enough to act on while it runs
+        rig.send(lobe)
+        rig.expect(_err("NOTHOMED", "LOBE"))
+        rig.send(P.frame(b"STAT")[:-3] + b"00\n")  # bad CRC
+        rig.expect(_err("BADCRC"))
+        rig.send(b"\x00\xffjunk$STAT*")  # junk, then a truncated line with a whole one glued on
+        rig.send(P.encode(P.Stat()))
+        rig.expect(lambda m: isinstance(m, P.Hbt) and m.state == "IDLE")
+        rig.send(b"$" + b"A" * 130 + b"\n")
+        rig.expect(_err("TOOLONG"))
+        rig.send(P.frame(b"FROB,1"))
+        rig.expect(_err("BADCMD", "FROB"))
+        rig.send(P.frame(b"LOBE,5,0,30"))
+        rig.expect(_err("BADARG", "LOBE"))
+        rig.send(P.frame(b"LOBE,5,00,30,-15000,1000,2,16,50000"))  # not a canonical integer
+        rig.expect(_err("BADARG", "LOBE"))
+        rig.send(P.Abort(9))  # while idle
+        rig.expect(lambda m: isinstance(m, P.End) and (m.scan, m.n_sent, m.status) == (9, 0, "ABORTED"))
+        rig.send(P.Home())
+        rig.expect(lambda m: isinstance(m, P.Ack) and m.command == "HOME", timeout_s=20)
+        rig.send(P.Lobe(5, 0, 30, -15_000, 10_000, 2, 16, F_HZ))  # ends at 275 deg
+        rig.expect(_err("LIMIT", "LOBE"))
+        rig.send(P.Wave(6, 0, 5, 0, 1000, 600_000, 2, 16, F_HZ))  # z beyond the stage
+        rig.expect(_err("LIMIT", "WAVE"))
+        rig.send(P.Lobe(5, 0, 30, -15_000, 1000, 2, 16, 200_000))  # carrier above 100 kHz
+        rig.expect(_err("BADARG", "LOBE"))
+        rig.send(lobe)
+        rig.expect(lambda m: isinstance(m, P.Ack) and m.command == "LOBE" and m.arg == 5)
+        first = rig.expect(lambda m: isinstance(m, P.Lob))
+        assert isinstance(first, P.Lob) and (first.scan, first.seq, first.angle_mdeg) == (5, 0, -15_000)
+        rig.send(P.Home())
+        rig.expect(_err("BUSY", "HOME"))
+        rig.send(P.Wave(6, 0, 5, 0, 1000, 16_500, 2, 16, F_HZ))
+        rig.expect(_err("BUSY", "WAVE"))
+        rig.send(P.Stat())
+        hbt = rig.expect(lambda m: isinstance(m, P.Hbt))
+        assert isinstance(hbt, P.Hbt) and hbt.state == "SCAN" and hbt.scan == 5 and hbt.next_seq >= 1
+        rig.send(P.Abort(4))  # another scan's id
+        rig.expect(_err("BADARG", "ABORT"))
+        rig.send(P.Abort(5))
+        end = rig.expect(lambda m: isinstance(m, P.End) and m.scan == 5)
+        assert isinstance(end, P.End) and end.status == "ABORTED" and 1 <= end.n_sent < 300
+        sent = [m for m in rig.seen if isinstance(m, P.Lob)]
+        assert [m.seq for m in sent] == list(range(end.n_sent))  # in order, none skipped
+        assert all(m.angle_mdeg == -15_000 + 100 * m.seq for m in sent)
+        rig.expect(lambda m: isinstance(m, P.Hbt) and m.state == "IDLE" and m.scan == 5, timeout_s=5)
+        rig.ser.close()
+    finally:
+        sim.terminate()
+        sim.communicate(timeout=10)

@@ -103,7 +103,7 @@ static uint64_t real_ns() {
 }
 
 SimHal::SimHal(const Options& opt, const Truth& truth, const rig::RigConfig& cfg)
-    : opt_(opt), truth_(truth), cfg_(cfg), rng_(opt.seed), real0_ns_(real_ns()), temp_rng_(opt.seed + 1) {
+    : opt_(opt), truth_(truth), cfg_(cfg), rng_(opt.seed), real0_ns_(real_ns()) {
   // the axes stand wherever they were left at power-on; the switches are where the mechanics say
   for (int a = 0; a < rig::kNumAxes; ++a) {
     const rig::AxisConfig& ac = cfg.axis[a];
@@ -276,7 +276,7 @@ double SimHal::units(Axis a) const {
 }
 
 int32_t SimHal::temperature_cC() {
-  return static_cast<int32_t>(std::lround(opt_.temperature_c * 100.0 + 2.0 * gauss_(temp_rng_)));  // +-0.02 degC sensor noise
+  return static_cast<int32_t>(std::lround(opt_.temperature_c * 100.0));  // still air, a steady sensor
 }
 
 void SimHal::warn_once(const std::string& what) {

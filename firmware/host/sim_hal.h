@@ -105,7 +105,6 @@ class SimHal : public rig::Hal {
   const rig::RigConfig& cfg_;
   Motor motor_[rig::kNumAxes];
   std::mt19937_64 rng_;
-  std::normal_distribution<double> gauss_{0.0, 1.0};
   uint64_t real0_ns_ = 0;
   int master_ = -1;
   std::string pts_;
@@ -116,7 +115,6 @@ class SimHal : public rig::Hal {
   rig::MicInput input_ = rig::MicInput::Lobe;
   uint8_t gain_ = 0;
   std::set<std::string> warned_;
-  std::mt19937_64 temp_rng_;
   uint64_t visit_key_ = 0;    // input, gain and axis positions of the last acquisition
   uint64_t visit_count_ = 0;  // acquisitions since they last changed
 };

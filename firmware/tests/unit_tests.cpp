@@ -116,8 +116,6 @@ static void test_frontend_and_steps() {
   Cplx h = butterworth4(150000.0, 150000.0);
   CHECK(fabs(hypot(h.re, h.im) - 1.0 / sqrt(2.0)) < 1e-9);  // -3 dB at the cut-off
   CHECK(fabs(aa_lag_rad(150000.0, 150000.0) - kPi) < 1e-9);  // 4 poles: 180 deg at the cut-off
-  CHECK(fabs(-atan2(h.im, h.re) - fmod(aa_lag_rad(50000.0, 150000.0), 2 * kPi)) < 1e-9 ||
-        aa_lag_rad(50000.0, 150000.0) > 0);
   Cplx h50 = butterworth4(50000.0, 150000.0);
   CHECK(fabs(-atan2(h50.im, h50.re) - aa_lag_rad(50000.0, 150000.0)) < 1e-9);
   double gd = aa_group_delay_s(1000.0, 150000.0);  // low-frequency group delay: sum(a_i) / (2 pi fc)

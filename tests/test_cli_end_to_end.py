@@ -24,8 +24,8 @@ n_cells = 20
 cycles = 3
 [[objects]]
 shape = "segment"
-a_m = [0.05, 0.01]
-b_m = [0.05, 0.06]
+a_m = [0.03, 0.048]
+b_m = [0.045, 0.048]
 thickness_m = 0.002
 material = "rigid"
 [sensors]

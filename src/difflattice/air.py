@@ -123,7 +123,7 @@ def speed_of_sound_m_s(
     _check(temperature_c, humidity_pct, pressure_pa)
     xp = _xp(temperature_c, humidity_pct, pressure_pa)
     m, gamma = _mixture(temperature_c, humidity_pct, pressure_pa)
-    dry = 331.3 * xp.sqrt(1.0 + xp.asarray(temperature_c, dtype=float) / 273.15)
+    dry = 331.3 * xp.sqrt(1.0 + temperature_c / 273.15)
     return _out(dry * xp.sqrt((gamma / GAMMA_DRY_AIR) * (MOLAR_MASS_DRY_AIR_KG_MOL / m)))
 
 

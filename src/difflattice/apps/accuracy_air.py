@@ -1,0 +1,134 @@
+"""`difflattice accuracy --case air`: air's absorption and dispersion on the lattice, measured.
+
+A plane wave on a one-cell-wide strip (PML at both ends, rigid sides: the 2-D lattice carries
+an exact 1-D wave) driven by a continuous sine; the pressure at two ranges, fitted to a sine of
+the drive frequency over a whole steady window, gives the attenuation (from the amplitude ratio,
+not from any formula) and the phase speed (from the phase difference). Each row compares them
+with ISO 9613-1 (`difflattice.air.absorption_db_per_m`) and with the relaxation model's phase
+speed carried through the lattice's own dispersion relation (`AirRelaxation.wavenumber`).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+FREQUENCIES_HZ = (20e3, 40e3, 80e3, 120e3, 200e3)
+TEMPERATURES_C = (0.0, 20.0, 40.0)
+HUMIDITIES_PCT = (10.0, 50.0, 90.0)
+PRESSURE_PA = 101_325.0
+
+
+@dataclass(frozen=True)
+class AirRow:
+    """One row of `accuracy_air.json` (SI units; alpha in dB/m)."""
+
+    frequency_hz: float
+    temperature_c: float
+    humidity_pct: float
+    pressure_pa: float
+    cells_per_wavelength: float
+    alpha_db_per_m_lattice: float
+    alpha_db_per_m_iso: float
+    alpha_db_per_m_lattice_model: float
+    phase_speed_m_s_lattice: float
+    phase_speed_m_s_model: float
+    phase_speed_m_s_air: float
+    alpha_rel_error: float
+    phase_speed_rel_error: float
+
+
+def plane_wave(
+    frequency_hz: float,
+    temperature_c: float,
+    humidity_pct: float,
+    pressure_pa: float = PRESSURE_PA,
+    *,
+    cells_per_wavelength: float = 20.0,
+    span_wavelengths: float = 60.0,
+    window_periods: float = 40.0,
+) -> AirRow:
+    """Simulate and measure one plane wave (float64; enables JAX's x64 mode)."""
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+    from .. import air
+    from ..lattice import Edges
+    from ..lattice.coefficients import absorbing_courant
+    from ..lattice.grid import make_grid
+    from ..lattice.medium import AirConditions
+    from ..solver import Sensors, Stepper, run
+    from ..solver.sources import ContinuousWave, PointSources
+
+    cond = AirConditions(temperature_c, humidity_pct, pressure_pa)
+    c0 = air.speed_of_sound_m_s(temperature_c, humidity_pct, pressure_pa)
+    courant = absorbing_courant(frequency_hz, cells_per_wavelength, c0, cond, margin=0.98)
+    layer = 40
+    span = int(round(span_wavelengths * cells_per_wavelength))
+    x_src = layer + 10
+    x1 = x_src + int(round(2 * cells_per_wavelength))
+    x2 = x1 + span
+    nx = x2 + 10 + layer
+    grid = make_grid(
+        frequency_hz=frequency_hz,
+        cells_per_wavelength=cells_per_wavelength,
+        c_max_m_s=c0,
+        shape=(nx, 1),
+        courant=courant,
+        dtype="float64",
+    )
+    edges = Edges(x_lo="pml", x_hi="pml", y_lo="rigid", y_hi="rigid", thickness_cells=layer)
+    src = PointSources(
+        cells=np.array([[x_src, 0]]),
+        signal=ContinuousWave(frequency_hz, ramp_cycles=4.0),
+        weights=np.ones(1),
+        lags_s=np.zeros(1),
+    )
+    sens = Sensors(probes=np.array([[x1, 0], [x2, 0]]))
+    steps_per_period = cells_per_wavelength / courant
+    settle = (x2 - x_src) / courant + 12 * steps_per_period
+    n_steps = int(settle + window_periods * steps_per_period)
+    stepper = Stepper.build(grid, cond.medium(), src, sens, edges)
+    res = run(stepper, n_steps, backend="jax")
+    probes = np.asarray(res.probes)
+    n0 = int(settle)
+    n = np.arange(n0 + 1, n_steps + 1, dtype=float)
+    w = grid.hz_to_lattice_omega(frequency_hz)
+    basis = np.stack([np.cos(w * n), np.sin(w * n), np.ones_like(n)], axis=1)
+    coef, *_ = np.linalg.lstsq(basis, probes[n0:], rcond=None)
+    # p = Re(A exp(-i w n)) with A = c_cos + i c_sin; a wave exp(i (k x - w n)) has A ~ exp(i k x)
+    amp = coef[0] + 1j * coef[1]
+    ratio = amp[1] / amp[0]  # exp(i k (x2 - x1)), k complex
+    dx_cells = x2 - x1
+    alpha_np_per_cell = -math.log(abs(ratio)) / dx_cells
+    relax = stepper.lattice.relax
+    k_model = relax.wavenumber(w, float(stepper.lattice.c))
+    # phase advance over the span, unwrapped onto the model's (exact to << pi: the model is 1e-4 off)
+    phase = float(np.angle(ratio))
+    turns = round((k_model.real * dx_cells - phase) / (2 * math.pi))
+    k_meas = (phase + 2 * math.pi * turns) / dx_cells
+    dx_m = grid.dx_m
+    omega_si = 2 * math.pi * frequency_hz
+    c_lat = omega_si / (k_meas / dx_m)
+    c_model = omega_si / (k_model.real / dx_m)
+    a_lat = alpha_np_per_cell / dx_m * air.NEPER_TO_DB
+    a_iso = air.absorption_db_per_m(frequency_hz, temperature_c, humidity_pct, pressure_pa)
+    return AirRow(
+        frequency_hz=frequency_hz,
+        temperature_c=temperature_c,
+        humidity_pct=humidity_pct,
+        pressure_pa=pressure_pa,
+        cells_per_wavelength=cells_per_wavelength,
+        alpha_db_per_m_lattice=a_lat,
+        alpha_db_per_m_iso=a_iso,
+        alpha_db_per_m_lattice_model=k_model.imag / dx_m * air.NEPER_TO_DB,
+        phase_speed_m_s_lattice=c_lat,
+        phase_speed_m_s_model=c_model,
+        phase_speed_m_s_air=air.phase_speed_m_s(frequency_hz, temperature_c, humidity_pct, pressure_pa),
+        alpha_rel_error=a_lat / a_iso - 1,
+        phase_speed_rel_error=c_lat / c_model - 1,
+    )

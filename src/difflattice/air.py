@@ -42,7 +42,7 @@ STANDARD_PRESSURE_PA = 101_325.0
 GAS_CONSTANT_J_MOL_K = 8.314462618
 MOLAR_MASS_DRY_AIR_KG_MOL = 0.0289645
 MOLAR_MASS_WATER_KG_MOL = 0.018015
-GAS_CONSTANT_AIR_J_KG_K = GAS_CONSTANT_J_MOL_K / MOLAR_MASS_DRY_AIR_KG_MOL  # 287.05
+GAS_CONSTANT_AIR_J_KG_K = 287.05  # R / M of dry air (the package's value since its first release)
 GAMMA_DRY_AIR = 1.4
 GAMMA_WATER_VAPOUR = 4.0 / 3.0
 REFERENCE_TEMPERATURE_C = 20.0
@@ -132,10 +132,12 @@ def density_kg_m3(
     pressure_pa: ArrayLike = STANDARD_PRESSURE_PA,
     humidity_pct: ArrayLike = 0.0,
 ):
-    """Density of humid air, kg/m^3 (ideal-gas mixture; dry air: ``p / (287.05 (T + 273.15))``)."""
+    """Density of humid air, kg/m^3: dry air's ``p / (287.05 (T + 273.15))`` times the mixture's
+    molar mass over dry air's (ideal-gas mixture)."""
     _check(temperature_c, humidity_pct, pressure_pa)
     m, _ = _mixture(temperature_c, humidity_pct, pressure_pa)
-    return _out(pressure_pa * m / (GAS_CONSTANT_J_MOL_K * (temperature_c - ABSOLUTE_ZERO_C)))
+    dry = pressure_pa / (GAS_CONSTANT_AIR_J_KG_K * (temperature_c - ABSOLUTE_ZERO_C))
+    return _out(dry * (m / MOLAR_MASS_DRY_AIR_KG_MOL))
 
 
 def wavelength_m(

@@ -39,7 +39,9 @@ def _box(n=12, margin=1.0, seed=0):
     c0 = air.speed_of_sound_m_s(t, h)
     f, cpw = 200e3, 8.0  # coarse and high: the largest eta and theta_O of the study's grid
     courant = absorbing_courant(f, cpw, c0, cond, margin=margin)
-    grid = make_grid(frequency_hz=f, cells_per_wavelength=cpw, c_max_m_s=c0, shape=(n, n), courant=courant, dtype="float64")
+    grid = make_grid(
+        frequency_hz=f, cells_per_wavelength=cpw, c_max_m_s=c0, shape=(n, n), courant=courant, dtype="float64"
+    )
     stepper = Stepper.build(grid, cond.medium(), edges=Edges.all("rigid"))
     rng = np.random.default_rng(seed)
     p0 = jnp.asarray(rng.standard_normal((n, n)))  # every mode, the checkerboard included

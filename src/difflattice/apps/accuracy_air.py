@@ -132,3 +132,124 @@ def plane_wave(
         alpha_rel_error=a_lat / a_iso - 1,
         phase_speed_rel_error=c_lat / c_model - 1,
     )
+
+
+RESOLUTIONS = (20.0, 8.0)
+FILES = "accuracy_air.json, accuracy_air_table.md, accuracy_air.png"
+
+
+def sweep(
+    resolutions=RESOLUTIONS,
+    frequencies_hz=FREQUENCIES_HZ,
+    temperatures_c=TEMPERATURES_C,
+    humidities_pct=HUMIDITIES_PCT,
+    pressure_pa: float = PRESSURE_PA,
+    *,
+    quick: bool = False,
+) -> list[AirRow]:
+    """Every (resolution, frequency, temperature, humidity) of the grid, one plane wave each
+    (`quick`: shorter spans, for tests)."""
+    kw = {"span_wavelengths": 20.0, "window_periods": 20.0} if quick else {}
+    return [
+        plane_wave(f, t, h, pressure_pa, cells_per_wavelength=float(cpw), **kw)
+        for cpw in resolutions
+        for f in frequencies_hz
+        for t in temperatures_c
+        for h in humidities_pct
+    ]
+
+
+def summary(rows: list[AirRow]) -> dict:
+    """Worst errors per resolution: attenuation against ISO, phase speed against the model."""
+    out = {}
+    for cpw in sorted({r.cells_per_wavelength for r in rows}, reverse=True):
+        sel = [r for r in rows if r.cells_per_wavelength == cpw]
+        out[f"{cpw:g}"] = {
+            "rows": len(sel),
+            "max_abs_alpha_rel_error": max(abs(r.alpha_rel_error) for r in sel),
+            "max_abs_alpha_rel_error_vs_lattice_model": max(
+                abs(r.alpha_db_per_m_lattice / r.alpha_db_per_m_lattice_model - 1) for r in sel
+            ),
+            "max_abs_phase_speed_rel_error": max(abs(r.phase_speed_rel_error) for r in sel),
+        }
+    return out
+
+
+def write(rows: list[AirRow], out_dir) -> dict[str, str]:
+    """DIR/accuracy_air.json (the rows), accuracy_air_table.md and accuracy_air.png."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    data = [{k: float(v) for k, v in asdict(r).items()} for r in rows]
+    (out / "accuracy_air.json").write_text(json.dumps(data, indent=1))
+    (out / "accuracy_air_table.md").write_text(table(rows))
+    _plot(rows, out / "accuracy_air.png")
+    return {"json": str(out / "accuracy_air.json"), "table": str(out / "accuracy_air_table.md")}
+
+
+def table(rows: list[AirRow]) -> str:
+    lines = [
+        "# Air absorption on the lattice: measured plane waves vs ISO 9613-1",
+        "",
+        "alpha measured from the amplitudes at two ranges (60 wavelengths apart); phase speed from their",
+        "phase difference; model = the relaxation model through the lattice's own dispersion relation.",
+        "",
+        "| cells/λ | f kHz | T °C | RH % | α lattice dB/m | α ISO dB/m | α err % | c lattice m/s | c model m/s | c err % |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r.cells_per_wavelength:g} | {r.frequency_hz / 1e3:g} | {r.temperature_c:g} | {r.humidity_pct:g} | "
+            f"{r.alpha_db_per_m_lattice:.4f} | {r.alpha_db_per_m_iso:.4f} | {100 * r.alpha_rel_error:+.2f} | "
+            f"{r.phase_speed_m_s_lattice:.4f} | {r.phase_speed_m_s_model:.4f} | {100 * r.phase_speed_rel_error:+.2e} |"
+        )
+    lines += ["", "Worst per resolution:", ""]
+    for cpw, s in summary(rows).items():
+        lines.append(
+            f"- {cpw} cells/λ ({s['rows']} rows): |α/α_ISO - 1| <= {100 * s['max_abs_alpha_rel_error']:.2f} %, "
+            f"|α/α_lattice model - 1| <= {s['max_abs_alpha_rel_error_vs_lattice_model']:.1e}, "
+            f"|c/c_model - 1| <= {s['max_abs_phase_speed_rel_error']:.1e}"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def _plot(rows: list[AirRow], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4.2))
+    best = max(r.cells_per_wavelength for r in rows)
+    conds = sorted({(r.temperature_c, r.humidity_pct) for r in rows})
+    for t, h in conds:
+        sel = sorted(
+            (r for r in rows if (r.temperature_c, r.humidity_pct) == (t, h) and r.cells_per_wavelength == best),
+            key=lambda r: r.frequency_hz,
+        )
+        f = [r.frequency_hz / 1e3 for r in sel]
+        (line,) = ax.loglog(f, [r.alpha_db_per_m_iso for r in sel], "-", lw=1)
+        ax.loglog(
+            f, [r.alpha_db_per_m_lattice for r in sel], "o", ms=3, color=line.get_color(), label=f"{t:g} °C {h:g} %"
+        )
+    ax.set(
+        xlabel="frequency (kHz)",
+        ylabel="attenuation (dB/m)",
+        title=f"lines ISO 9613-1, dots lattice ({best:g} cells/λ)",
+    )
+    ax.legend(fontsize=6, ncol=2)
+    for cpw in sorted({r.cells_per_wavelength for r in rows}):
+        sel = [r for r in rows if r.cells_per_wavelength == cpw]
+        bx.semilogx(
+            [r.frequency_hz / 1e3 for r in sel],
+            [100 * r.alpha_rel_error for r in sel],
+            "o",
+            ms=3,
+            label=f"{cpw:g} cells/λ",
+        )
+    bx.axhline(5, color="k", lw=0.5, ls="--")
+    bx.axhline(-5, color="k", lw=0.5, ls="--")
+    bx.set(xlabel="frequency (kHz)", ylabel="lattice / ISO - 1 (%)", title="attenuation error")
+    bx.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -608,13 +608,21 @@ def _make_grid(scene: Scene, mats: list[Material]) -> Grid:
     if stencil == "isotropic" and kind == "3d":
         _fail(p, "grid.stencil", '= "isotropic" is implemented for 2d and rz grids: use stencil = "standard" in 3d')
     limit = stability_limit(kind, stencil)
-    if air_cond is not None and g["courant"] is None:  # absorption stiffens the step: its own limit
+    if air_cond is not None:  # absorption stiffens the step: its own, lower limit (docs/air.md)
         from ..lattice.coefficients import absorbing_courant
 
         fast = max(m.speed_m_s for m in mats if m.kind == "fluid")
-        courant = min(
-            courant, absorbing_courant(g["frequency_hz"], g["cells_per_wavelength"], fast, air_cond, kind, stencil)
-        )
+        c_air = absorbing_courant(g["frequency_hz"], g["cells_per_wavelength"], fast, air_cond, kind, stencil)
+        if g["courant"] is None:
+            courant = min(courant, c_air)
+        elif courant > c_air / 0.9999:
+            _fail(
+                p,
+                "grid.courant",
+                f"= {courant:g} cells/step exceeds the limit with air absorption, {c_air / 0.9999:.5f} (the "
+                f"relaxation and viscous terms stiffen the step): leave courant out (then {c_air:.5f}) or set "
+                "it lower, or [air] absorption = false",
+            )
     if courant > limit:
         formula = "1/sqrt(3)" if kind == "3d" else ("sqrt(3)/2" if stencil == "isotropic" else "1/sqrt(2)")
         name = {"2d": "2-D", "rz": "rz", "3d": "3-D"}[kind]

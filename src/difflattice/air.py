@@ -35,7 +35,9 @@ import math
 from typing import Any, NamedTuple
 
 import numpy as np
-from numpy.typing import ArrayLike
+
+Value = Any
+"""A float, a NumPy array or a JAX array (arithmetic broadcasts; the result has its kind)."""
 
 ABSOLUTE_ZERO_C = -273.15
 STANDARD_PRESSURE_PA = 101_325.0
@@ -85,7 +87,7 @@ def _out(v):
     return v
 
 
-def saturation_pressure_ratio(temperature_c: ArrayLike):
+def saturation_pressure_ratio(temperature_c: Value):
     """p_sat / p_r, the saturation vapour pressure of water over the reference pressure
     (ISO 9613-1 eq. B.2-B.3)."""
     xp = _xp(temperature_c)
@@ -94,9 +96,7 @@ def saturation_pressure_ratio(temperature_c: ArrayLike):
     return 10.0**c if xp is not np else np.power(10.0, c)
 
 
-def molar_concentration_water_pct(
-    temperature_c: ArrayLike, humidity_pct: ArrayLike, pressure_pa: ArrayLike = STANDARD_PRESSURE_PA
-):
+def molar_concentration_water_pct(temperature_c: Value, humidity_pct: Value, pressure_pa: Value = STANDARD_PRESSURE_PA):
     """h, the molar concentration of water vapour in % (ISO 9613-1 eq. B.1)."""
     _check(temperature_c, humidity_pct, pressure_pa)
     return _out(humidity_pct * saturation_pressure_ratio(temperature_c) * (STANDARD_PRESSURE_PA / pressure_pa))
@@ -113,9 +113,9 @@ def _mixture(temperature_c, humidity_pct, pressure_pa):
 
 
 def speed_of_sound_m_s(
-    temperature_c: ArrayLike = REFERENCE_TEMPERATURE_C,
-    humidity_pct: ArrayLike = 0.0,
-    pressure_pa: ArrayLike = STANDARD_PRESSURE_PA,
+    temperature_c: Value = REFERENCE_TEMPERATURE_C,
+    humidity_pct: Value = 0.0,
+    pressure_pa: Value = STANDARD_PRESSURE_PA,
 ):
     """Low-frequency (equilibrium) speed of sound in humid air, m/s: the ideal-gas mixture scaled
     so dry air gives ``331.3 sqrt(1 + T / 273.15)``. Pressure enters only through the water
@@ -128,9 +128,9 @@ def speed_of_sound_m_s(
 
 
 def density_kg_m3(
-    temperature_c: ArrayLike = REFERENCE_TEMPERATURE_C,
-    pressure_pa: ArrayLike = STANDARD_PRESSURE_PA,
-    humidity_pct: ArrayLike = 0.0,
+    temperature_c: Value = REFERENCE_TEMPERATURE_C,
+    pressure_pa: Value = STANDARD_PRESSURE_PA,
+    humidity_pct: Value = 0.0,
 ):
     """Density of humid air, kg/m^3: dry air's ``p / (287.05 (T + 273.15))`` times the mixture's
     molar mass over dry air's (ideal-gas mixture)."""
@@ -164,9 +164,9 @@ class Relaxation(NamedTuple):
 
 
 def relaxation_frequencies_hz(
-    temperature_c: ArrayLike = REFERENCE_TEMPERATURE_C,
-    humidity_pct: ArrayLike = 50.0,
-    pressure_pa: ArrayLike = STANDARD_PRESSURE_PA,
+    temperature_c: Value = REFERENCE_TEMPERATURE_C,
+    humidity_pct: Value = 50.0,
+    pressure_pa: Value = STANDARD_PRESSURE_PA,
 ):
     """(f_rO, f_rN) in Hz, ISO 9613-1 eqs. (3) and (4)."""
     xp = _xp(temperature_c, humidity_pct, pressure_pa)
@@ -191,10 +191,10 @@ def _iso_factors(temperature_c, pressure_pa):
 
 
 def absorption_db_per_m(
-    frequency_hz: ArrayLike,
-    temperature_c: ArrayLike = REFERENCE_TEMPERATURE_C,
-    humidity_pct: ArrayLike = 50.0,
-    pressure_pa: ArrayLike = STANDARD_PRESSURE_PA,
+    frequency_hz: Value,
+    temperature_c: Value = REFERENCE_TEMPERATURE_C,
+    humidity_pct: Value = 50.0,
+    pressure_pa: Value = STANDARD_PRESSURE_PA,
 ):
     """ISO 9613-1:1993 eq. (5): the pure-tone attenuation coefficient of air, dB/m (e.g. 1.32 dB/m
     at 40 kHz, 20 deg C, 50 % RH). Stated accuracy +-10 % (module docstring)."""
@@ -206,9 +206,9 @@ def absorption_db_per_m(
 
 
 def relaxation(
-    temperature_c: ArrayLike = REFERENCE_TEMPERATURE_C,
-    humidity_pct: ArrayLike = 50.0,
-    pressure_pa: ArrayLike = STANDARD_PRESSURE_PA,
+    temperature_c: Value = REFERENCE_TEMPERATURE_C,
+    humidity_pct: Value = 50.0,
+    pressure_pa: Value = STANDARD_PRESSURE_PA,
 ) -> Relaxation:
     """The relaxing-medium parameters whose attenuation is ISO 9613-1's (to first order in eps):
     ``alpha_i = (pi eps_i / c0) f^2 / (f_ri + f^2 / f_ri)`` = ISO's ``B_i f^2 / (f_ri + f^2 / f_ri)``
@@ -229,10 +229,10 @@ def relaxation(
 
 
 def wavenumber(
-    frequency_hz: ArrayLike,
-    temperature_c: ArrayLike = REFERENCE_TEMPERATURE_C,
-    humidity_pct: ArrayLike = 50.0,
-    pressure_pa: ArrayLike = STANDARD_PRESSURE_PA,
+    frequency_hz: Value,
+    temperature_c: Value = REFERENCE_TEMPERATURE_C,
+    humidity_pct: Value = 50.0,
+    pressure_pa: Value = STANDARD_PRESSURE_PA,
 ):
     """Complex wavenumber k = w / c_phase + i alpha (1/m, alpha in Np/m) of the relaxing medium
     (NumPy only): ``k = (w / c0) / sqrt(K(w) / K0)``, exact in eps (not only first order)."""
@@ -246,10 +246,10 @@ def wavenumber(
 
 
 def phase_speed_m_s(
-    frequency_hz: ArrayLike,
-    temperature_c: ArrayLike = REFERENCE_TEMPERATURE_C,
-    humidity_pct: ArrayLike = 50.0,
-    pressure_pa: ArrayLike = STANDARD_PRESSURE_PA,
+    frequency_hz: Value,
+    temperature_c: Value = REFERENCE_TEMPERATURE_C,
+    humidity_pct: Value = 50.0,
+    pressure_pa: Value = STANDARD_PRESSURE_PA,
 ):
     """Phase speed of the relaxing medium at `frequency_hz`, m/s (dispersion: above each f_r the
     speed rises towards the frozen one, by ~eps_i / 2)."""

@@ -127,7 +127,8 @@ def _accuracy(args) -> int:
     elif args.case == "air":
         from .apps import accuracy_air
 
-        accuracy_air.write(accuracy_air.sweep(cpw or accuracy_air.RESOLUTIONS), args.out)
+        rows = accuracy_air.sweep(cpw or accuracy_air.RESOLUTIONS)
+        accuracy_air.write(rows, args.out, accuracy_air.point_source())
         print(f"wrote {args.out}/{accuracy_air.FILES}")
     else:
         res = acc.edge_sweep(cpw or (10, 20), tuple(args.thickness_cells), args.dtype[0], repeats=args.repeats)

@@ -185,3 +185,19 @@ def test_gradients_wrt_temperature_and_humidity_match_central_differences():
     assert abs(float(gh)) > 0 and abs(float(gt)) > 0
     assert float(gh) == pytest.approx(float(fd_h), rel=1e-5)
     assert float(gt) == pytest.approx(float(fd_t), rel=1e-5)
+
+
+def test_accuracy_air_writes_rows_table_and_plot(tmp_path):
+    import json
+
+    from difflattice.apps import accuracy_air
+
+    rows = accuracy_air.sweep((12.0,), (80e3,), (10.0,), (30.0,), quick=True)
+    accuracy_air.write(rows, tmp_path)
+    data = json.loads((tmp_path / "accuracy_air.json").read_text())
+    keys = {"frequency_hz", "temperature_c", "humidity_pct", "pressure_pa", "alpha_db_per_m_lattice"}
+    keys |= {"alpha_db_per_m_iso", "phase_speed_m_s_lattice", "phase_speed_m_s_model"}
+    assert len(data) == 1 and keys <= set(data[0])
+    assert abs(data[0]["alpha_db_per_m_lattice"] / data[0]["alpha_db_per_m_iso"] - 1) < 0.05
+    assert (tmp_path / "accuracy_air.png").stat().st_size > 0
+    assert "| 12 | 80 | 10 | 30 |" in (tmp_path / "accuracy_air_table.md").read_text()

@@ -74,3 +74,19 @@ def test_emulator_ground_truth_uses_the_same_air():
     _, _, a_wet = wave_truth(tr, [0.0], z_m=0.3, freq_hz=40e3, temperature_c=20.0, humidity_pct=50.0)
     # the humid speed shifts the near field slightly too: the loss alone within 2 %
     assert 20 * np.log10(a_dry[0] / a_wet[0]) == pytest.approx(0.3 * air.absorption_db_per_m(40e3, 20, 50), rel=2e-2)
+
+
+def test_simulate_prints_the_air(tmp_path, capsys):
+    from difflattice.cli import main
+
+    scene = tmp_path / "scene.toml"
+    scene.write_text(
+        "[grid]\nfrequency_hz = 40000.0\ncells_per_wavelength = 8.0\nsize_m = [0.03, 0.02]\n\n"
+        "[air]\ntemperature_c = 25.0\nhumidity_pct = 60.0\n\n"
+        '[edges]\nkind = "pml"\nthickness_cells = 6\n\n'
+        "[[transducers]]\ncentre_m = [0.01, 0.01]\nn_cells = 4\ncycles = 1\n\n[run]\nn_steps = 20\n"
+    )
+    rc = main(["simulate", str(scene), "--out", str(tmp_path / "out"), "--quiet", "--no-frames", "--no-animation"])
+    assert rc == 0
+    out = capsys.readouterr().out
+    assert "air: 25 deg C, 60 % RH, 101325 Pa" in out and "dB/m at 40 kHz (ISO 9613-1)" in out

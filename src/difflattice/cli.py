@@ -21,6 +21,7 @@ def _simulate(args) -> int:
         print(f"error: --cells-per-wavelength {args.cells_per_wavelength:g}: give a resolution > 0", file=sys.stderr)
         return 2
     scene = load_scene_at(args.scene, args.cells_per_wavelength)
+    print(scene.describe_air())
     if scene.kind.ndim == 3:
         return _simulate_3d(args, scene)
     if args.render_every is not None:
@@ -123,6 +124,12 @@ def _accuracy(args) -> int:
         res = acc.wall_sweep(cpw or (6, 8, 10, 14, 20, 30), tuple(args.dtype), repeats=args.repeats)
         acc.write_wall(res, args.out)
         print(f"wrote {args.out}/accuracy_wall.json, accuracy_wall_table.md, accuracy_wall.png")
+    elif args.case == "air":
+        from .apps import accuracy_air
+
+        rows = accuracy_air.sweep(cpw or accuracy_air.RESOLUTIONS)
+        accuracy_air.write(rows, args.out, accuracy_air.point_source())
+        print(f"wrote {args.out}/{accuracy_air.FILES}")
     else:
         res = acc.edge_sweep(cpw or (10, 20), tuple(args.thickness_cells), args.dtype[0], repeats=args.repeats)
         acc.write_edges(res, args.out)
@@ -261,13 +268,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     a.add_argument(
         "--case",
-        choices=["polaroid", "piston", "wall", "edges"],
+        choices=["polaroid", "piston", "wall", "edges", "air"],
         default="polaroid",
         help="polaroid: the Polaroid line's lobe and wavefront vs the continuous line; piston: a baffled "
         "38.4 mm disc on the axisymmetric lattice (on-axis field, lobe, the z = 16.5 mm line) vs "
         "the exact on-axis formula, 2 J1(x)/x and a Rayleigh-integral quadrature; wall: a point "
         "source's echo from a rigid and a soft wall vs the image-source solution; edges: the "
-        "reflection of pml/sponge/mur edges vs a window too large to reach",
+        "reflection of pml/sponge/mur edges vs a window too large to reach; air: plane-wave attenuation and "
+        "phase speed in humid air (20-200 kHz, 0-40 deg C, 10-90 %% RH) vs ISO 9613-1 and the relaxation model",
     )
     a.add_argument(
         "--cells-per-wavelength",

@@ -55,7 +55,7 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ..air import speed_of_sound_m_s
+from ..air import STANDARD_PRESSURE_PA, absorption_db_per_m, speed_of_sound_m_s
 
 TABLE_FORMAT = "difflattice-transducer-table/1"
 
@@ -417,23 +417,50 @@ def lag_deg(p: ArrayLike) -> NDArray[np.float64]:
     return np.mod(np.rad2deg(np.angle(np.asarray(p))), 360.0)
 
 
+def _air(temperature_c: float, humidity_pct: float | None, pressure_pa: float, freq_hz: float) -> tuple[float, float]:
+    """(speed m/s, attenuation Np/m): dry and lossless (the rig's old convention) when
+    `humidity_pct` is None, else humid air with ISO 9613-1 absorption (`difflattice.air`)."""
+    if humidity_pct is None:
+        return float(speed_of_sound(temperature_c)), 0.0
+    c = float(speed_of_sound_m_s(temperature_c, humidity_pct, pressure_pa))
+    alpha = float(absorption_db_per_m(freq_hz, temperature_c, humidity_pct, pressure_pa)) * np.log(10) / 20
+    return c, alpha
+
+
 def lobe_truth(
-    tr: Transducer, angle_deg: ArrayLike, *, range_m: float, freq_hz: float, temperature_c: float
+    tr: Transducer,
+    angle_deg: ArrayLike,
+    *,
+    range_m: float,
+    freq_hz: float,
+    temperature_c: float,
+    humidity_pct: float | None = None,
+    pressure_pa: float = STANDARD_PRESSURE_PA,
 ) -> tuple[NDArray[np.float64], float]:
-    """Noise-free lobe measurement: ``(amp_uV, tof_s)`` at ``angle_deg`` (conventions above)."""
-    c = float(speed_of_sound(temperature_c))
+    """Noise-free lobe measurement: ``(amp_uV, tof_s)`` at ``angle_deg`` (conventions above). With
+    `humidity_pct` the air is humid and absorbs (``exp(-alpha range_m)``, ISO 9613-1 at `freq_hz`)."""
+    c, alpha = _air(temperature_c, humidity_pct, pressure_pa, freq_hz)
     angles = np.atleast_1d(np.asarray(angle_deg, float))
     at_range = getattr(tr, "at_range", None)  # a piston or disc: the field at the microphone itself
     amp = np.abs(at_range(angles, range_m, freq_hz, c) if at_range else tr.far_field(angles, freq_hz, c) / range_m)
-    return amp, range_m / c
+    return amp * np.exp(-alpha * range_m), range_m / c
 
 
 def wave_truth(
-    tr: Transducer, x_m: ArrayLike, *, z_m: float, freq_hz: float, temperature_c: float
+    tr: Transducer,
+    x_m: ArrayLike,
+    *,
+    z_m: float,
+    freq_hz: float,
+    temperature_c: float,
+    humidity_pct: float | None = None,
+    pressure_pa: float = STANDARD_PRESSURE_PA,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
     """Noise-free wavefront measurement: ``(tof_s, phase_deg, amp_uV)`` at ``x_m`` (conventions
-    above: ``phase_deg`` is the lag in [0, 360))."""
-    c = float(speed_of_sound(temperature_c))
+    above: ``phase_deg`` is the lag in [0, 360)). With `humidity_pct` the air is humid and absorbs
+    over the distance to the microphone, ``exp(-alpha sqrt(x^2 + z^2))`` (the path lengths across
+    the face differ by millimetres against 1/alpha ~ 6 m at 40 kHz)."""
+    c, alpha = _air(temperature_c, humidity_pct, pressure_pa, freq_hz)
     x = np.atleast_1d(np.asarray(x_m, float))
-    p = tr.near_field(x, z_m, freq_hz, c)
+    p = tr.near_field(x, z_m, freq_hz, c) * np.exp(-alpha * np.hypot(x, z_m))
     return tr.arrival_s(x, z_m, c), lag_deg(p), np.abs(p)

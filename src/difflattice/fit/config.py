@@ -337,7 +337,59 @@ class OutputSection(Section):
     field_image: bool = setting(True, kind="bool", doc="simulate and render the fitted transducer's field")
 
 
-SECTIONS = (DataSection, ModelSection, SolverSection, UncertaintySection, OutputSection)
+@dataclass(frozen=True)
+class AirSection(Section):
+    """The air of the measurement (optional section; issue 34). Each key left out comes from the
+    capture files' metadata (temperature: the mean of the recorded temperatures; humidity_pct,
+    pressure_hpa from the header), else dry air at 101325 Pa (the emulator's air); the report's provenance says
+    which (`fit_air`). Sets the speed of sound of the fit (humid air, `difflattice.air`)."""
+
+    SECTION: ClassVar[str] = "air"
+    temperature_c: float | None = setting(
+        None, kind="number", ge=-40, le=60, unit="degC", doc="air temperature (default: the capture's)"
+    )
+    humidity_pct: float | None = setting(
+        None, kind="number", ge=0, le=100, unit="%", doc="relative humidity (default: the capture's, else 0: dry)"
+    )
+    pressure_pa: float | None = setting(
+        None, kind="number", ge=30000, le=120000, unit="Pa", doc="static pressure (default: the capture's, else 101325)"
+    )
+
+
+def fit_air(cfg: FitConfig, data: FitData) -> dict[str, Any]:
+    """The air a fit uses: {temperature_c, humidity_pct, pressure_pa, speed_of_sound_m_s, source},
+    `source` naming, per key, where it came from ([air], [data], a capture file's header, default)."""
+    from ..air import speed_of_sound_m_s
+    from ..capture.files import is_capture_file, load_capture
+
+    a = cfg.air
+    if a.temperature_c is not None and cfg.data.temperature_c is not None:
+        raise cfg.error("air.temperature_c", "is given twice ([data] temperature_c too): keep one")
+    meta: dict[str, Any] = {}
+    for path in data.paths:
+        if is_capture_file(path):
+            m = load_capture(path, allow_incomplete=True).metadata
+            meta.update({k: m[k] for k in ("humidity_pct", "pressure_hpa") if m.get(k) is not None})
+    src: dict[str, str] = {}
+    t = a.temperature_c if a.temperature_c is not None else data.temperature_c
+    src["temperature_c"] = "[air]" if a.temperature_c is not None else "capture or [data]"
+    if a.humidity_pct is not None:
+        h, src["humidity_pct"] = a.humidity_pct, "[air]"
+    elif "humidity_pct" in meta:
+        h, src["humidity_pct"] = float(meta["humidity_pct"]), "capture file"
+    else:
+        h, src["humidity_pct"] = 0.0, "default: dry (no [air] humidity_pct, none in the capture)"
+    if a.pressure_pa is not None:
+        p, src["pressure_pa"] = a.pressure_pa, "[air]"
+    elif "pressure_hpa" in meta:
+        p, src["pressure_pa"] = 100.0 * float(meta["pressure_hpa"]), "capture file"
+    else:
+        p, src["pressure_pa"] = 101325.0, "default (no [air] pressure_pa, none in the capture)"
+    c = speed_of_sound_m_s(t, h, p)
+    return {"temperature_c": t, "humidity_pct": h, "pressure_pa": p, "speed_of_sound_m_s": c, "source": src}
+
+
+SECTIONS = (DataSection, ModelSection, SolverSection, UncertaintySection, OutputSection, AirSection)
 
 
 @dataclass(frozen=True)
@@ -352,6 +404,7 @@ class FitConfig:
     uncertainty: UncertaintySection = field(default_factory=UncertaintySection)
     output: OutputSection = field(default_factory=OutputSection)
     path: Path | None = None
+    air: AirSection = field(default_factory=AirSection)
 
     @property
     def base(self) -> Path:
@@ -998,12 +1051,17 @@ def run_fit(cfg: FitConfig, *, out: str | Path | None = None, quick: bool = Fals
             RuntimeWarning,
             stacklevel=2,
         )
-    from ..air import speed_of_sound_m_s
     from .report import start_figures, write_report
 
     data = load_fit_data(cfg)
     lobe, wave, f = data.lobe, data.wave, data.frequency_hz
-    c = speed_of_sound_m_s(data.temperature_c)
+    air_used = fit_air(cfg, data)
+    c = air_used["speed_of_sound_m_s"]
+    if verbose:
+        print(
+            f"air: {air_used['temperature_c']:.2f} degC, {air_used['humidity_pct']:g} % RH, "
+            f"{air_used['pressure_pa']:.0f} Pa -> c = {c:.2f} m/s (from {air_used['source']})"
+        )
     m = cfg.model
     ppw = 12.0 if quick else m.cells_per_wavelength
     opts = fit_options(cfg)
@@ -1047,6 +1105,7 @@ def run_fit(cfg: FitConfig, *, out: str | Path | None = None, quick: bool = Fals
     prov["quick"] = quick
     prov["temperature_c"] = data.temperature_c
     prov["speed_of_sound_m_s"] = c
+    prov["air"] = air_used
     prov["data_notes"] = list(data.notes)
     rep = write_report(
         out_dir,

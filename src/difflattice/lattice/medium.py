@@ -21,6 +21,7 @@ import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from .. import air as air_model
 from ..air import density_kg_m3 as air_density_kg_m3
 from ..air import speed_of_sound_m_s as air_speed_m_s
 
@@ -51,9 +52,45 @@ class Material:
         return self.density_kg_m3 * self.speed_m_s
 
 
-def air(temperature_c: float = 20.0, pressure_pa: float = 101_325.0) -> Material:
-    """Dry air at a temperature in deg C and a pressure in Pa."""
-    return Material("air", air_speed_m_s(temperature_c), air_density_kg_m3(temperature_c, pressure_pa))
+def air(temperature_c: float = 20.0, pressure_pa: float = 101_325.0, humidity_pct: float = 0.0) -> Material:
+    """Air at a temperature in deg C, a pressure in Pa and a relative humidity in % (default dry)."""
+    return Material(
+        "air",
+        air_speed_m_s(temperature_c, humidity_pct, pressure_pa),
+        air_density_kg_m3(temperature_c, pressure_pa, humidity_pct),
+    )
+
+
+class AirConditions(eqx.Module):
+    """The state of the air a scene is in: temperature (deg C), relative humidity (%) and static
+    pressure (Pa). Given to a `Medium` as `air`, it switches on the air's absorption in the time
+    domain (ISO 9613-1's O2 and N2 relaxations and the classical term, `difflattice.air`); the
+    three values are array leaves, so a run is differentiable with respect to them (fit them or
+    hold them with a filter spec). `speed_of_sound_m_s` / `density_kg_m3` give the same air's
+    equilibrium speed and density (use them for the medium so speed and absorption agree)."""
+
+    temperature_c: Float[Array, ""] | float = 20.0
+    humidity_pct: Float[Array, ""] | float = 50.0
+    pressure_pa: Float[Array, ""] | float = air_model.STANDARD_PRESSURE_PA
+
+    def __check_init__(self):
+        air_model._check(self.temperature_c, self.humidity_pct, self.pressure_pa)
+
+    def speed_of_sound_m_s(self):
+        """Equilibrium speed of sound, m/s (differentiable if the conditions are JAX arrays)."""
+        return air_model.speed_of_sound_m_s(self.temperature_c, self.humidity_pct, self.pressure_pa)
+
+    def density_kg_m3(self):
+        """Density, kg/m^3."""
+        return air_model.density_kg_m3(self.temperature_c, self.pressure_pa, self.humidity_pct)
+
+    def absorption_db_per_m(self, frequency_hz):
+        """ISO 9613-1 attenuation at `frequency_hz`, dB/m."""
+        return air_model.absorption_db_per_m(frequency_hz, self.temperature_c, self.humidity_pct, self.pressure_pa)
+
+    def medium(self, **kwargs) -> Medium:
+        """A homogeneous absorbing `Medium` of this air (speed, density and absorption agree)."""
+        return Medium(sound_speed_m_s=self.speed_of_sound_m_s(), density_kg_m3=self.density_kg_m3(), air=self, **kwargs)
 
 
 MATERIALS: dict[str, Material] = {
@@ -144,6 +181,9 @@ class Medium(eqx.Module):
     - `boundary_model`: "conservative" (default), "paper" or "speed_zero" (static).
     - `absorption_db_per_m`: attenuation at the grid's drive frequency in dB/m, growing like f^2
       (viscous law); 0 (default) compiles no absorption term.
+    - `air`: `AirConditions` for air's own absorption in the time domain (O2 and N2 relaxation
+      memory fields plus the classical term, every frequency at once; None (default): lossless,
+      no fields, no work). Exclusive with `absorption_db_per_m`. It applies in every fluid cell.
     """
 
     sound_speed_m_s: Float[Array, "nx ny"] | float
@@ -152,8 +192,14 @@ class Medium(eqx.Module):
     soft: Float[Array, "nx ny"] | None = None
     boundary_model: BoundaryModel = eqx.field(static=True, default="conservative")
     absorption_db_per_m: float = eqx.field(static=True, default=0.0)
+    air: AirConditions | None = None
 
     def __check_init__(self):
+        if self.air is not None and self.absorption_db_per_m > 0:
+            raise ValueError(
+                "give either absorption_db_per_m (one f^2 law at the drive frequency) or air = "
+                "AirConditions(...) (air's relaxation absorption at every frequency), not both"
+            )
         if self.boundary_model not in BOUNDARY_MODELS:
             raise ValueError(f"boundary_model = {self.boundary_model!r}; allowed: {', '.join(BOUNDARY_MODELS)}")
         if not (self.absorption_db_per_m >= 0):

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -36,7 +37,7 @@ def mesh_outlines(
         raise ValueError(f"unit = {unit!r}; allowed: {', '.join(UNITS_M)}")
     p = Path(path)
     try:
-        mesh = trimesh.load(p, force="mesh")
+        mesh: Any = trimesh.load(p, force="mesh")
     except (OSError, ValueError) as err:
         raise ValueError(f"cannot read the mesh file {p}: {err}") from None
     if len(mesh.faces) == 0:

@@ -136,6 +136,30 @@ class Scene:
     run: dict
     output: dict = field(default_factory=dict)
     raw: dict = field(default_factory=dict)
+    air: dict | None = None  # the optional [air] section (None: dry air at [medium] temperature_c, lossless)
+
+    def air_conditions(self):
+        """The scene's `AirConditions` when `[air]` asks for absorption, else None."""
+        if self.air is None or not self.air["absorption"]:
+            return None
+        from ..lattice.medium import AirConditions
+
+        a = self.air
+        return AirConditions(a["temperature_c"], a["humidity_pct"], a["pressure_pa"])
+
+    def describe_air(self) -> str:
+        """One line naming the air the scene simulates (printed by `difflattice simulate`)."""
+        from .. import air as air_model
+
+        f = self.grid["frequency_hz"]
+        if self.air is None:
+            if self.medium["background"] != "air":
+                return f"background: {self.medium['background']} (no air)"
+            line = air_model.describe(self.medium["temperature_c"], 0.0)
+            return line + ", lossless (no [air] section: dry air, no absorption)"
+        a = self.air
+        line = air_model.describe(a["temperature_c"], a["humidity_pct"], a["pressure_pa"], f)
+        return line + ("" if a["absorption"] else " -- not simulated ([air] absorption = false)")
 
     # ---------------------------------------------------------------------------------------
     @property
@@ -489,6 +513,7 @@ class Scene:
             heterogeneous=bool(self.objects),
             soft=any(m.kind == "soft" for m in mats[1:]) or med["boundary_model"] == "speed_zero",
             absorption=med["absorption_db_per_m"] > 0,
+            air_absorption=self.air_conditions() is not None,
             n_probes=n_cols,
             snapshot_cells=sum(math.prod(shape) // shape[a] for a, _ in planes),
             n_snapshots=n_snap,
@@ -561,7 +586,14 @@ def _materials(scene: Scene) -> tuple[Material, list[Material]]:
     from ..lattice.medium import air, material
 
     p, med = scene.path, scene.medium
-    if med["background"] == "air":
+    if scene.air is not None:
+        if med["background"] != "air":
+            _fail(p, "air", f"describes the air, but [medium] background = {med['background']!r}: remove [air]")
+        if "temperature_c" in scene.raw.get("medium", {}):
+            _fail(p, "medium.temperature_c", "is given twice: [air] temperature_c sets it; remove this one")
+        a = scene.air
+        bg = air(a["temperature_c"], a["pressure_pa"], a["humidity_pct"])
+    elif med["background"] == "air":
         bg = air(med["temperature_c"])
     else:
         bg = _material(p, "medium.background", med["background"], material)
@@ -607,6 +639,7 @@ def _make_grid(scene: Scene, mats: list[Material]) -> Grid:
                 _fail(p, f"grid.{key}", f"= {list(g[key])}: entry {i} ({kind.axis_names[i]}) must be > 0")
     default = kind.default_courant
     courant = default if g["courant"] is None else float(g["courant"])
+    air_cond = scene.air_conditions()
     # rz scenes in air (no objects, no housing, one fluid) default to the isotropic stencil: the
     # near field in place, on the native kernels; with obstacles the standard one (the native
     # kernels run the isotropic stencil on uniform faces only)
@@ -619,6 +652,21 @@ def _make_grid(scene: Scene, mats: list[Material]) -> Grid:
     except ValueError as err:
         _fail(p, "grid.stencil", str(err))
     limit = kind.stability_limit(stencil)
+    if air_cond is not None:  # absorption stiffens the step: its own, lower limit (docs/air.md)
+        from ..lattice.coefficients import absorbing_courant
+
+        fast = max(m.speed_m_s for m in mats if m.kind == "fluid")
+        c_air = absorbing_courant(g["frequency_hz"], g["cells_per_wavelength"], fast, air_cond, kind, stencil)
+        if g["courant"] is None:
+            courant = min(courant, c_air)
+        elif courant > c_air / 0.9999:
+            _fail(
+                p,
+                "grid.courant",
+                f"= {courant:g} cells/step exceeds the limit with air absorption, {c_air / 0.9999:.5f} (the "
+                f"relaxation and viscous terms stiffen the step): leave courant out (then {c_air:.5f}) or set "
+                "it lower, or [air] absorption = false",
+            )
     if courant > limit:
         _fail(
             p,
@@ -688,6 +736,7 @@ def _medium(scene: Scene, grid: Grid, bg: Material, mats: list[Material], occupa
             soft=combined(soft),
             boundary_model=med["boundary_model"],
             absorption_db_per_m=float(med["absorption_db_per_m"]),
+            air=scene.air_conditions(),
         )
     except ValueError as e:
         _fail(p, "medium", str(e))
@@ -978,7 +1027,7 @@ def parse_scene(data: dict, path: str = "<scene>") -> Scene:
             if not isinstance(items, list):
                 _fail(path, name, f"must be an array of tables ([[{name}]]), got {type(items).__name__}")
             sec[name] = [_validate_table(path, name, t, f"{name}[{i}]") for i, t in enumerate(items)]
-        elif name == "farfield":
+        elif name in ("farfield", "air"):  # optional sections
             sec[name] = _validate_table(path, name, data[name], name) if name in data else None
         else:
             sec[name] = _validate_table(path, name, data.get(name, {}), name)

@@ -86,6 +86,25 @@ class MediumSection(Section):
 
 
 @dataclass(frozen=True)
+class AirSection(Section):
+    """The air as it is (optional section): its temperature, humidity and pressure set the speed
+    of sound, the density and the absorption (ISO 9613-1's O2 and N2 relaxations and the classical
+    term, carried in the time domain at every frequency: docs/air.md). Replaces
+    `[medium] temperature_c`; the background must be air."""
+
+    SECTION: ClassVar[str] = "air"
+    temperature_c: float = setting(20.0, kind="number", gt=-273.15, unit="degC", doc="air temperature")
+    humidity_pct: float = setting(50.0, kind="number", ge=0, le=100, unit="%", doc="relative humidity")
+    pressure_pa: float = setting(101325.0, kind="number", gt=0, unit="Pa", doc="static pressure")
+    absorption: bool = setting(
+        True,
+        kind="bool",
+        doc="simulate the air's absorption (relaxation memory fields; lowers the default courant by ~0.1 %); "
+        "false: lossless air of this speed and density",
+    )
+
+
+@dataclass(frozen=True)
 class EdgesSection(Section):
     """The window's edges: one kind on every side, or per side."""
 
@@ -355,6 +374,7 @@ SECTIONS: dict[str, type] = {
     for c in (
         GridSection,
         MediumSection,
+        AirSection,
         EdgesSection,
         TransducerSection,
         ObjectSection,

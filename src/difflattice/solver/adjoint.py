@@ -55,6 +55,8 @@ def supports(stepper, state=None) -> str | None:
         return "Mur edges"
     if lat.eta != 0:
         return "absorption (viscous term)"
+    if getattr(lat, "relax", None) is not None:
+        return "air absorption (relaxation memory fields; JAX's reverse mode differentiates it)"
     if lat.ax_lo is not None:
         return 'the "paper" boundary model (non-symmetric operator)'
     if state is not None:

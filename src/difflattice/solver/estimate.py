@@ -56,7 +56,7 @@ class RunFeatures:
       the two-field leapfrog.
     - `heterogeneous`: coefficient maps (K, face conductances per axis, lattice speed) exist
       (any medium map or obstacle); `soft`: a soft-obstacle factor map; `absorption`: P_prev kept
-      by the PML stepper.
+      by the PML stepper; `air_absorption`: air's two relaxation memory fields (and P_prev with a PML).
     - `n_probes`, `n_phasors`: recorded cells; `snapshot_cells` x `n_snapshots`: snapshots
       (a slice: nx ny cells; a full volume: nx ny nz); `field_stats`: how many of p_max, p_rms,
       arrival are recorded (each one grid-sized array).
@@ -68,6 +68,7 @@ class RunFeatures:
     heterogeneous: bool = False
     soft: bool = False
     absorption: bool = False
+    air_absorption: bool = False
     n_probes: int = 0
     n_phasors: int = 0
     snapshot_cells: int = 0
@@ -109,9 +110,11 @@ def memory_breakdown(grid_shape, n_steps: int, dtype: str, features=None) -> dic
     N = math.prod(shape)
     faces = sum(N // n * (n + 1) for n in shape)
     if f.pml:
-        carried = ndim * N + faces + (N if f.absorption else 0)
+        carried = ndim * N + faces + (N if (f.absorption or f.air_absorption) else 0)
     else:
         carried = 2 * N
+    if f.air_absorption:
+        carried += 2 * N
     coeff = 0
     maps = 0
     if f.heterogeneous:
@@ -355,6 +358,7 @@ def features_of(
         heterogeneous=bool(heterogeneous),
         soft=lat.keep is not None,
         absorption=lat.eta > 0,
+        air_absorption=getattr(lat, "relax", None) is not None,
         n_probes=sens.n_probes,
         n_phasors=sens.n_phasors,
         snapshot_cells=snap_cells,

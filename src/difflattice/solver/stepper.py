@@ -56,6 +56,7 @@ class LeapfrogState(State):
 
     p: Float[Array, "*grid"]
     p_prev: Float[Array, "*grid"]
+    relax_q: tuple[Float[Array, "*grid"], ...] | None = None  # air absorption's memory fields Q_i
 
     @property
     def pressure(self) -> Float[Array, "*grid"]:
@@ -76,6 +77,7 @@ class StaggeredState(State):
     c_r: Float[Array, "nx w"] | None = None
     pz: Float[Array, "nx ny nz"] | None = None
     wz: Float[Array, "nx ny nz1"] | None = None
+    relax_q: tuple[Float[Array, "*grid"], ...] | None = None  # air absorption's memory fields Q_i
 
     @property
     def pressure(self) -> Float[Array, "*grid"]:
@@ -160,11 +162,20 @@ class Stepper(eqx.Module):
         p_max = z if sens.p_max else None
         p_sq = z if sens.p_rms else None
         arrival = jnp.full(shape, -1, jnp.int32) if sens.arrival_threshold_pa else None
+        lat = self.lattice
+        relax_q = None if lat.relax is None else tuple(z for _ in lat.relax.eps)
         if not self.staggered:
             return LeapfrogState(
-                n=n, phasor_re=phasor_re, phasor_im=phasor_im, p_max=p_max, p_sq=p_sq, arrival=arrival, p=z, p_prev=z
+                n=n,
+                phasor_re=phasor_re,
+                phasor_im=phasor_im,
+                p_max=p_max,
+                p_sq=p_sq,
+                arrival=arrival,
+                p=z,
+                p_prev=z,
+                relax_q=relax_q,
             )
-        lat = self.lattice
         rad = None if lat.pml is None else lat.pml.radial
 
         def faces(axis: int) -> Float[Array, "*faces"]:
@@ -179,7 +190,8 @@ class Stepper(eqx.Module):
             wy=faces(1),
             wz=faces(2) if in_3d else None,
             src_acc=tuple(jnp.zeros(s.n_cells, dt) for s in self.sources if s.adds),
-            p_prev=z if lat.eta > 0 else None,
+            p_prev=z if (lat.eta > 0 or lat.relax is not None) else None,
+            relax_q=relax_q,
             c_r=None if rad is None else jnp.zeros((shape[0], rad.width), dt),
             n=n,
             phasor_re=phasor_re,
@@ -227,6 +239,7 @@ class Stepper(eqx.Module):
         lat = self.lattice
         p, p_prev = state.p, state.p_prev
         p_eff = p if lat.eta == 0 else (1 + lat.eta) * p - lat.eta * p_prev
+        p_eff = _relaxed_operand(lat, state.relax_q, p_eff, p, p_prev)
         d = operator(lat, p_eff)
         if lat.sponge is None:
             p_new = 2 * p - p_prev + d
@@ -243,7 +256,10 @@ class Stepper(eqx.Module):
                 p_new = p_new.at[c].add(v)
             else:
                 p_new = p_new.at[c].set(v)
-        return eqx.tree_at(lambda s: (s.p, s.p_prev, s.n), state, (p_new, p, state.n + 1)), p_new
+        new = eqx.tree_at(lambda s: (s.p, s.p_prev, s.n), state, (p_new, p, state.n + 1))
+        if lat.relax is not None:
+            new = eqx.tree_at(lambda s: s.relax_q, new, _relaxed_memory(lat, state.relax_q, p_new, p))
+        return new, p_new
 
     def _mur(self, p, p_new):
         """First-order Mur absorbing edges: P_edge(t+1) = P_in(t) + k (P_in(t+1) - P_edge(t))."""
@@ -287,6 +303,10 @@ class Stepper(eqx.Module):
             raise ValueError("absorption (eta > 0) needs P(n-1) in the state: start from stepper.init()")
         else:
             p_eff = (1 + lat.eta) * p - lat.eta * state.p_prev
+        if lat.relax is not None:
+            if state.p_prev is None:
+                raise ValueError("air absorption needs P(n-1) in the state: start from stepper.init()")
+            p_eff = _relaxed_operand(lat, state.relax_q, p_eff, p, state.p_prev)
         q = p_eff if lat.q_scale is None else lat.q_scale * p_eff
         rad = pml.radial
         new_w = []
@@ -325,23 +345,25 @@ class Stepper(eqx.Module):
             else:
                 new_p = [pa.at[c].set(share * v) for pa in new_p]
         p_prev = p if state.p_prev is not None else None
+        p_total = sum(new_p[1:], new_p[0])
+        relax_q = None if lat.relax is None else _relaxed_memory(lat, state.relax_q, p_total, p)
         if ndim == 2:
             px, py = new_p
             wx, wy = new_w
             new = eqx.tree_at(
-                lambda s: (s.px, s.py, s.wx, s.wy, s.src_acc, s.n, s.p_prev, s.c_r),
+                lambda s: (s.px, s.py, s.wx, s.wy, s.src_acc, s.n, s.p_prev, s.c_r, s.relax_q),
                 state,
-                (px, py, wx, wy, tuple(acc), state.n + 1, p_prev, c_r),
+                (px, py, wx, wy, tuple(acc), state.n + 1, p_prev, c_r, relax_q),
                 is_leaf=lambda x: x is None,
             )
-            return new, px + py
+            return new, p_total
         new = eqx.tree_at(
-            lambda s: (s.px, s.py, s.pz, s.wx, s.wy, s.wz, s.src_acc, s.n, s.p_prev),
+            lambda s: (s.px, s.py, s.pz, s.wx, s.wy, s.wz, s.src_acc, s.n, s.p_prev, s.relax_q),
             state,
-            (*new_p, *new_w, tuple(acc), state.n + 1, p_prev),
+            (*new_p, *new_w, tuple(acc), state.n + 1, p_prev, relax_q),
             is_leaf=lambda x: x is None,
         )
-        return new, new_p[0] + new_p[1] + new_p[2]
+        return new, p_total
 
     def _record(self, state: S, p_new: Float[Array, "*grid"], n_next: Int[Array, ""]) -> S:
         """Add the new step's pressure `p_new` to the sensors' running records."""
@@ -369,6 +391,28 @@ class Stepper(eqx.Module):
             return state
         keys = tuple(updates)
         return eqx.tree_at(lambda s: tuple(getattr(s, k) for k in keys), state, tuple(updates[k] for k in keys))
+
+
+def _relaxed_operand(lat: Lattice, relax_q, p_eff, p, p_prev):
+    """Add air absorption's terms to the operand (`coefficients.AirRelaxation`):
+    ``p_eff + eta (P(n) - P(n-1)) + sum_i eps_i Q_i(n)``; unchanged for lossless air."""
+    r = lat.relax
+    if r is None:
+        return p_eff
+    if relax_q is None:
+        raise ValueError("air absorption needs its memory fields in the state: start from stepper.init()")
+    out = p_eff + r.eta * (p - p_prev)
+    for e, q in zip(r.eps, relax_q):
+        out = out + e * q
+    return out
+
+
+def _relaxed_memory(lat: Lattice, relax_q, p_new, p):
+    """The memory fields' exact update for P linear over the step: Q_i(n+1) = a_i Q_i(n) + g_i (P(n+1) - P(n))."""
+    r = lat.relax
+    assert r is not None and relax_q is not None
+    dp = p_new - p
+    return tuple(a * q + g * dp for a, g, q in zip(r.a, r.g, relax_q))
 
 
 def _carried(record: Array | None, name: str) -> Array:

@@ -16,7 +16,7 @@ venv: $(STAMP)
 
 ## Main job: emulated rig -> capture over a pseudo-terminal -> fit -> report in out/demo
 demo: $(STAMP)
-	$(BIN)/difflattice demo --out out/demo
+	$(BIN)/difflattice demo --out out/demo --overwrite
 
 ## Test suite
 test: $(STAMP)

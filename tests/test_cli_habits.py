@@ -164,3 +164,47 @@ def test_the_top_level_names_do_not_change_with_import_order():
     )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=ENV)
     assert r.returncode == 0, r.stderr[-2000:]
+
+
+@pytest.mark.parametrize(
+    "patch, key",
+    [
+        (("size_m = [0.03, 0.04]", "size_m = [-0.03, 0.04]"), "grid.size_m"),
+        (("size_m = [0.03, 0.04]", "size_m = [0.0001, 0.04]"), "grid.size_m"),
+        (("n_steps = 50", "n_steps = -5"), "run.n_steps"),
+    ],
+)
+def test_scene_keys_out_of_range_are_refused_naming_the_key(tmp_path, capsys, patch, key):
+    scene = tmp_path / "s.toml"
+    scene.write_text(RZ_SCENE.replace(*patch))
+    code = main(["simulate", str(scene), "--out", str(tmp_path / "o"), "-q"])
+    err = capsys.readouterr().err
+    assert code == 2 and f"[{key}]" in err and err.count("\n") == 1, err
+    assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())
+
+
+RZ_SCENE = """
+[grid]
+kind = "rz"
+frequency_hz = 50000.0
+cells_per_wavelength = 8.0
+size_m = [0.03, 0.04]
+[edges]
+z_lo = "rigid"
+thickness_cells = 6
+[[transducers]]
+type = "disc"
+centre_m = [0.0, 0.0]
+diameter_m = 0.0384
+[farfield]
+range_m = 1.0
+angles_deg = [0.0, 90.0, 1.0]
+[run]
+n_steps = 50
+"""
+
+
+def test_the_small_rz_scene_runs(tmp_path):
+    scene = tmp_path / "s.toml"
+    scene.write_text(RZ_SCENE)
+    assert main(["simulate", str(scene), "--out", str(tmp_path / "o"), "-q", "--no-animation", "--no-frames"]) == 0

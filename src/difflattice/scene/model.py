@@ -563,6 +563,22 @@ def _make_grid(scene: Scene, mats: list[Material]) -> Grid:
     for key in ("size_m", "shape"):
         if g[key] is not None and len(g[key]) != ndim:
             _fail(p, f"grid.{key}", f"= {list(g[key])}: a {kind} grid needs {ndim} entries")
+    if g["size_m"] is not None:  # each size must span cells at this resolution (make_grid would clamp it)
+        dx = None
+        try:
+            fastest_c = max(m.speed_m_s for m in mats if m.kind == "fluid")
+            dx = fastest_c / (g["frequency_hz"] * g["cells_per_wavelength"])
+        except ValueError:
+            pass
+        if dx is not None:
+            small = [s for s in g["size_m"] if round(s / dx) < 3]
+            if small:
+                _fail(
+                    p,
+                    "grid.size_m",
+                    f"= {list(g['size_m'])} m: {small[0]:g} m is fewer than 3 cells of {dx * 1e3:.3g} mm at this "
+                    "resolution; give each size in metres, at least a few wavelengths plus the edge layers",
+                )
     default = DEFAULT_COURANT_3D if kind == "3d" else PAPER_COURANT
     courant = default if g["courant"] is None else float(g["courant"])
     # rz scenes in air (no objects, no housing, one fluid) default to the isotropic stencil: the

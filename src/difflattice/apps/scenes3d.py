@@ -607,7 +607,12 @@ def run_scene3d(
     t1 = time.perf_counter()
     if not quiet:
         print("compiling the 3-D time loop (seconds; cached for the next run) ...", file=sys.stderr, flush=True)
-    compiled = eqx.filter_jit(lambda st: check_result(run(st, n_steps), st)).lower(stepper).compile()
+
+    def whole_run(st):
+        return check_result(run(st, n_steps), st)
+
+    jitted: Any = eqx.filter_jit(whole_run)
+    compiled = jitted.lower(stepper).compile()
     compile_s = time.perf_counter() - t1
     if not quiet:
         print(f"compiled in {compile_s:.1f} s; running {n_steps} steps ...", file=sys.stderr, flush=True)

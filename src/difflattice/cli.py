@@ -24,7 +24,9 @@ EXIT_CODES = """exit codes:
   1    an unexpected error (a bug: Python's traceback follows; please report it)
   2    input that cannot be used: command line, scene file, fit config, data file or --out
        (one line on stderr names the problem and the fix)
-  3    fit: the solver did not converge (the report is written and says so)
+  3    fit: the solver did not converge (the report is written and says so); capture: the rig
+       failed (no answer, a protocol error)
+  4    capture: the capture file cannot be used (malformed, locked, or another scan than asked)
   130  interrupted (Ctrl-C): one line on stderr; outputs written so far are kept and marked
        partial by an INCOMPLETE file in the output directory"""
 
@@ -496,11 +498,19 @@ def _interrupted_line() -> str:
     return f"interrupted (Ctrl-C): {_mark_incomplete()}"
 
 
+INTERRUPT_GRACE_S = 2.0
+"""After Ctrl-C, how long the main thread has to stop by itself (`KeyboardInterrupt`: `finally`
+blocks run, a capture keeps its points, the emulator closes its port) before the process is
+ended from the watcher thread (the main thread is waiting in compiled code)."""
+
+_MAIN_DONE = threading.Event()
+
+
 def _exit_on_interrupt() -> None:
-    """The process ends now with one line and exit code 130 (called on SIGINT, from the main
-    thread's handler or the watcher thread, whichever runs first)."""
+    """The process ends now with one line and exit code 130 (the watcher thread, when the main
+    thread did not stop within `INTERRUPT_GRACE_S`)."""
     if not _INTERRUPT_LOCK.acquire(blocking=False):
-        return
+        return  # the main thread is already reporting the interrupt
     try:
         sys.stdout.flush()
     except Exception:  # noqa: BLE001 (a closed or redirected stream must not stop the exit)
@@ -511,30 +521,31 @@ def _exit_on_interrupt() -> None:
 
 
 def _install_interrupt_handler() -> None:
-    """Ctrl-C ends the command at once, even while the main thread waits in compiled code (XLA
-    compiling or running a kernel, where Python's own handler would run only when that returns):
-    the C-level handler writes the signal to a socket (`signal.set_wakeup_fd`), a watcher thread
-    wakes on it and ends the process. Installed by `entry` only (in-process callers of `main`
-    get `KeyboardInterrupt` turned into code 130)."""
+    """Ctrl-C ends the command within `INTERRUPT_GRACE_S`, even while the main thread waits in
+    compiled code (XLA compiling or running a kernel, where Python's own handler runs only when
+    that returns): Python's handler raises `KeyboardInterrupt` in the main thread as usual, and
+    the C-level handler also writes the signal to a socket (`signal.set_wakeup_fd`); a watcher
+    thread wakes on it and, if the main thread has not finished by then, ends the process.
+    Installed by `entry` only (in-process callers of `main` get `KeyboardInterrupt` turned into
+    code 130 by `main`)."""
     import signal
     import socket
 
+    signal.signal(signal.SIGINT, signal.default_int_handler)  # also where the shell had ignored it
     try:
         r, w = socket.socketpair()
         w.setblocking(False)
         signal.set_wakeup_fd(w.fileno(), warn_on_full_buffer=False)
-    except (ValueError, OSError):  # not the main thread, or no sockets: the handler alone
-        signal.signal(signal.SIGINT, lambda *_: _exit_on_interrupt())
+    except (ValueError, OSError):  # not the main thread, or no sockets: Python's handler alone
         return
-    signal.signal(signal.SIGINT, lambda *_: _exit_on_interrupt())
 
     def watch() -> None:
         while True:
             data = r.recv(64)
-            if not data or signal.SIGINT in data:
-                if data:
-                    _exit_on_interrupt()
+            if not data:
                 return
+            if signal.SIGINT in data and not _MAIN_DONE.wait(INTERRUPT_GRACE_S):
+                _exit_on_interrupt()
 
     threading.Thread(target=watch, name="difflattice-interrupt", daemon=True).start()
     _SESSION["sockets"] = (r, w)  # kept alive for the life of the process
@@ -568,7 +579,8 @@ def main(argv: list[str] | None = None) -> int:
         _SESSION["complete"] = True
         return code
     except KeyboardInterrupt:
-        print(_interrupted_line(), file=sys.stderr)
+        if _INTERRUPT_LOCK.acquire(blocking=False):  # not already reported by the watcher thread
+            print(f"\n{_interrupted_line()}", file=sys.stderr)  # on its own line, after a progress bar
         return 130
 
 
@@ -597,7 +609,12 @@ def entry() -> None:
     `DIFFLATTICE_FAST_EXIT=0`, the normal shutdown runs (their reports are written at exit).
     Ctrl-C ends it with one line and code 130 (`_install_interrupt_handler`)."""
     _install_interrupt_handler()
-    code = main()
+    try:
+        code = main()
+    except KeyboardInterrupt:  # before main's own handling began (parsing the command line)
+        print("interrupted (Ctrl-C): no output was written", file=sys.stderr)
+        code = 130
+    _MAIN_DONE.set()
     if (
         os.environ.get("DIFFLATTICE_FAST_EXIT", "1") == "0"
         or sys.getprofile() is not None

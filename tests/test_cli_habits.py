@@ -208,3 +208,39 @@ def test_the_small_rz_scene_runs(tmp_path):
     scene = tmp_path / "s.toml"
     scene.write_text(RZ_SCENE)
     assert main(["simulate", str(scene), "--out", str(tmp_path / "o"), "-q", "--no-animation", "--no-frames"]) == 0
+
+
+def test_the_watcher_ends_a_main_thread_that_does_not_stop(tmp_path):
+    """A main thread that never stops by itself (here it swallows KeyboardInterrupt, as code
+    waiting in XLA would not see it): the watcher ends the process INTERRUPT_GRACE_S after
+    Ctrl-C, with one line and code 130, and marks the files written so far."""
+    out = tmp_path / "o"
+    out.mkdir()
+    (out / "half.png").write_bytes(b"x")
+    code = (
+        "import time, difflattice.cli as cli\n"
+        "cli._install_interrupt_handler()\n"
+        f"cli._SESSION.update(out={str(out)!r}, command='simulate', complete=False)\n"
+        "print('ready', flush=True)\n"
+        "end = time.time() + 60\n"
+        "while time.time() < end:\n"
+        "    try:\n"
+        "        time.sleep(0.05)\n"
+        "    except KeyboardInterrupt:\n"
+        "        pass\n"
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=ENV
+    )
+    assert proc.stdout.readline().strip() == "ready"
+    t0 = time.monotonic()
+    proc.send_signal(signal.SIGINT)
+    rc = proc.wait(timeout=30)
+    waited = time.monotonic() - t0
+    err = proc.stderr.read()
+    assert rc == 130, err
+    assert cli.INTERRUPT_GRACE_S - 0.1 <= waited < cli.INTERRUPT_GRACE_S + 5, waited
+    assert [ln for ln in err.splitlines() if ln.strip()] == [
+        f"interrupted (Ctrl-C): the outputs in {out} are partial (marked by {out / INCOMPLETE})"
+    ], err
+    assert (out / INCOMPLETE).exists()

@@ -22,7 +22,7 @@ if [[ ! -x "$DOCS_VENV/bin/mkdocs" ]] || ! "$DOCS_VENV/bin/python" -c "import mk
 fi
 
 # 2. Regenerate the generated pages from the code: the CLI reference from the argparse parser,
-#    the config tables (fit config, capture header, emulator options, scene files) from their
+#    the API reference pages (one block per public module), the config tables (fit config, capture header, emulator options, scene files) from their
 #    typed declarations. The scripts put src/ on sys.path, so any Python >= 3.11 with the
 #    project's dependencies works; prefer the project's .venv.
 if [[ -x "$ROOT/.venv/bin/python" ]]; then
@@ -31,6 +31,7 @@ else
     CLI_PY="$PY"
 fi
 "$CLI_PY" docs/gen_cli.py
+"$CLI_PY" docs/gen_api.py
 "$CLI_PY" docs/gen_config_tables.py
 "$CLI_PY" docs/gen_scene_files.py
 

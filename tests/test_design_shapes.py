@@ -166,11 +166,14 @@ def test_beam_measures_on_a_gaussian_beam():
 
 def test_exported_scene_loads_and_rebuilds_the_walls(horn, tmp_path):
     from difflattice.design.export import write_scene
+    from difflattice.lattice.medium import ResolutionWarning
     from difflattice.scene import load_scene
 
     p = HornParams(0.012, 0.022, 0.018, 0.0018, 0.7)
     path = write_scene(horn, p, tmp_path / "horn.toml")
-    grid, medium, sources, sensors, edges, n_steps = load_scene(path).build()[:6]
+    # the fixture's coarse 6 cells per wavelength: the exported scene says so when built
+    with pytest.warns(ResolutionWarning, match="6.00 cells per wavelength"):
+        grid, medium, sources, sensors, edges, n_steps = load_scene(path).build()[:6]
     assert grid.shape == horn.grid.shape and n_steps == horn.n_steps
     np.testing.assert_array_equal(sources[0].cells_array, horn.source().cells_array)
     # float32 scene vs float64 design: occupancies agree to float32 rounding of the coordinates

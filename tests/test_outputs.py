@@ -219,3 +219,78 @@ def test_gallery_scenes_ship_with_the_package():
     names = {p.name for p in pkg.glob("fig*.toml")}
     repo = Path(__file__).resolve().parents[1] / "data" / "scenes"
     assert names and names == {p.name for p in repo.glob("fig*.toml")}
+
+
+# --- data files (issue 32): CSV tables pandas reads as they are, NetCDF with coordinates and units
+
+
+def test_every_csv_of_a_2d_run_reads_in_pandas_and_netcdf_has_units(tmp_path):
+    pd = pytest.importorskip("pandas")
+    xr = pytest.importorskip("xarray")
+    h5py = pytest.importorskip("h5py")
+    sr = run_scene(_scene(20.0), progress=False)
+    files = write_outputs(sr, tmp_path / "o", frames=False, animation="none", data_format="netcdf")
+    probes = pd.read_csv(files["probes_csv"])
+    assert list(probes.columns) == ["t_s", "probe_0_pa"]
+    assert len(probes) == 90 and probes["t_s"].iloc[0] == pytest.approx(sr.grid.dt_s)
+    np.testing.assert_allclose(probes["probe_0_pa"], np.asarray(sr.result.probes)[:, 0], rtol=1e-6, atol=1e-12)
+    ds = xr.open_dataset(files["sensors"])
+    assert ds["probes_pa"].attrs["units"] == "Pa" and ds["t"].attrs["units"] == "s" and ds["x"].attrs["units"] == "m"
+    np.testing.assert_allclose(ds["x"].values, sr.grid.coordinates_m()[0])
+    np.testing.assert_allclose(ds["final_field_pa"].values, np.asarray(sr.result.final.pressure))
+    ds.close()
+    with h5py.File(files["sensors"]) as f:
+        assert f["final_field_pa"].attrs["units"] in (b"Pa", "Pa")
+    assert not (tmp_path / "o" / "sensors.npz").exists()
+    # a CSV for every table the scene has: the lobe too
+    sr.lobe = (np.array([-1.0, 0.0, 1.0]), np.array([-3.0, 0.0, -3.0]))
+    files = write_outputs(sr, tmp_path / "p", frames=False, animation="none")
+    lobe = pd.read_csv(files["lobe_csv"])
+    assert list(lobe.columns) == ["angle_deg", "level_db"] and lobe["level_db"].max() == 0.0
+    for csv in (tmp_path / "p").glob("*.csv"):
+        assert not csv.read_text().startswith("#"), csv
+
+
+def test_a_3d_run_writes_csv_netcdf_and_the_last_field_that_holds_a_wave(tmp_path):
+    pd = pytest.importorskip("pandas")
+    xr = pytest.importorskip("xarray")
+    from difflattice.apps import scenes3d
+
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    scene = scenes3d.load_scene_at(os.path.join(root, "data", "scenes", "wall3d_00deg.toml"), 8.0)
+    sr = scenes3d.run_scene3d(scene, mlups=100.0, quiet=True)
+    files = scenes3d.write_outputs3d(sr, tmp_path / "o", data_format="netcdf")
+    a = pd.read_csv(files["a_scan_csv"])
+    assert list(a.columns) == ["t_s", "disc_pa_x_weight"]
+    np.testing.assert_allclose(a["disc_pa_x_weight"], sr.a_scans["disc"][1], rtol=1e-6, atol=1e-12)
+    ds = xr.open_dataset(files["sensors"])
+    assert ds["a_scan_disc"].attrs["units"] == "Pa x cell weight" and ds["z"].attrs["units"] == "m"
+    assert ds.sizes["t"] == sr.summary["run"]["n_steps"]
+    ds.close()
+    # the field slice shows a step where the field is not empty
+    planes = sr.built.sensors.snapshot_planes(tuple(sr.grid.shape))
+    step, shown = scenes3d._last_field_planes(sr, planes)
+    peak = sr.summary["stability"]["peak_pa"]
+    assert max(float(np.abs(v).max()) for _, v in shown.values()) >= scenes3d.EMPTY_FIELD * peak
+    assert 0 < step <= sr.summary["run"]["n_steps"]
+    # compile time kept apart from the throughput
+    r = sr.summary["run"]
+    assert 0 < r["compile_s"] < r["wall_time_s"] and r["mlups_excl_compile"] > r["mlups"]
+
+
+def test_capture_files_read_in_pandas_with_their_comment_header(tmp_path):
+    """Capture files (`difflattice capture`, format difflattice-capture/1) start with `#` metadata
+    lines: `pandas.read_csv(path, comment="#")` gives the named columns, units in the names."""
+    pd = pytest.importorskip("pandas")
+    from pathlib import Path
+
+    from difflattice.capture.files import is_capture_file, load_capture
+
+    data = Path(__file__).resolve().parents[1] / "data" / "emulated"
+    caps = [p for p in sorted(data.rglob("*.csv")) if is_capture_file(p)][:3]
+    assert caps, data
+    for p in caps:
+        cap = load_capture(p, allow_incomplete=True)
+        df = pd.read_csv(p, comment="#")
+        assert list(df.columns) == list(cap.columns), p
+        assert sorted(df["seq"].unique()) == sorted(cap.seq.tolist()), p

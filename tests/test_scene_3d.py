@@ -222,7 +222,8 @@ def test_cli_runs_a_3d_scene_and_writes_its_outputs(tmp_path, capsys):
     assert s["grid"]["kind"] == "3d" and s["grid"]["cells_per_wavelength"] == 8.0
     assert s["estimate"]["printed"] in captured.err  # printed before the run, kept in the summary
     assert s["run"]["wall_time_s"] > 0 and s["memory"]["host_peak_rss_bytes"] > s["estimate"]["memory_bytes"]
-    d = np.loadtxt(out / "a_scan.csv", delimiter=",")
+    d = np.loadtxt(out / "a_scan.csv", delimiter=",", skiprows=1)  # one plain header row (pandas reads it)
+    assert (out / "a_scan.csv").read_text().splitlines()[0] == "t_s,disc_pa_x_weight"
     assert d.shape == (s["run"]["n_steps"], 2)
     a = d[:, 1]
     gate = s["receivers"]["disc"]["gate_start_step"]

@@ -1,16 +1,41 @@
 """The `difflattice` command line: thin handlers over the library.
 
 Heavy imports (JAX, matplotlib) happen inside the handlers, so `difflattice capture --help` starts
-fast and without JAX.
+fast and without JAX. Habits every job shares (set up in `main` and `entry`): `--version`;
+`-q/--quiet` and `-v/--verbose`; `--out` checked before any work (an existing file is refused, a
+non-empty directory too unless `--overwrite` clears it); Ctrl-C ends with one line and exit code
+130, and a run cut short leaves an `INCOMPLETE` file beside its partial outputs; the exit codes
+are `EXIT_CODES`.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import os
 import sys
+import threading
 import warnings
 from pathlib import Path
+
+EXIT_CODES = """exit codes:
+  0    success
+  1    an unexpected error (a bug: Python's traceback follows; please report it)
+  2    input that cannot be used: command line, scene file, fit config, data file or --out
+       (one line on stderr names the problem and the fix)
+  3    fit: the solver did not converge (the report is written and says so); capture: the rig
+       failed (no answer, a protocol error)
+  4    capture: the capture file cannot be used (malformed, locked, or another scan than asked)
+  130  interrupted (Ctrl-C): one line on stderr; outputs written so far are kept and marked
+       partial by an INCOMPLETE file in the output directory"""
+
+INCOMPLETE = "INCOMPLETE"
+"""The file a run cut short leaves in its output directory (what was interrupted, and when)."""
+
+# what an interrupt must know: the job's output directory and whether its outputs are complete
+_SESSION: dict = {"out": None, "command": None, "complete": False}
+_INTERRUPT_LOCK = threading.Lock()
 
 
 def _simulate(args) -> int:
@@ -32,11 +57,13 @@ def _simulate(args) -> int:
         args.out,
         frames=False if args.no_frames else None,
         animation="none" if args.no_animation else args.animation,
+        data_format=args.format,
     )
     s = sr.summary
+    r = s["run"]
     print(
-        f"{scene.path}: {s['run']['n_steps']} steps on {s['grid']['shape'][0]} x {s['grid']['shape'][1]} cells "
-        f"in {s['run']['wall_time_s']:.2f} s ({s['run']['mlups']:.0f} MLUPS); "
+        f"{scene.path}: {r['n_steps']} steps on {s['grid']['shape'][0]} x {s['grid']['shape'][1]} cells "
+        f"in {r['wall_time_s']:.2f} s ({_throughput(r)}); "
         f"expected phase error {s['accuracy']['expected_phase_error_periods']:.3f} periods"
     )
     if "farfield" in s:
@@ -45,8 +72,22 @@ def _simulate(args) -> int:
             f"lobe at {_num(f['range_m'], 'g')} m: -6 dB width {_num(f['width_6db_deg'], '.2f')} deg, "
             f"first null {_num(f.get('first_null_deg'), '.2f')} deg, first side lobe {_num(f.get('first_sidelobe_db'), '.1f')} dB"
         )
+    if args.verbose:
+        for key, path in files.items():
+            print(f"  {key}: {path}")
     print(f"wrote {files['summary']}")
     return 0
+
+
+def _throughput(run: dict) -> str:
+    """'compile 18.2 s + run 2.9 s, 41 MLUPS' from a run summary (MLUPS without the compilation),
+    or 'N MLUPS incl. compile' where the compilation could not be separated."""
+    if run.get("compile_s") is not None and run.get("mlups_excl_compile") is not None:
+        return (
+            f"compile {run['compile_s']:.1f} s + run {run['wall_time_s'] - run['compile_s']:.2f} s, "
+            f"{run['mlups_excl_compile']:.0f} MLUPS"
+        )
+    return f"{run['mlups']:.0f} MLUPS incl. compile"
 
 
 def _simulate_3d(args, scene) -> int:
@@ -55,15 +96,15 @@ def _simulate_3d(args, scene) -> int:
     from .solver.estimate import format_bytes
 
     available = None if args.max_memory_gib is None else int(args.max_memory_gib * 2**30)
-    sr = run_scene3d(scene, available_bytes=available, mlups=args.assume_mlups)
-    files = write_outputs3d(sr, args.out)
+    sr = run_scene3d(scene, available_bytes=available, mlups=args.assume_mlups, quiet=args.quiet)
+    files = write_outputs3d(sr, args.out, data_format=args.format)
     s = sr.summary
     r, est, mem = s["run"], s["estimate"], s["memory"]
     peak = mem.get("device_peak_bytes", mem["host_peak_rss_bytes"])
     print(
         f"{scene.path}: {r['n_steps']} steps on {' x '.join(map(str, s['grid']['shape']))} cells "
-        f"({s['grid']['cells_per_wavelength']:g} cells per wavelength) in {r['wall_time_s']:.2f} s incl. compile "
-        f"({r['mlups']:.0f} MLUPS; estimated {est['time_s']:.3g} s); peak memory {format_bytes(peak)} "
+        f"({s['grid']['cells_per_wavelength']:g} cells per wavelength) in {r['wall_time_s']:.2f} s "
+        f"({_throughput(r)}; estimated {est['time_s']:.3g} s); peak memory {format_bytes(peak)} "
         f"(estimated {format_bytes(est['memory_bytes'])} + runtime); expected phase error "
         f"{s['accuracy']['expected_phase_error_periods']:.3f} periods"
     )
@@ -173,15 +214,29 @@ def _bench(args) -> int:  # issue 15: forward speed, interleaved with the refere
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from . import __version__
     from .config import Parser  # its help shows every option's default; sub-parsers inherit it
 
-    p = Parser(prog="difflattice", description="Differentiable lattice-gas ultrasound simulator")
+    p = Parser(
+        prog="difflattice",
+        description="Differentiable lattice-gas ultrasound simulator: simulate scenes, fit transducer models to "
+        "measurements, design horns and reflectors. `difflattice JOB --help` for a job's options.",
+        epilog=EXIT_CODES,
+    )
+    p.add_argument("--version", action="version", version=f"difflattice {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
 
     s = sub.add_parser("simulate", help="simulate a scene file and write sensor data, images and a summary")
     s.add_argument("scene", type=Path, help="scene file (TOML, see docs/scene-files.md)")
-    s.add_argument("--out", type=Path, required=True, help="output directory")
-    s.add_argument("--quiet", action="store_true", help="no progress bar")
+    s.add_argument("--out", type=Path, required=True, help="output directory (new, or empty, or --overwrite)")
+    s.add_argument(
+        "--format",
+        choices=["npz", "netcdf"],
+        default="npz",
+        help="sensor data file: npz (sensors.npz, NumPy) or netcdf (sensors.nc for xarray / h5py: probe series, "
+        "A-scans, peak and RMS fields with coordinates in m and s and units as attributes; needs "
+        "pip install 'difflattice[netcdf]'); CSV tables (probes, lobe, A-scans) are written either way",
+    )
     s.add_argument("--no-animation", action="store_true", help="do not write an animation (same as --animation none)")
     s.add_argument(
         "--animation",
@@ -226,7 +281,6 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--out", type=Path, default=Path("out/gallery"), help="output directory")
     g.add_argument("--scale", type=float, default=1.0, help="grid scale (e.g. 0.5 for a quick look)")
     g.add_argument("--only", nargs="*", help="scene names to render (default: all)")
-    g.add_argument("--quiet", action="store_true", help="no progress bar")
     g.set_defaults(func=_gallery)
 
     d = sub.add_parser("demo", help="main job: emulated rig -> capture -> fit -> report")
@@ -317,7 +371,6 @@ def build_parser() -> argparse.ArgumentParser:
     z.add_argument("--wall", default="soft", help="soft (the paper's speed-zero walls), rigid or a fluid material")
     z.add_argument("--steps", type=int, default=15, help="BFGS steps")
     z.add_argument("--no-gradient-check", action="store_true", help="skip the finite-difference check of the gradient")
-    z.add_argument("--quiet", action="store_true", help="no progress bar")
     z.set_defaults(func=_design)
 
     b = sub.add_parser(
@@ -342,7 +395,47 @@ def build_parser() -> argparse.ArgumentParser:
     from .capture.cli import register  # capture is part of the package (and imports no JAX)
 
     register(sub)
+    for leaf in _leaf_parsers(p):
+        _add_common(leaf)
     return p
+
+
+# the jobs whose --out is a directory this run fills (capture's OUT is a file it may continue)
+_OUT_DIR_JOBS = ("simulate", "gallery", "demo", "fit", "accuracy", "design", "bench")
+
+
+def _leaf_parsers(parser: argparse.ArgumentParser):
+    """Every parser that runs a job (no sub-commands of its own), depth first."""
+    subs = [a for a in parser._actions if isinstance(a, argparse._SubParsersAction)]
+    if not subs:
+        yield parser
+        return
+    seen: set[int] = set()
+    for action in subs:
+        for child in action.choices.values():
+            if id(child) not in seen:
+                seen.add(id(child))
+                yield from _leaf_parsers(child)
+
+
+def _add_common(leaf: argparse.ArgumentParser) -> None:
+    """What every job has: -q/--quiet, -v/--verbose, the exit codes in its help, and for the
+    jobs that fill an output directory, --overwrite."""
+    group = leaf.add_mutually_exclusive_group()
+    group.add_argument(
+        "-q", "--quiet", action="store_true", help="no progress bars or messages; errors and warnings still on stderr"
+    )
+    group.add_argument(
+        "-v", "--verbose", action="store_true", help="more detail: timings, every file written, tracebacks of errors"
+    )
+    if leaf.prog.split()[-1] in _OUT_DIR_JOBS and "--out" in leaf._option_string_actions:
+        leaf.add_argument(
+            "--overwrite",
+            action="store_true",
+            help="clear a non-empty --out directory first (without it such a directory is refused, so that no "
+            "earlier run's files are mixed with this one's)",
+        )
+    leaf.epilog = f"{leaf.epilog}\n\n{EXIT_CODES}" if leaf.epilog else EXIT_CODES
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
@@ -355,27 +448,164 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
         sys.stderr.write(warnings.formatwarning(message, category, filename, lineno, line))
 
 
+def _check_out(args) -> str | None:
+    """Check the job's `--out` before any work; returns the error line, or None. An existing file
+    is refused; a non-empty directory is refused, or cleared with `--overwrite` (never a directory
+    that holds a source checkout, the current directory or a parent of it)."""
+    out = getattr(args, "out", None)
+    if args.command not in _OUT_DIR_JOBS or out is None:
+        return None
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        return f"--out {out} is an existing file: give a directory (a new one, or an empty one)"
+    if not out.is_dir() or not any(out.iterdir()):
+        return None
+    if not getattr(args, "overwrite", False):
+        return (
+            f"--out {out} is a directory that is not empty: give a new or empty directory, or add --overwrite "
+            "to clear it first"
+        )
+    here = Path.cwd().resolve()
+    target = out.resolve()
+    if target == here or target in here.parents or (target / ".git").exists() or (target / "pyproject.toml").exists():
+        return (
+            f"--overwrite would clear {out}, which holds the current directory or a source checkout: give another --out"
+        )
+    import shutil
+
+    for child in target.iterdir():
+        if child.is_dir() and not child.is_symlink():
+            shutil.rmtree(child)
+        else:
+            child.unlink()
+    return None
+
+
+def _mark_incomplete() -> str:
+    """After an interrupt: write `INCOMPLETE` into the job's output directory where it holds
+    files and the job had not finished writing; returns the sentence for the one-line message."""
+    out = _SESSION.get("out")
+    if _SESSION.get("complete"):
+        return f"the outputs in {out} are complete" if out else "its outputs were complete"
+    if out is None or not Path(out).is_dir() or not any(Path(out).iterdir()):
+        return "no output was written"
+    import time
+
+    try:
+        (Path(out) / INCOMPLETE).write_text(
+            f"difflattice {_SESSION.get('command')} was interrupted (Ctrl-C) at "
+            f"{time.strftime('%Y-%m-%d %H:%M:%S')}: the files in this directory are partial (some may be "
+            "missing or cut short). Run the job again with --overwrite for a complete set.\n"
+        )
+    except OSError:
+        return f"the outputs in {out} are partial"
+    return f"the outputs in {out} are partial (marked by {Path(out) / INCOMPLETE})"
+
+
+def _interrupted_line() -> str:
+    return f"interrupted (Ctrl-C): {_mark_incomplete()}"
+
+
+INTERRUPT_GRACE_S = 2.0
+"""After Ctrl-C, how long the main thread has to stop by itself (`KeyboardInterrupt`: `finally`
+blocks run, a capture keeps its points, the emulator closes its port) before the process is
+ended from the watcher thread (the main thread is waiting in compiled code)."""
+
+_MAIN_DONE = threading.Event()
+
+
+def _exit_on_interrupt() -> None:
+    """The process ends now with one line and exit code 130 (the watcher thread, when the main
+    thread did not stop within `INTERRUPT_GRACE_S`)."""
+    if not _INTERRUPT_LOCK.acquire(blocking=False):
+        return  # the main thread is already reporting the interrupt
+    try:
+        sys.stdout.flush()
+    except Exception:  # noqa: BLE001 (a closed or redirected stream must not stop the exit)
+        pass
+    sys.stderr.write("\n" + _interrupted_line() + "\n")
+    sys.stderr.flush()
+    os._exit(130)
+
+
+def _install_interrupt_handler() -> None:
+    """Ctrl-C ends the command within `INTERRUPT_GRACE_S`, even while the main thread waits in
+    compiled code (XLA compiling or running a kernel, where Python's own handler runs only when
+    that returns): Python's handler raises `KeyboardInterrupt` in the main thread as usual, and
+    the C-level handler also writes the signal to a socket (`signal.set_wakeup_fd`); a watcher
+    thread wakes on it and, if the main thread has not finished by then, ends the process.
+    Installed by `entry` only (in-process callers of `main` get `KeyboardInterrupt` turned into
+    code 130 by `main`)."""
+    import signal
+    import socket
+
+    signal.signal(signal.SIGINT, signal.default_int_handler)  # also where the shell had ignored it
+    try:
+        r, w = socket.socketpair()
+        w.setblocking(False)
+        signal.set_wakeup_fd(w.fileno(), warn_on_full_buffer=False)
+    except (ValueError, OSError):  # not the main thread, or no sockets: Python's handler alone
+        return
+
+    def watch() -> None:
+        while True:
+            data = r.recv(64)
+            if not data:
+                return
+            if signal.SIGINT in data and not _MAIN_DONE.wait(INTERRUPT_GRACE_S):
+                _exit_on_interrupt()
+
+    threading.Thread(target=watch, name="difflattice-interrupt", daemon=True).start()
+    _SESSION["sockets"] = (r, w)  # kept alive for the life of the process
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run a `difflattice` subcommand. Precision is set here, for the whole process
     (`apps.jaxconfig.configure`: float64 on, compilation cache), never inside the library.
-    A configuration error prints one line (`error: ...`) and returns 2."""
+    `--out` is checked before any work; a configuration error prints one line (`error: ...`)
+    and returns 2; Ctrl-C returns 130 (see `EXIT_CODES`)."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    if args.command in ("simulate", "gallery", "demo", "fit", "accuracy", "design"):
-        from .apps.jaxconfig import configure
+    problem = _check_out(args)
+    if problem is not None:
+        print(f"error: {problem}", file=sys.stderr)
+        return 2
+    _SESSION.update(out=getattr(args, "out", None), command=args.command, complete=False)
+    quiet, verbose = getattr(args, "quiet", False), getattr(args, "verbose", False)
+    if quiet:
+        os.environ["TQDM_DISABLE"] = "1"  # every progress bar, including the library's own
+    if verbose:
+        import logging
 
-        configure()
+        logging.basicConfig(level=logging.INFO, format="%(name)s: %(message)s")
+    try:
+        if args.command in ("simulate", "gallery", "demo", "fit", "accuracy", "design"):
+            from .apps.jaxconfig import configure
+
+            configure()
+        code = _run(args, quiet=quiet, verbose=verbose)
+        _SESSION["complete"] = True
+        return code
+    except KeyboardInterrupt:
+        if _INTERRUPT_LOCK.acquire(blocking=False):  # not already reported by the watcher thread
+            print(f"\n{_interrupted_line()}", file=sys.stderr)  # on its own line, after a progress bar
+        return 130
+
+
+def _run(args, *, quiet: bool, verbose: bool) -> int:
     from .config import ConfigError
 
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), contextlib.redirect_stdout(io.StringIO()) if quiet else contextlib.nullcontext():
         warnings.showwarning = _show_warning
         try:
             return int(args.func(args) or 0)
-        except ConfigError as e:
-            print(f"error: {' '.join(str(e).split())}", file=sys.stderr)
-            return 2
-        except FileNotFoundError as e:
-            print(f"error: {e}", file=sys.stderr)
+        except (ConfigError, FileNotFoundError, FileExistsError, NotADirectoryError) as e:
+            if verbose:
+                import traceback
+
+                traceback.print_exc()
+            text = str(e) if isinstance(e, OSError) else " ".join(str(e).split())
+            print(f"error: {text}", file=sys.stderr)
             return 2
 
 
@@ -384,8 +614,15 @@ def entry() -> None:
     frees JAX's compiled programs one by one, 0.6-0.8 s after a fit (measured), while every
     output is written and closed when `main` returns; so streams are flushed and `os._exit`
     ends the process. Under a profiler or tracer (cProfile, coverage), or with
-    `DIFFLATTICE_FAST_EXIT=0`, the normal shutdown runs (their reports are written at exit)."""
-    code = main()
+    `DIFFLATTICE_FAST_EXIT=0`, the normal shutdown runs (their reports are written at exit).
+    Ctrl-C ends it with one line and code 130 (`_install_interrupt_handler`)."""
+    _install_interrupt_handler()
+    try:
+        code = main()
+    except KeyboardInterrupt:  # before main's own handling began (parsing the command line)
+        print("interrupted (Ctrl-C): no output was written", file=sys.stderr)
+        code = 130
+    _MAIN_DONE.set()
     if (
         os.environ.get("DIFFLATTICE_FAST_EXIT", "1") == "0"
         or sys.getprofile() is not None

@@ -246,9 +246,10 @@ MAX_LEGEND_ENTRIES = 8
 """Probe time series: a legend up to this many probes, a colour bar (probe index) beyond."""
 
 
-def time_series_plot(t_s, series, labels):
+def time_series_plot(t_s, series, labels, *, ylabel: str = "pressure (Pa)"):
     """Pressure against time (µs), one curve per column of `series`. Up to `MAX_LEGEND_ENTRIES`
-    curves get a legend entry each; more are coloured by their index with a colour bar."""
+    curves get a legend entry each; more are coloured by their index with a colour bar. `ylabel`
+    names the quantity and its unit (e.g. a transducer's weighted sum is not a pressure in Pa)."""
     series = np.asarray(series).reshape(len(np.asarray(t_s)), -1)
     n = series.shape[1]
     fig = Figure(figsize=(8, 4))
@@ -266,7 +267,7 @@ def time_series_plot(t_s, series, labels):
         sm = matplotlib.cm.ScalarMappable(norm=norm, cmap=cmap)
         fig.colorbar(sm, ax=ax, label=f"probe index ({n} probes)")
     ax.set_xlabel("time (µs)")
-    ax.set_ylabel("pressure (Pa)")
+    ax.set_ylabel(ylabel)
     ax.grid(True, alpha=0.3)
     return fig
 

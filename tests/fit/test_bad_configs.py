@@ -370,7 +370,10 @@ def test_every_cli_option_shows_its_default() -> None:
     for p in walk(build_parser()):
         fmt = p._get_formatter()
         for a in p._actions:
-            flag = isinstance(a, (argparse._HelpAction, argparse._StoreTrueAction, argparse._StoreFalseAction))
+            flag = isinstance(
+                a,
+                (argparse._HelpAction, argparse._VersionAction, argparse._StoreTrueAction, argparse._StoreFalseAction),
+            )
             if not a.option_strings or a.required or flag or a.help == argparse.SUPPRESS:
                 continue
             text = fmt._expand_help(a) if a.help else ""

@@ -73,8 +73,14 @@ def run_in_pieces(
     itself is untouched). Pieces also end at each step of `moments`, whose full-resolution fields
     are kept. Snapshots are thinned to every `render_every`-th cell as they arrive.
 
-    Returns (result of the last piece with merged probes, snapshots, their steps,
-    compile+first-segment time, {moment step: field})."""
+    While the first piece compiles the bar says so ("simulate (compiling)"): the first run of a
+    scene on a machine pauses there for seconds. A piece of a length not seen before includes its
+    compilation; the pieces of a length seen before give the throughput without it.
+
+    Returns (result of the last piece with merged probes, snapshots, their steps, timing,
+    {moment step: field}); timing holds "first_segment_incl_compile_s", "steady_steps" and
+    "steady_s" (the pieces without compilation) and "compile_s" (the rest of the time, less what
+    those steps would take at the steady rate; None when no piece length repeated)."""
     from tqdm import tqdm
 
     if render_every < 1:
@@ -93,14 +99,23 @@ def run_in_pieces(
     kept = {}
     done = 0
     first_time = None
-    bar = tqdm(total=n_steps, unit="step", disable=not progress, desc="simulate")
+    seen: set[int] = set()
+    fresh_steps, fresh_s, steady_steps, steady_s = 0, 0.0, 0, 0.0
+    bar = tqdm(total=n_steps, unit="step", disable=not progress, desc="simulate (compiling)")
     for end in _piece_ends(n_steps, seg, k, wanted):
         n = end - done
         t0 = time.perf_counter()
         res = runner(state, stepper, n)
         jax.block_until_ready(res.peak_history)
+        dt = time.perf_counter() - t0
         if first_time is None:
-            first_time = time.perf_counter() - t0
+            first_time = dt
+            bar.set_description("simulate")
+        if n in seen:
+            steady_steps, steady_s = steady_steps + n, steady_s + dt
+        else:
+            seen.add(n)
+            fresh_steps, fresh_s = fresh_steps + n, fresh_s + dt
         state = res.final
         if res.probes is not None:
             probes.append(res.probes)
@@ -129,7 +144,13 @@ def run_in_pieces(
         p_rms=None if res.final.p_sq is None else jnp.sqrt(res.final.p_sq / n_steps),
         n_steps=n_steps,
     )
-    return merged, snaps, snap_steps, first_time, kept
+    timing = {
+        "first_segment_incl_compile_s": first_time,
+        "steady_steps": steady_steps,
+        "steady_s": steady_s,
+        "compile_s": max(0.0, fresh_s - fresh_steps * steady_s / steady_steps) if steady_steps else None,
+    }
+    return merged, snaps, snap_steps, timing, kept
 
 
 def run_scene(scene: Scene, *, progress: bool = True) -> SceneRun:
@@ -141,7 +162,7 @@ def run_scene(scene: Scene, *, progress: bool = True) -> SceneRun:
     checkpoint = None if scene.run["checkpoint"] == "none" else "sqrt"
     t0 = time.perf_counter()
     every = built.render_every
-    result, snaps, snap_steps, first, moments = run_in_pieces(
+    result, snaps, snap_steps, timing, moments = run_in_pieces(
         stepper, n_steps, progress=progress, checkpoint=checkpoint, moments=built.show_steps, render_every=every
     )
     wall = time.perf_counter() - t0
@@ -164,8 +185,14 @@ def run_scene(scene: Scene, *, progress: bool = True) -> SceneRun:
             "n_steps": n_steps,
             "duration_s": n_steps * grid.dt_s,
             "wall_time_s": wall,
-            "first_segment_incl_compile_s": first,
+            "first_segment_incl_compile_s": timing["first_segment_incl_compile_s"],
+            "compile_s": timing["compile_s"],
             "mlups": nx * ny * n_steps / wall / 1e6,
+            "mlups_excl_compile": nx * ny * timing["steady_steps"] / timing["steady_s"] / 1e6
+            if timing["steady_s"] > 0
+            else None,
+            "note": "mlups: over the whole run, compilation included; mlups_excl_compile: over the pieces "
+            "that did not compile (compile_s: the rest of the time less those steps at that rate)",
             "device": str(jax.devices()[0]),
             "machine": platform.machine(),
         },
@@ -234,9 +261,19 @@ def _mirror_rz(field):
 
 
 def write_outputs(
-    sr: SceneRun, out_dir: str | Path, *, animate: bool = True, frames: bool | None = None, animation: str | None = None
+    sr: SceneRun,
+    out_dir: str | Path,
+    *,
+    animate: bool = True,
+    frames: bool | None = None,
+    animation: str | None = None,
+    data_format: str = "npz",
 ) -> dict[str, str | list[str]]:
-    """Write summary.json, sensors.npz and images into `out_dir`; returns the paths.
+    """Write summary.json, the sensor data and images into `out_dir`; returns the paths.
+
+    Data: sensors.npz (`data_format` "npz") or sensors.nc ("netcdf": NetCDF-4 for xarray / h5py,
+    coordinates in m and s, units as attributes; see `apps.datafiles`), and the CSV tables
+    probes.csv (t_s, probe_<i>_pa) and lobe.csv (angle_deg, level_db) where recorded.
 
     Images: field.png (last step), moment_<step>.png per `[output]` show step, peak_level.png,
     lobe.png, probes.png, and for snapshots frames/frame_NNNN.png (unless `frames` is False) and
@@ -245,7 +282,9 @@ def write_outputs(
     `sr.render_every`-th cell."""
     from .. import plots
     from ..scene.model import ANIMATION_KINDS
+    from . import datafiles
 
+    datafiles.check_format(data_format)
     out_cfg = getattr(sr.scene, "output", None) or {}
     if frames is None:
         frames = out_cfg.get("frames", True)
@@ -274,9 +313,20 @@ def write_outputs(
         arrays["arrival_step"] = np.asarray(res.arrival)
     if sr.lobe is not None:
         arrays["lobe_angle_deg"], arrays["lobe_level_db"] = sr.lobe
-    # numpy's stub also matches `**arrays` against `allow_pickle: bool`; every value here is an array
-    np.savez_compressed(out / "sensors.npz", **arrays)  # type: ignore[arg-type]
-    files["sensors"] = str(out / "sensors.npz")
+    if data_format == "netcdf":
+        files["sensors"] = str(datafiles.netcdf_2d(sr, arrays, out / "sensors.nc"))
+    else:
+        # numpy's stub also matches `**arrays` against `allow_pickle: bool`; every value here is an array
+        np.savez_compressed(out / "sensors.npz", **arrays)  # type: ignore[arg-type]
+        files["sensors"] = str(out / "sensors.npz")
+    if res.probes is not None and len(st.sensors.probes):
+        t = (np.arange(len(res.probes)) + 1) * g.dt_s
+        cols = {"t_s": t} | {f"probe_{i}_pa": c for i, c in enumerate(np.asarray(res.probes).reshape(len(t), -1).T)}
+        files["probes_csv"] = str(datafiles.write_csv(out / "probes.csv", cols))
+    if sr.lobe is not None:
+        files["lobe_csv"] = str(
+            datafiles.write_csv(out / "lobe.csv", {"angle_deg": sr.lobe[0], "level_db": sr.lobe[1]})
+        )
 
     obst = obstacle_map(st)
     src_cells = [s.cells_array for s in st.sources]

@@ -611,8 +611,21 @@ def run_scene3d(
     build_s = time.perf_counter() - t0
 
     t1 = time.perf_counter()
-    result = eqx.filter_jit(lambda st: check_result(run(st, n_steps), st))(stepper)
+    if not quiet:
+        print("compiling the 3-D time loop (seconds; cached for the next run) ...", file=sys.stderr, flush=True)
+
+    def whole_run(st):
+        return check_result(run(st, n_steps), st)
+
+    jitted: Any = eqx.filter_jit(whole_run)
+    compiled = jitted.lower(stepper).compile()
+    compile_s = time.perf_counter() - t1
+    if not quiet:
+        print(f"compiled in {compile_s:.1f} s; running {n_steps} steps ...", file=sys.stderr, flush=True)
+    t2 = time.perf_counter()
+    result = compiled(stepper)
     jax.block_until_ready(result.peak_history)
+    run_s = time.perf_counter() - t2
     wall = time.perf_counter() - t1
     memory = _peak_memory_bytes()
 
@@ -665,8 +678,11 @@ def run_scene3d(
             "duration_s": n_steps * grid.dt_s,
             "build_s": build_s,
             "wall_time_s": wall,
-            "note": "wall_time_s: the time loop including its compilation",
+            "compile_s": compile_s,
+            "note": "wall_time_s: the time loop including its compilation (compile_s); mlups over wall_time_s, "
+            "mlups_excl_compile over the run alone",
             "mlups": math.prod(shape) * n_steps / wall / 1e6,
+            "mlups_excl_compile": math.prod(shape) * n_steps / run_s / 1e6,
             "device": str(jax.devices()[0]),
             "machine": platform.machine(),
             "load_average": list(os.getloadavg()),
@@ -694,21 +710,28 @@ def _plane_label(axis: int, index: int, dx_m: float) -> tuple[str, tuple[str, st
     return f"{names[0]}-{names[1]} at {'xyz'[axis]} = {index * dx_m * 1e3:.1f} mm", (names[0], names[1])
 
 
-def write_outputs3d(sr: SceneRun3D, out_dir: str | Path) -> dict:
+def write_outputs3d(sr: SceneRun3D, out_dir: str | Path, *, data_format: str = "npz") -> dict:
     """Write a 3-D run's outputs into `out_dir`; returns the paths:
 
-    - a_scan.csv (t_s and one column per receiving transducer) and a_scan.json (the same with
-      the echo window), a_scan.png;
+    - a_scan.csv (a header row, then t_s and one column per receiving transducer,
+      `<name>_pa_x_weight`: the weighted sum of the pressure over its cells, Pa x cell weights,
+      not a pressure) and a_scan.json (the same with the echo window), a_scan.png;
     - peak_slices.png: the peak level (dB re its maximum) on the orthogonal planes of
       `[sensors] snapshot_slices_m` (default: through the transducer's centre), transducer cells
-      in cyan and rigid obstacles outlined; field_slices.png: the pressure at the last step there;
+      in cyan and rigid obstacles outlined; field_slices.png: the pressure there at the last
+      step where the field is not empty (the last snapshot that holds a wave, when the wave has
+      left the window by the end);
     - mip_z.png, mip_y.png: maximum-intensity projections of the peak level along z (seen from
       above) and y (from the side); probes.png: the `[sensors] probes_m` pressures;
     - sensors.npz (probe series, A-scans, the peak-level, RMS and arrival volumes where recorded,
-      snapshot planes), summary.json.
+      snapshot planes) or, with `data_format` "netcdf", sensors.nc (the same with coordinates in
+      m and s and units as attributes); probes.csv (t_s, probe_<i>_pa) where probes were given;
+      summary.json.
     """
     from .. import plots
+    from . import datafiles
 
+    datafiles.check_format(data_format)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     g, res, built = sr.grid, sr.result, sr.built
@@ -721,8 +744,8 @@ def write_outputs3d(sr: SceneRun3D, out_dir: str | Path) -> dict:
         names = list(sr.a_scans)
         t = next(iter(sr.a_scans.values()))[0]
         cols = np.stack([sr.a_scans[n][1] for n in names], axis=1)
-        np.savetxt(out / "a_scan.csv", np.column_stack([t, cols]), delimiter=",", header=",".join(["t_s", *names]))
-        files["a_scan_csv"] = str(out / "a_scan.csv")
+        table = {"t_s": t} | {datafiles.column_name(n, "pa_x_weight"): sr.a_scans[n][1] for n in names}
+        files["a_scan_csv"] = str(datafiles.write_csv(out / "a_scan.csv", table))
         doc = {
             "dt_s": g.dt_s,
             "t_s": t.tolist(),
@@ -731,14 +754,18 @@ def write_outputs3d(sr: SceneRun3D, out_dir: str | Path) -> dict:
         }
         (out / "a_scan.json").write_text(json.dumps(doc))
         files["a_scan_json"] = str(out / "a_scan.json")
-        files["a_scan_png"] = str(plots.save(plots.time_series_plot(t, cols, names), out / "a_scan.png"))
+        fig = plots.time_series_plot(t, cols, names, ylabel=A_SCAN_LABEL)
+        files["a_scan_png"] = str(plots.save(fig, out / "a_scan.png"))
         for n in names:
             arrays[f"a_scan_{n}"] = sr.a_scans[n][1]
     n_user = min((r.start for r in built.receivers), default=built.sensors.n_probes)
     if res.probes is not None and n_user > 0:  # the [sensors] probes_m points (before the receivers' cells)
         t = (np.arange(res.probes.shape[0]) + 1) * g.dt_s
-        fig = plots.time_series_plot(t, np.asarray(res.probes)[:, :n_user], [f"probe {i}" for i in range(n_user)])
+        user = np.asarray(res.probes)[:, :n_user]
+        fig = plots.time_series_plot(t, user, [f"probe {i}" for i in range(n_user)])
         files["probes"] = str(plots.save(fig, out / "probes.png"))
+        cols_p = {"t_s": t} | {f"probe_{i}_pa": user[:, i] for i in range(n_user)}
+        files["probes_csv"] = str(datafiles.write_csv(out / "probes.csv", cols_p))
     planes = built.sensors.snapshot_planes(tuple(g.shape)) or ()
     src_cells = [np.asarray(s.cells_array) for s in built.sources]
     rigid = None if built.medium.rigid is None else np.asarray(built.medium.rigid)
@@ -771,18 +798,15 @@ def write_outputs3d(sr: SceneRun3D, out_dir: str | Path) -> dict:
         for axis in (2, 1):
             fig = plots.max_intensity_projection(pmax, g.dx_m, axis=axis, floor_db=-40.0)
             files[f"mip_{'xyz'[axis]}"] = str(plots.save(fig, out / f"mip_{'xyz'[axis]}.png"))
-    final = np.asarray(res.final.pressure)
-    field_planes = {}
-    for axis, index in planes:
-        label, axes = _plane_label(axis, index, g.dx_m)
-        field_planes[label] = (axes, plane(final, axis, index))
     n_steps = sr.summary["run"]["n_steps"]
+    step, field_planes = _last_field_planes(sr, planes)
+    note = "" if step == n_steps else f", the last snapshot that holds a wave (the run ends at step {n_steps})"
     fig = plots.slices_3d(
         field_planes,
         g.dx_m,
         marks=marks,
         outlines=outlines,
-        title=f"pressure at step {n_steps} ({n_steps * g.dt_s * 1e6:.0f} µs)",
+        title=f"pressure at step {step} ({step * g.dt_s * 1e6:.0f} µs){note}",
     )
     files["field_slices"] = str(plots.save(fig, out / "field_slices.png"))
     if res.snapshots is not None:
@@ -790,12 +814,44 @@ def write_outputs3d(sr: SceneRun3D, out_dir: str | Path) -> dict:
         for (axis, index), s in zip(planes, snaps):
             arrays[f"snapshots_{'xyz'[axis]}{index}_pa"] = np.asarray(s)
         arrays["snapshot_steps"] = np.asarray(res.snapshot_steps)
-    np.savez_compressed(out / "sensors.npz", allow_pickle=False, **arrays)
-    files["sensors"] = str(out / "sensors.npz")
+    if data_format == "netcdf":
+        files["sensors"] = str(datafiles.netcdf_3d(sr, arrays, out / "sensors.nc"))
+    else:
+        np.savez_compressed(out / "sensors.npz", allow_pickle=False, **arrays)
+        files["sensors"] = str(out / "sensors.npz")
     sr.summary["files"] = files
     (out / "summary.json").write_text(json.dumps(sr.summary, indent=2, default=_json_default))
     files["summary"] = str(out / "summary.json")
     return files
+
+
+A_SCAN_LABEL = "weighted sum over the face (Pa x cell weight)"
+"""The A-scan's quantity: the receiving transducer's weighted sum of the pressure over its cells
+(`received_signal`), in Pa times the (dimensionless) cell weights; not a pressure."""
+
+EMPTY_FIELD = 1e-3
+"""A field slice whose largest |p| is below this fraction of the run's peak counts as empty."""
+
+
+def _last_field_planes(sr: SceneRun3D, planes) -> tuple[int, dict]:
+    """The field on the snapshot planes at the last step where it is not empty: the last step of
+    the run, or, where the wave has left the window by then (below `EMPTY_FIELD` x the run's
+    peak), the last recorded snapshot above that. Returns (step, {label: (axes, 2-D array)})."""
+    g, res = sr.grid, sr.result
+    n_steps = sr.summary["run"]["n_steps"]
+    final = np.asarray(res.final.pressure)
+    labels = [_plane_label(axis, index, g.dx_m) for axis, index in planes]
+    final_planes = {lab: (axes, np.take(final, index, axis=axis)) for (lab, axes), (axis, index) in zip(labels, planes)}
+    peak = float(sr.summary["stability"]["peak_pa"]) or 1.0
+    level = max((float(np.abs(a).max()) for _, a in final_planes.values()), default=0.0)
+    if level >= EMPTY_FIELD * peak or res.snapshots is None or res.snapshot_steps is None:
+        return n_steps, final_planes
+    snaps = [np.asarray(s) for s in (res.snapshots if isinstance(res.snapshots, tuple) else (res.snapshots,))]
+    steps = np.asarray(res.snapshot_steps).reshape(-1)
+    for k in range(len(steps) - 1, -1, -1):
+        if max(float(np.abs(s[k]).max()) for s in snaps) >= EMPTY_FIELD * peak:
+            return int(steps[k]), {lab: (axes, s[k]) for (lab, axes), s in zip(labels, snaps)}
+    return n_steps, final_planes
 
 
 def _json_default(o):

@@ -637,6 +637,22 @@ def _make_grid(scene: Scene, mats: list[Material]) -> Grid:
         for i, v in enumerate(g[key] or ()):
             if not v > 0:
                 _fail(p, f"grid.{key}", f"= {list(g[key])}: entry {i} ({kind.axis_names[i]}) must be > 0")
+    if g["size_m"] is not None:  # each size must span cells at this resolution (make_grid would clamp it)
+        dx = None
+        try:
+            fastest_c = max(m.speed_m_s for m in mats if m.kind == "fluid")
+            dx = fastest_c / (g["frequency_hz"] * g["cells_per_wavelength"])
+        except ValueError:
+            pass
+        if dx is not None:
+            small = [s for s in g["size_m"] if round(s / dx) < 3]
+            if small:
+                _fail(
+                    p,
+                    "grid.size_m",
+                    f"= {list(g['size_m'])} m: {small[0]:g} m is fewer than 3 cells of {dx * 1e3:.3g} mm at this "
+                    "resolution; give each size in metres, at least a few wavelengths plus the edge layers",
+                )
     default = kind.default_courant
     courant = default if g["courant"] is None else float(g["courant"])
     air_cond = scene.air_conditions()

@@ -39,6 +39,7 @@ class GridSection(Section):
         None,
         kind="list",
         items="number",
+        gt=0,
         unit="m",
         doc="[width, height] of the window (rz: [z length, radius]; 3d: [x, y, z] sizes; or give shape)",
     )
@@ -46,6 +47,7 @@ class GridSection(Section):
         None,
         kind="list",
         items="int",
+        ge=1,
         unit="cells",
         doc="[nx, ny] cells (rz: [nz, nr]; 3d: [nx, ny, nz]; or give size_m)",
     )
@@ -243,7 +245,7 @@ class ObjectSection(Section):
     )
     radius_m: float | None = setting(None, kind="number", gt=0, unit="m", doc="circle, sphere or cylinder radius")
     size_m: tuple | None = setting(
-        None, kind="list", items="number", unit="m", doc="3d box: edge lengths [x, y, z] (with centre_m)"
+        None, kind="list", items="number", gt=0, unit="m", doc="3d box: edge lengths [x, y, z] (with centre_m)"
     )
     angles_deg: tuple | None = setting(
         None,
@@ -332,7 +334,7 @@ class RunSection(Section):
     """How long to run: `n_steps` or `duration_s`."""
 
     SECTION: ClassVar[str] = "run"
-    n_steps: int | None = setting(None, kind="int", doc="number of time steps (or give duration_s)")
+    n_steps: int | None = setting(None, kind="int", ge=1, doc="number of time steps (or give duration_s)")
     duration_s: float | None = setting(None, kind="number", gt=0, unit="s", doc="simulated time")
     checkpoint: str = setting(
         "none", kind="str", choices=("none", "sqrt"), doc="none or sqrt (memory-bounded gradients)"

@@ -1067,8 +1067,9 @@ def run_fit(cfg: FitConfig, *, out: str | Path | None = None, quick: bool = Fals
 
 def _print_summary(rep: dict, out_dir: Path) -> None:
     f = rep["fit"]
-    if not f["converged"]:
-        print("!" * 72 + f"\n!! FIT DID NOT CONVERGE: {f['result_code']} after {f['n_steps']} steps\n" + "!" * 72)
+    verdict = f["outcome"]
+    if verdict["outcome"] != "consistent":
+        print("!" * 72 + f"\n!! {verdict['line']}\n" + "!" * 72)
     for w in f["warnings"]:
         print(f"warning: {w}")
     p = f["parameters"]
@@ -1081,26 +1082,41 @@ def _print_summary(rep: dict, out_dir: Path) -> None:
     t = rep["provenance"]["timing_s"]
     d = next((e for e in rep.get("budget", {}).get("scalars", []) if e["name"] == "diameter_mm"), None)
     dtxt = (
-        f"{p['diameter_m'] * 1e3:.3f} ± {p['diameter_stderr_m'] * 1e3:.3f} (stat)"
+        f"{p['diameter_m'] * 1e3:.3f} (fixed)"
         if d is None
         else f"{d['limit']} ({d['status']})"
         if d["status"] == "at_bound"
-        else f"{d['value']:.3f} ± {d['stat']:.3f} (stat) ± {d['systematic']:.3f} (sys) = ± {d['total']:.3f}"
+        else f"{d['value']:.3f} ({d['status']}: {d['note']})"
+        if d["status"] != "determined"
+        else f"{d['value']:.4g} ± {d['stat']:.2g} (stat) ± {d['systematic']:.2g} (sys) = ± {d['total']:.2g}"
     )
     print(
-        f"fit: {f['result_code']} in {f['n_steps']} steps; D = {dtxt} mm; RMS {rms}; chi2_red {f['chi2_reduced']:.3g}; "
+        f"fit: {f['result_code']} in {f['n_steps']} steps; D = {dtxt} mm; RMS {rms}; {_chi2_text(f)}; "
         f"transfer {t['transfer_simulation']:.1f} s + fit {t['fit']:.1f} s + error budget {t.get('error_budget', 0):.1f} s"
     )
     for u in rep.get("budget", {}).get("undetermined", []):
         print(f"not determined by the data: {u}")
     print(f"report: {out_dir / 'report.md'}")
+    print(f"{verdict['outcome'].replace('_', ' ')} (exit {verdict['exit_code']}): {verdict['line']}")
+
+
+def _chi2_text(f: dict) -> str:
+    """'chi2_red 0.98 (p 0.61; lobe 1.0, wave 0.93)': per measured datum, joint and per data set."""
+    g = f.get("goodness") or {}
+    j = g.get("joint")
+    if j is None:
+        return f"chi2_red {f['chi2_reduced']:.3g}"
+    sets = ", ".join(f"{k} {g[k]['chi2_reduced']:.3g}" for k in ("lobe", "wave") if k in g)
+    return f"chi2_red {j['chi2_reduced']:.3g} (p {j['p']:.2g}; {sets})"
 
 
 def run_fit_config(path: str | Path, *, out=None, quick: bool = False) -> int:
-    """`difflattice fit`: load, run, report; exit code 0 (converged) or 3 (did not converge)."""
+    """`difflattice fit`: load, run, report; exit code 0 (converged and consistent with the data),
+    3 (did not converge) or 4 (converged, but the model does not describe the data): see
+    `fit.verdict`."""
     cfg = load_config(path)
     rep = run_fit(cfg, out=out, quick=quick)
-    return 0 if rep["fit"]["converged"] else 3
+    return int(rep["fit"]["outcome"]["exit_code"])
 
 
 def config_markdown() -> str:

@@ -85,6 +85,7 @@ def _summary(r: FitResult) -> dict:
         "compile_s": r.trace.compile_s if r.trace is not None else None,
         "cost": r.cost,
         "chi2_reduced": r.chi2_reduced,
+        "goodness": r.goodness,
         "variance_factor": r.variance_factor,
         "effective_params": r.effective_params,
         "dof": r.dof,
@@ -406,6 +407,7 @@ def write_report(
     "weights", "lags_s"}): overlaid on the aperture plot (emulated data). `figures`: the figures
     `start_figures` began (`field_image` then applies there); else they are drawn here."""
     from .uncertainty import error_budget
+    from .verdict import fit_outcome
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -419,6 +421,7 @@ def write_report(
                 "(fit.uncertainty.error_budget); the totals are statistical (chi2-inflated) only"
             )
         rep = {"fit": _summary(fitted), "budget": budget.to_dict(), "provenance": provenance, "transfer": transfer.info}
+        rep["fit"]["outcome"] = fit_outcome(fitted, budget)
         if uniform is not None:
             rep["untuned_uniform_model"] = {
                 "rms": uniform.rms,
@@ -556,6 +559,12 @@ def _markdown(rep: dict, fitted: FitResult, uniform: FitResult | None, budget) -
     f = rep["fit"]
     m = f["model"]
     lines = ["# Fit report", ""]
+    verdict = f.get("outcome")
+    if verdict is not None:
+        lines += [
+            f"**Outcome: {verdict['outcome'].replace('_', ' ')}** (exit code {verdict['exit_code']}): {verdict['line']}",
+            "",
+        ]
     if not f["converged"]:
         lines += [
             "> **WARNING: THE FIT DID NOT CONVERGE** (`"
@@ -580,12 +589,14 @@ def _markdown(rep: dict, fitted: FitResult, uniform: FitResult | None, budget) -
         + f"; loss {f['loss']}",
         f"- convergence: **{'converged' if f['converged'] else 'NOT CONVERGED'}** — {c['reason']} ({stages} steps; "
         f"{f['wall_time_s']:.2f} s, of which compilation {_fmt(f['compile_s'], '.2f')} s)",
-        f"- reduced chi-square (all data points): {f['chi2_reduced']:.3g}; variance factor of the errors: "
-        f"{f['variance_factor']:.3g} (1 = residuals at the stated noise); effective parameters {f['effective_params']:.1f}",
+        f"- reduced chi-square (all data points, one residual per measured datum): {f['chi2_reduced']:.3g}; "
+        f"variance factor of the errors: {f['variance_factor']:.3g} (1 = residuals at the stated noise); "
+        f"effective parameters {f['effective_params']:.1f}",
         f"- Jacobian condition number: {f['condition_number']:.3g}",
         "- strongest correlations of the fitted parameters: "
         + (", ".join(f"{a}/{b} {v:+.2f}" for a, b, v in f["correlation"]["strongest"]) or "n/a"),
     ]
+    lines += _goodness_lines(f)
     for name, o in f["outliers"].items():
         lines.append(
             f"- {name} residuals: RMS {o['rms']:.3g} sigma, robust sigma (MAD) {o['robust_sigma']:.3g}; "
@@ -630,6 +641,34 @@ def _markdown(rep: dict, fitted: FitResult, uniform: FitResult | None, budget) -
     prov = rep["provenance"]
     lines += ["## Provenance", "", "```json", json.dumps(prov, indent=2, default=_default), "```", ""]
     return "\n".join(lines)
+
+
+def _goodness_lines(f: dict) -> list[str]:
+    """The goodness-of-fit table: chi-square per data set and joint, counted per measured datum."""
+    g = f.get("goodness") or {}
+    if not g:
+        return []
+    lines = [
+        "",
+        "| data set | points | dof | chi2 | chi2_red | P(chi2 >= this) | sign runs (noise: expected) | P(runs <= this) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for key, name in (("lobe", "lobe"), ("wave", "wavefront"), ("joint", "joint")):
+        s = g.get(key)
+        if not s:
+            continue
+        runs = f"{s['runs']} ({s['runs_expected']:.1f})" if "runs" in s else "—"
+        lines.append(
+            f"| {name} | {s['n']} | {s['dof']:.1f} | {s['chi2']:.4g} | {s['chi2_reduced']:.3g} | {s['p']:.3g} | "
+            f"{runs} | {s['runs_p']:.3g} |"
+        )
+    lines += [
+        "",
+        f"dof = points less the set's share of the fitted parameters (its leverages); a probability below "
+        f"{g.get('p_min', 1e-3):g} means the model does not describe that data set at the stated noise.",
+        "",
+    ]
+    return lines
 
 
 def _top_correlations(r: FitResult, k: int = 3) -> list:

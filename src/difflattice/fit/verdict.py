@@ -1,0 +1,105 @@
+"""A fit's outcome in one of three classes, each with its own exit code and console line.
+
+- **consistent** (exit 0): converged, every data set's chi-square probability (per measured
+  datum, `solve.goodness_of_fit`) and residual-sign runs test at or above `GOODNESS_P_MIN`, no
+  fitted parameter at a bound of its allowed range;
+- **inadequate** (exit 4): converged, but the model does not describe the data: a chi-square or
+  runs-test probability below `GOODNESS_P_MIN`, or a parameter pinned at a bound (the optimum lies
+  outside what the model allows); the line names the failing test and suggests a model change;
+- **not converged** (exit 3): the last iterate is not an optimum.
+
+Configuration and data errors exit 2 before a fit starts (`difflattice fit --help`).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # no JAX at import: `difflattice fit --help` shows the exit codes
+    from .solve import FitResult
+
+GOODNESS_P_MIN = 1e-3
+"""A fit whose chi-square probability, or the runs test of a data set's residual signs, falls
+below this is judged not to describe the data (a correct model at the stated noise fails one
+fit in a thousand by each test)."""
+
+EXIT_CONSISTENT = 0
+EXIT_NOT_CONVERGED = 3
+EXIT_INADEQUATE = 4
+EXIT_CODES_HELP = f"""exit codes:
+  0  converged and consistent with the data: per data set, the chi-square probability (one residual
+     per measured datum) and the residual-sign runs test >= {GOODNESS_P_MIN:g}; no parameter at a bound
+  2  unusable config or data (one line naming the key or the file's column and the accepted units)
+  3  the fit did not converge (the report holds the last iterate)
+  4  converged, but the model does not describe the data (the line names the failed test and
+     suggests a model change)"""
+_SETS = {"lobe": "lobe", "wave": "wavefront"}
+_HINTS = {
+    "lobe": 'a richer weight profile (model.weights = "smooth" with a larger model.n_basis, or "free"), a '
+    "baffle or directivity the model lacks, or the lobe sigmas too small (data.lobe_sigma_db of a plain table)",
+    "wave": 'a richer lag profile (model.lags = "smooth" with a larger model.n_basis, or "free"), the '
+    "wavefront's distance or the phase sigma (solver.wave_sigma_deg) too small",
+}
+
+
+def fit_outcome(result: FitResult, budget=None) -> dict:
+    """{"outcome": "consistent" | "inadequate" | "not_converged", "exit_code", "line" (the
+    console's one-line verdict), "reasons" (list), "suggestion"} for a fit and (optionally) its
+    error budget (`fit.uncertainty.ErrorBudget`, whose at-bound parameters count against it)."""
+    g = result.goodness
+    chi = g.get("joint", {})
+    stats = f"chi2_red {chi.get('chi2_reduced', result.chi2_reduced):.3g} (p = {chi.get('p', float('nan')):.2g})"
+    if not result.converged:
+        return {
+            "outcome": "not_converged",
+            "exit_code": EXIT_NOT_CONVERGED,
+            "line": f"FIT DID NOT CONVERGE ({result.result_code} after {result.n_steps} steps): the result is the "
+            "last iterate, not an optimum; raise solver.max_steps, start nearer (model.line_length_m) or check "
+            "the data",
+            "reasons": [result.convergence.get("reason", result.result_code)],
+            "suggestion": "raise solver.max_steps or check the model and the data",
+        }
+    reasons, hints = [], []
+    for key, name in _SETS.items():
+        s = g.get(key)
+        if not s:
+            continue
+        robust = result.loss != "l2"
+        if not robust and s["p"] < GOODNESS_P_MIN:
+            reasons.append(
+                f"{name} chi2_red {s['chi2_reduced']:.3g} over {s['dof']:.1f} dof, p = {s['p']:.2g} < {GOODNESS_P_MIN:g}"
+            )
+            hints.append(_HINTS[key])
+        elif s.get("runs_p", 1.0) < GOODNESS_P_MIN:
+            reasons.append(
+                f"{name} residuals structured: {s['runs']} sign runs where noise gives {s['runs_expected']:.0f} "
+                f"(p = {s['runs_p']:.2g})"
+            )
+            hints.append(_HINTS[key])
+    if result.loss != "l2" and chi and result.variance_factor > 1:
+        from scipy.stats import chi2 as chi2_dist
+
+        p = float(chi2_dist.sf(result.variance_factor * chi["dof"], chi["dof"]))
+        if p < GOODNESS_P_MIN:
+            reasons.append(f"{result.loss} variance factor {result.variance_factor:.3g}, p = {p:.2g}")
+            hints.append("a richer model: the residuals exceed the noise beyond the outliers the loss sets aside")
+    for e in [] if budget is None else budget.scalars:
+        if e.status == "at_bound":
+            reasons.append(f"{e.name} at a bound ({e.limit}): {e.note}")
+            hints.append(e.note.split(": ", 1)[-1] if ": " in e.note else "widen the parameter's allowed range")
+    if not reasons:
+        return {
+            "outcome": "consistent",
+            "exit_code": EXIT_CONSISTENT,
+            "line": f"fit converged and consistent with the data: {stats}",
+            "reasons": [],
+            "suggestion": "",
+        }
+    suggestion = "; ".join(dict.fromkeys(hints))
+    return {
+        "outcome": "inadequate",
+        "exit_code": EXIT_INADEQUATE,
+        "line": f"FIT CONVERGED BUT THE MODEL DOES NOT DESCRIBE THE DATA: {'; '.join(reasons)}. Try: {suggestion}",
+        "reasons": reasons,
+        "suggestion": suggestion,
+    }

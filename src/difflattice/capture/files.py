@@ -22,7 +22,8 @@ Header keys are declared once (:class:`ScanHeader`, :class:`Measurement`; the do
 capture command's options are generated from them). ``phase_mdeg`` is the rig's lag of the
 received carrier behind the drive in [0, 360000) (rig protocol, "Field conventions"); the loader
 refuses other values rather than guess a convention. :func:`load_lobe_table` reads a plain
-two-column lobe table (angle_deg, level_db), e.g. a digitised datasheet pattern.
+two-column lobe table whose header names the units (angle_deg | angle_rad, level_db |
+level_linear | level_pa | level_v), e.g. a digitised datasheet pattern.
 """
 
 from __future__ import annotations
@@ -516,13 +517,24 @@ def _f64(values: NDArray[Any]) -> NDArray[np.float64]:
 @dataclass(frozen=True)
 class LobeTable:
     """A plain two-column lobe table: angle [deg] and level [dB, any reference], e.g. a digitised
-    datasheet beam pattern. It carries no frequency, range, temperature or uncertainty: whoever
-    uses it must state them. Rows in file order."""
+    datasheet beam pattern, converted from the units its header names (`units`: the two column
+    names as written, e.g. ``("angle_rad", "level_linear")``). It carries no frequency, range,
+    temperature or uncertainty: whoever uses it must state them. Rows in file order."""
 
     path: Path
     angle_deg: NDArray[np.float64]
     level_db: NDArray[np.float64]
+    units: tuple[str, str] = ("angle_deg", "level_db")
 
+
+ANGLE_UNITS = {"angle_deg": 1.0, "angle_rad": 180.0 / np.pi}
+"""Accepted angle columns of a plain lobe table, with their factor to degrees."""
+LEVEL_UNITS = ("level_db", "level_linear", "level_pa", "level_v")
+"""Accepted level columns: dB (any reference), or an amplitude (dimensionless, Pa or V), read
+as 20 log10 |value| (the fit's gain absorbs the reference)."""
+LEVEL_FLOOR_REL = 1e-6
+"""An amplitude column's zeros (a null of a digitised pattern) become this fraction of its largest
+value (-120 dB re the peak: far below the fit's soft floor)."""
 
 _SPLIT = re.compile(r"[,;\t ]+")
 
@@ -536,12 +548,29 @@ def is_capture_file(path: str | Path) -> bool:
         raise CaptureFileError(f"{path}: cannot read: {exc.strerror}") from None
 
 
-def load_lobe_table(path: str | Path) -> LobeTable:
-    """Load a plain lobe table: lines of ``angle_deg,level_db`` (comma, semicolon, tab or spaces
-    between them), an optional header line naming the two columns (``angle_deg`` and ``level_db``
-    in either order; other names: angle first), ``#`` comments and blank lines ignored.
+def _table_units(path: Path, lineno: int, cells: list[str]) -> tuple[tuple[int, int], tuple[str, str]]:
+    """The (angle, level) column order and names of a lobe table's header line, or a one-line
+    error listing the accepted names."""
+    names = [c.strip().lower() for c in cells]
+    angle = [i for i, n in enumerate(names) if n in ANGLE_UNITS]
+    level = [i for i, n in enumerate(names) if n in LEVEL_UNITS]
+    if len(angle) != 1 or len(level) != 1:
+        raise CaptureFileError(
+            f"{path}:{lineno}: header {', '.join(cells)!s} does not name one angle and one level column with their "
+            f"units; accepted: {' | '.join(ANGLE_UNITS)} and {' | '.join(LEVEL_UNITS)} (e.g. angle_deg,level_db)"
+        )
+    return (angle[0], level[0]), (names[angle[0]], names[level[0]])
 
-    Raises :class:`CaptureFileError` naming the file and line for a row that is not two finite
+
+def load_lobe_table(path: str | Path) -> LobeTable:
+    """Load a plain lobe table: a header line naming the two columns with their units (in either
+    order: ``angle_deg`` or ``angle_rad``; ``level_db`` (any reference) or an amplitude
+    ``level_linear``, ``level_pa``, ``level_v``, read as 20 log10 |value|), then rows of two
+    numbers (comma, semicolon, tab or spaces between them); ``#`` comments and blank lines
+    ignored.
+
+    Raises :class:`CaptureFileError` naming the file and line for a missing header or a column
+    name that is not an accepted unit (the accepted ones listed), a row that is not two finite
     numbers, an angle outside [-180, 180] deg, or fewer than 3 rows."""
     path = Path(path)
     try:
@@ -550,37 +579,41 @@ def load_lobe_table(path: str | Path) -> LobeTable:
         raise CaptureFileError(
             f"{path}: cannot read as a text table: {getattr(exc, 'strerror', None) or exc}"
         ) from None
-    order = (0, 1)
+    order: tuple[int, int] | None = None
+    units = ("angle_deg", "level_db")
     rows: list[tuple[float, float]] = []
-    header_seen = False
     for lineno, line in enumerate(text.splitlines(), start=1):
         line = line.split("#", 1)[0].strip()
         if not line:
             continue
         cells = [c for c in _SPLIT.split(line) if c]
         if len(cells) != 2:
-            raise CaptureFileError(
-                f"{path}:{lineno}: expected 2 columns (angle_deg, level_db), got {len(cells)}: {line!r}"
-            )
+            raise CaptureFileError(f"{path}:{lineno}: expected 2 columns (angle, level), got {len(cells)}: {line!r}")
         try:
             a, b = float(cells[0]), float(cells[1])
         except ValueError:
-            if rows or header_seen:
-                raise CaptureFileError(
-                    f"{path}:{lineno}: expected two numbers (angle_deg, level_db), got {line!r}"
-                ) from None
-            names = [c.strip().lower() for c in cells]
-            if set(names) == {"angle_deg", "level_db"}:
-                order = (names.index("angle_deg"), names.index("level_db"))
-            header_seen = True
+            if order is not None:
+                raise CaptureFileError(f"{path}:{lineno}: expected two numbers (angle, level), got {line!r}") from None
+            order, units = _table_units(path, lineno, cells)
             continue
-        ang, lev = (a, b)[order[0]], (a, b)[order[1]]
+        if order is None:
+            raise CaptureFileError(
+                f"{path}:{lineno}: no header line naming the columns' units before the first row; add one, "
+                f"e.g. angle_deg,level_db (accepted: {' | '.join(ANGLE_UNITS)} and {' | '.join(LEVEL_UNITS)})"
+            )
+        ang, lev = (a, b)[order[0]] * ANGLE_UNITS[units[0]], (a, b)[order[1]]
         if not (np.isfinite(ang) and np.isfinite(lev)):
             raise CaptureFileError(f"{path}:{lineno}: non-finite value in {line!r}")
         if not -180.0 <= ang <= 180.0:
             raise CaptureFileError(f"{path}:{lineno}: angle {ang:g} deg outside [-180, 180]")
         rows.append((ang, lev))
     if len(rows) < 3:
-        raise CaptureFileError(f"{path}: a lobe table needs at least 3 rows of angle_deg, level_db; found {len(rows)}")
+        raise CaptureFileError(f"{path}: a lobe table needs at least 3 rows of angle, level; found {len(rows)}")
     arr = np.asarray(rows, dtype=float)
-    return LobeTable(path=path, angle_deg=arr[:, 0], level_db=arr[:, 1])
+    level = arr[:, 1]
+    if units[1] != "level_db":
+        amp = np.abs(level)
+        if not amp.max() > 0:
+            raise CaptureFileError(f"{path}: the {units[1]} column is all zero: no level to fit")
+        level = 20 * np.log10(np.maximum(amp, LEVEL_FLOOR_REL * amp.max()))
+    return LobeTable(path=path, angle_deg=arr[:, 0], level_db=level, units=units)

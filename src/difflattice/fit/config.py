@@ -558,7 +558,7 @@ def _lobe_data(cfg: FitConfig, notes: list[str]):
         table = load_lobe_table(p)
     except CaptureFileError as e:
         raise cfg.error(
-            "data.lobe", f"= {show(d.lobe)} is neither a capture file nor a plain angle_deg, level_db table: {e}"
+            "data.lobe", f"= {show(d.lobe)} is neither a capture file nor a plain lobe table with a units header: {e}"
         ) from None
     for k, what in (
         ("frequency_hz", "the drive frequency in Hz"),
@@ -572,7 +572,7 @@ def _lobe_data(cfg: FitConfig, notes: list[str]):
     assert d.temperature_c is not None and d.lobe_sigma_db is not None
     notes.append(
         f"{p.name}: plain lobe table ({len(table.angle_deg)} points), with frequency {d.frequency_hz:g} Hz, "
-        f"range {d.range_m:g} m, {d.temperature_c:g} degC and sigma {d.lobe_sigma_db:g} dB from the config"
+        f"range {d.range_m:g} m, {d.temperature_c:g} degC and sigma {d.lobe_sigma_db:g} dB from the config; columns {' and '.join(table.units)}"
     )
     return (
         lobe_from_table(

@@ -169,7 +169,9 @@ def test_shipped_config_recovers_the_piston(tmp_path):
     assert rep["fit"]["rms"]["wave_phase_deg"] <= 1.0
 
 
-def piston_capture(*, sig_db: float = 0.2, sig_deg: float = 0.1, seed: int = 7) -> tuple[LobeData, WaveData]:
+def piston_capture(
+    *, sig_db: float = 0.2, sig_deg: float = 0.1, seed: int = 7, diameter_m: float = 0.0384
+) -> tuple[LobeData, WaveData]:
     """An ideal 38.4 mm piston as a capture made by code independent of the fit's model: the
     Rayleigh integral of `capture.groundtruth.Piston` (lobe at the rig's 1 m, wavefront at z =
     16.5 mm), plus Gaussian noise of exactly the stated 1-sigma (`sig_db` on the level,
@@ -177,7 +179,7 @@ def piston_capture(*, sig_db: float = 0.2, sig_deg: float = 0.1, seed: int = 7) 
     from difflattice.capture.groundtruth import Piston
 
     rng = np.random.default_rng(seed)
-    pis = Piston(diameter_m=0.0384)
+    pis = Piston(diameter_m=diameter_m)
     p_lobe = pis.at_range(ANG, 1.0, F, C)
     level = 20 * np.log10(np.maximum(np.abs(p_lobe), 1e-3)) + rng.normal(0, sig_db, len(ANG))
     lobe = LobeData(ANG, level, np.full(len(ANG), sig_db), 1.0, F, 16, T_C)
@@ -240,3 +242,20 @@ def test_chi2_is_unbiased_over_seeds(transfer):
         c2 += r.goodness["joint"]["chi2"]
         dof += r.goodness["joint"]["dof"]
     assert abs(c2 / dof - 1) < 3 * math.sqrt(2 / dof), (c2 / dof, dof)
+
+
+@pytest.mark.parametrize("start", [0.75, 1.3])
+def test_a_far_start_reaches_the_same_diameter(transfer, start):
+    """Issue 27: a lobe-only fit of a 30 mm piston started at 0.75 x or 1.3 x its diameter (the
+    user's `model.diameter_m`, i.e. `params0` with `multistart`) reaches the diameter of the
+    default start (the scan) to 0.01 mm (its standard error is ~0.01 mm) at the noise; without the
+    multi-start it stayed at a null's local minimum (D = 21.7 and 38.1 mm, chi2_red ~1400:
+    measured before the change)."""
+    lobe, _ = piston_capture(seed=8, diameter_m=0.030)
+    ref = fit(DiscSpec(n_cells=N_RINGS, dx_m=DX, frequency_hz=F), transfer, lobe, None, FitOptions())
+    spec = DiscSpec(n_cells=N_RINGS, dx_m=DX, frequency_hz=F, diameter_m=start * 0.030)
+    r = fit(spec, transfer, lobe, None, FitOptions(), params0=spec.init_params(), multistart=True)
+    assert ref.converged and r.converged, r.warnings
+    d_ref, d = (float(x.physical["diameter_m"]) * 1e3 for x in (ref, r))
+    assert abs(d - d_ref) < 0.01 and abs(d - 30.0) < 3 * r.stderr["diameter_mm"], (d, d_ref)
+    assert r.goodness["lobe"]["p"] >= 1e-3, r.goodness

@@ -909,7 +909,7 @@ def _fit_line(cfg: FitConfig, lobe, wave, f: float, c: float, ppw: float, opts, 
         raise cfg.error("model", str(e)) from None
     # a given diameter is the start of a fitted one (no scan over diameters)
     params0 = spec.init_params() if (m.fit_diameter and m.diameter_m is not None) else None
-    fitted = fit(spec, transfer, lobe, wave, opts, progress=verbose, params0=params0)
+    fitted = fit(spec, transfer, lobe, wave, opts, progress=verbose, params0=params0, multistart=True)
     uspec = ModelSpec(
         n_cells=n_cells,
         dx_m=dx,
@@ -979,7 +979,7 @@ def _fit_disc(cfg: FitConfig, lobe, wave, f: float, c: float, ppw: float, opts, 
     make_transfer = _Prefetched(setup.make_transfer, prefetch)
     spec, transfer = setup.spec, cast(Any, setup.transfer)  # a DiscTransfer: the interface of a Transfer
     params0 = spec.init_params() if (m.fit_diameter and m.diameter_m is not None) else None
-    fitted = fit(spec, transfer, lobe, wave, opts, progress=verbose, params0=params0)
+    fitted = fit(spec, transfer, lobe, wave, opts, progress=verbose, params0=params0, multistart=True)
     uniform = fit(setup.uniform_spec, transfer, lobe, wave, opts)
     return fitted, uniform, transfer, make_transfer, t_transfer
 

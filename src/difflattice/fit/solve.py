@@ -616,6 +616,7 @@ def fit(
     *,
     params0: dict | None = None,
     progress: bool = False,
+    multistart: bool = False,
 ) -> FitResult:
     """Fit `spec` to the data. Never raises on non-convergence: the result says so (`converged`,
     `result_code`, `convergence`, `warnings`). `progress` shows a bar of solver steps with the cost.
@@ -625,29 +626,39 @@ def fit(
     (2) everything, with the sigmas floored at 1 dB and 5 deg (a smoother cost: with 0.05 dB
     sigmas the first long steps of a free profile can jump to a far local minimum, e.g. an
     aperture dominated by its edges); (3) everything with the measured sigmas. The reported
-    convergence is that of the last stage."""
+    convergence is that of the last stage.
+
+    `multistart` (with a `params0` whose diameter is fitted, e.g. a user's start diameter): the
+    first stage runs from `params0` and from the diameter scan's best start, and the fit goes on
+    from the lower cost: a lobe's cost in D has a local minimum near every null, so a start far
+    from the truth (0.75 x, 1.3 x) would otherwise stay in one."""
     t_start = time.perf_counter()
     problem = build_problem(spec, transfer, lobe, wave, options)
     p0 = initial_params(problem, params0)
+    starts = [p0]
+    if multistart and params0 is not None and "diam" in p0:
+        starts.append(initial_params(problem, None))
     bar = None
     if progress:
         from tqdm import tqdm
 
         bar = tqdm(desc="fit", unit="step")
     try:
-        stages = _fit_stages(problem, p0, options, params0 is None, bar)
+        stages = _fit_stages(problem, starts, options, params0 is None, bar)
     finally:
         if bar is not None:
             bar.close()
     return _result(problem, spec, stages, options, lobe, wave, time.perf_counter() - t_start)
 
 
-def _fit_stages(problem: Problem, p0: dict, options: FitOptions, scan: bool, bar) -> list[tuple[int, _Stage]]:
+def _fit_stages(problem: Problem, starts: list[dict], options: FitOptions, scan: bool, bar) -> list[tuple[int, _Stage]]:
     out = []
-    start = p0
+    p0 = start = starts[0]
     profiles = frozenset(k for k in p0 if k in ("w", "lag"))
-    if profiles and scan and "diam" in p0:
-        s1 = _run_stage(_relaxed(problem), p0, options, hold=profiles, stage=1, bar=bar)
+    if (profiles and scan and "diam" in p0) or len(starts) > 1:
+        firsts = [_run_stage(_relaxed(problem), p, options, hold=profiles, stage=1, bar=bar) for p in starts]
+        ok = [s for s in firsts if _finite(s.y)]
+        s1 = min(ok, key=lambda s: s.cost[-1] if s.cost else math.inf) if ok else firsts[0]
         out.append((1, s1))
         if _finite(s1.y):
             start = s1.y

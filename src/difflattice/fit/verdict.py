@@ -84,8 +84,8 @@ def fit_outcome(result: FitResult, budget=None) -> dict:
             reasons.append(f"{result.loss} variance factor {result.variance_factor:.3g}, p = {p:.2g}")
             hints.append("a richer model: the residuals exceed the noise beyond the outliers the loss sets aside")
     for e in [] if budget is None else budget.scalars:
-        if e.status == "at_bound":
-            reasons.append(f"{e.name} at a bound ({e.limit}): {e.note}")
+        if e.status == "at_bound" or (e.status == "undetermined" and "bound" in e.note):
+            reasons.append(f"{e.name} at a bound ({e.limit or 'no useful limit'}): {e.note}")
             hints.append(e.note.split(": ", 1)[-1] if ": " in e.note else "widen the parameter's allowed range")
     if not reasons:
         return {

@@ -26,6 +26,8 @@ from difflattice.fit.disc import DiscSpec, profile_values
 from difflattice.fit.solve import FitOptions, fit
 from difflattice.fit.transfer_disc import disc_transfer
 
+from ._sane import assert_sane_report
+
 F = 50_000
 T_C = 21.0
 C = 331.3 * math.sqrt(1 + T_C / 273.15)
@@ -164,6 +166,8 @@ def test_shipped_config_recovers_the_piston(tmp_path):
     root = Path(__file__).resolve().parents[2]
     rep = run_fit(load_config(root / "fitting" / "piston_disc.toml"), out=tmp_path, verbose=False)
     assert rep["fit"]["converged"]
+    assert rep["fit"]["outcome"]["exit_code"] == 0, rep["fit"]["outcome"]  # issue 27: consistent
+    assert_sane_report(tmp_path)
     d = next(e for e in rep["budget"]["scalars"] if e["name"] == "diameter_mm")
     assert d["status"] == "determined" and abs(d["value"] - 38.4) <= d["total"], d
     assert rep["fit"]["rms"]["wave_phase_deg"] <= 1.0

@@ -47,7 +47,8 @@ parameters (docs/accuracy.md); it is allowed, with a warning."""
 @dataclass(frozen=True)
 class DataSection(Section):
     """What is fitted. Paths are relative to the config file. A lobe file is a capture file
-    (`difflattice capture lobe`) or a plain two-column table (angle_deg, level_db), e.g. a
+    (`difflattice capture lobe`) or a plain two-column table whose header names the units
+    (angle_deg | angle_rad, level_db | level_linear | level_pa | level_v), e.g. a
     digitised datasheet beam pattern; a plain table carries no metadata, so `frequency_hz`,
     `range_m`, `temperature_c` and `lobe_sigma_db` must then be given here. An incomplete capture
     (a gap of missing points) is fitted with the points it holds, and the report says so."""
@@ -56,7 +57,7 @@ class DataSection(Section):
     lobe: str | None = setting(
         None,
         kind="str",
-        doc="lobe file: capture or plain angle_deg, level_db table",
+        doc="lobe file: capture, or plain table with a units header (e.g. angle_deg,level_db)",
         fix="give the path relative to the config file",
     )
     wave: str | None = setting(

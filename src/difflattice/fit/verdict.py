@@ -39,6 +39,8 @@ _HINTS = {
     "baffle or directivity the model lacks, or the lobe sigmas too small (data.lobe_sigma_db of a plain table)",
     "wave": 'a richer lag profile (model.lags = "smooth" with a larger model.n_basis, or "free"), the '
     "wavefront's distance or the phase sigma (solver.wave_sigma_deg) too small",
+    "lattice": "a finer lattice (model.cells_per_wavelength): the error budget's resolution term shows how far "
+    "the discretisation moves the result",
 }
 
 
@@ -54,7 +56,7 @@ def fit_outcome(result: FitResult, budget=None) -> dict:
             "outcome": "not_converged",
             "exit_code": EXIT_NOT_CONVERGED,
             "line": f"FIT DID NOT CONVERGE ({result.result_code} after {result.n_steps} steps): the result is the "
-            "last iterate, not an optimum; raise solver.max_steps, start nearer (model.line_length_m) or check "
+            "last iterate, not an optimum; raise solver.max_steps, give a start (model.diameter_m) or check "
             "the data",
             "reasons": [result.convergence.get("reason", result.result_code)],
             "suggestion": "raise solver.max_steps or check the model and the data",
@@ -95,6 +97,8 @@ def fit_outcome(result: FitResult, budget=None) -> dict:
             "reasons": [],
             "suggestion": "",
         }
+    if any(k in ("lobe", "wave") for k in g) and hints and not any("bound" in r for r in reasons):
+        hints.append(_HINTS["lattice"])
     suggestion = "; ".join(dict.fromkeys(hints))
     return {
         "outcome": "inadequate",

@@ -13,7 +13,9 @@ ATOM_MM = 1e-7
 
 
 def assert_sane_report(out_dir: Path) -> dict:
-    js = json.loads((Path(out_dir) / "report.json").read_text())
+    text = (Path(out_dir) / "report.json").read_text()
+    assert "NaN" not in text and "Infinity" not in text, "a non-finite number in report.json"
+    js = json.loads(text)
     md = (Path(out_dir) / "report.md").read_text()
     assert not re.search(r"\bnan\b", md, re.IGNORECASE), "NaN in report.md"
     assert not re.search(r"±\s*[-+]?0\.0*(?![0-9])", md), "a ±0.000 error in report.md"

@@ -159,7 +159,7 @@ def aperture_arrays(fitted: FitResult, budget) -> dict:
                 complete = False
                 break
             vals.append(e.value * scale)
-            ok = e.status in ("determined", "reference", "at_bound")
+            ok = e.status in ("determined", "reference", "fixed", "at_bound")
             errs.append(e.total * scale if ok else float("nan"))
             alts.append(e.alternatives[0] * scale if e.alternatives else e.value * scale)
         if complete:
@@ -447,7 +447,7 @@ def write_report(
         figures.close()
     order = ("lobe", "wavefront", "aperture", "convergence", "field")
     rep["figures"] = {k: str(figs[k]) for k in order if k in figs}
-    (out / "report.json").write_text(json.dumps(rep, indent=2, default=_default))
+    (out / "report.json").write_text(json.dumps(_finite_or_null(rep), indent=2, default=_default, allow_nan=False))
     (out / "report.md").write_text(_markdown(rep, fitted, uniform, budget))
     return rep
 
@@ -684,6 +684,20 @@ def _top_correlations(r: FitResult, k: int = 3) -> list:
     ]
     pairs.sort(key=lambda p: -p[0])
     return [(a, b, v) for _, a, b, v in pairs[:k]]
+
+
+def _finite_or_null(o):
+    """The report with every non-finite number (an error that is not determined, a convergence
+    measure never taken) as JSON null: report.json holds no NaN or Infinity (not JSON)."""
+    if isinstance(o, dict):
+        return {k: _finite_or_null(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_finite_or_null(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return _finite_or_null(o.tolist())
+    if isinstance(o, (float, np.floating)) and not math.isfinite(float(o)):
+        return None
+    return o
 
 
 def _default(o):

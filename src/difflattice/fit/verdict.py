@@ -1,10 +1,12 @@
 """A fit's outcome in one of three classes, each with its own exit code and console line.
 
 - **consistent** (exit 0): converged, every data set's chi-square probability (per measured
-  datum, `solve.goodness_of_fit`) and residual-sign runs test at or above `GOODNESS_P_MIN`, no
-  fitted parameter at a bound of its allowed range;
-- **inadequate** (exit 4): converged, but the model does not describe the data: a chi-square or
-  runs-test probability below `GOODNESS_P_MIN`, or a parameter pinned at a bound (the optimum lies
+  datum, `solve.goodness_of_fit`) at or above `GOODNESS_P_MIN`, and the residual-sign runs test
+  too where the set's chi2_red is >= 1; no fitted parameter at a bound of its allowed range;
+- **inadequate** (exit 4): converged, but the model does not describe the data: a chi-square
+  probability below `GOODNESS_P_MIN`, a runs-test probability below it in a data set whose
+  chi2_red is >= 1 (a structure below the stated noise is noted, not counted: at the stated
+  sigmas the model describes the data), or a parameter pinned at a bound (the optimum lies
   outside what the model allows); the line names the failing test and suggests a model change;
 - **not converged** (exit 3): the last iterate is not an optimum.
 
@@ -28,7 +30,8 @@ EXIT_NOT_CONVERGED = 3
 EXIT_INADEQUATE = 4
 EXIT_CODES_HELP = f"""exit codes:
   0  converged and consistent with the data: per data set, the chi-square probability (one residual
-     per measured datum) and the residual-sign runs test >= {GOODNESS_P_MIN:g}; no parameter at a bound
+     per measured datum) >= {GOODNESS_P_MIN:g}, and so is the residual-sign runs test where chi2_red >= 1;
+     no parameter at a bound
   2  unusable config or data (one line naming the key or the file's column and the accepted units)
   3  the fit did not converge (the report holds the last iterate)
   4  converged, but the model does not describe the data (the line names the failed test and
@@ -61,7 +64,7 @@ def fit_outcome(result: FitResult, budget=None) -> dict:
             "reasons": [result.convergence.get("reason", result.result_code)],
             "suggestion": "raise solver.max_steps or check the model and the data",
         }
-    reasons, hints = [], []
+    reasons, hints, notes = [], [], []
     for key, name in _SETS.items():
         s = g.get(key)
         if not s:
@@ -73,11 +76,15 @@ def fit_outcome(result: FitResult, budget=None) -> dict:
             )
             hints.append(_HINTS[key])
         elif s.get("runs_p", 1.0) < GOODNESS_P_MIN:
-            reasons.append(
+            runs = (
                 f"{name} residuals structured: {s['runs']} sign runs where noise gives {s['runs_expected']:.0f} "
                 f"(p = {s['runs_p']:.2g})"
             )
-            hints.append(_HINTS[key])
+            if s["chi2_reduced"] >= 1.0:  # a structure at or above the stated noise
+                reasons.append(runs)
+                hints.append(_HINTS[key])
+            else:  # smaller than the stated sigmas: the model describes the data at the stated noise
+                notes.append(f"{runs}, below the stated noise (chi2_red {s['chi2_reduced']:.3g})")
     if result.loss != "l2" and chi and result.variance_factor > 1:
         from scipy.stats import chi2 as chi2_dist
 
@@ -93,8 +100,10 @@ def fit_outcome(result: FitResult, budget=None) -> dict:
         return {
             "outcome": "consistent",
             "exit_code": EXIT_CONSISTENT,
-            "line": f"fit converged and consistent with the data: {stats}",
+            "line": f"fit converged and consistent with the data: {stats}"
+            + (f"; note: {'; '.join(notes)}" if notes else ""),
             "reasons": [],
+            "notes": notes,
             "suggestion": "",
         }
     if any(k in ("lobe", "wave") for k in g) and hints and not any("bound" in r for r in reasons):
@@ -105,5 +114,6 @@ def fit_outcome(result: FitResult, budget=None) -> dict:
         "exit_code": EXIT_INADEQUATE,
         "line": f"FIT CONVERGED BUT THE MODEL DOES NOT DESCRIBE THE DATA: {'; '.join(reasons)}. Try: {suggestion}",
         "reasons": reasons,
+        "notes": notes,
         "suggestion": suggestion,
     }

@@ -222,7 +222,12 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--quiet", action="store_true", help="no progress bar")
     g.set_defaults(func=_gallery)
 
-    d = sub.add_parser("demo", help="main job: emulated rig -> capture -> fit -> report")
+    d = sub.add_parser(
+        "demo",
+        help="main job: emulated rig -> capture -> fit -> report",
+        epilog="exit codes: those of the fit (`difflattice fit --help`): 0 converged and consistent with the data, "
+        "3 not converged, 4 converged but the model does not describe the data; 2 unusable options",
+    )
     d.add_argument(
         "--out",
         type=Path,

@@ -651,7 +651,12 @@ def fit(
     return _result(problem, spec, stages, options, lobe, wave, time.perf_counter() - t_start)
 
 
-def _fit_stages(problem: Problem, starts: list[dict], options: FitOptions, scan: bool, bar) -> list[tuple[int, _Stage]]:
+def _fit_stages(
+    problem: Problem, starts: dict | list[dict], options: FitOptions, scan: bool, bar
+) -> list[tuple[int, _Stage]]:
+    """The stages from one start (a dict) or the first stage from each of several (a list), the
+    rest from the best of those."""
+    starts = [starts] if isinstance(starts, dict) else list(starts)
     out = []
     p0 = start = starts[0]
     profiles = frozenset(k for k in p0 if k in ("w", "lag"))

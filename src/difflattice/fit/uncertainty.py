@@ -110,16 +110,16 @@ def coefficient_unit(label: str) -> str:
 
 
 def human_name(name: str) -> str:
-    """A reader's name for a budget quantity (the internal name in backticks after it)."""
+    """A reader's name for a budget quantity ("" where the name says it)."""
     if name in _HUMAN:
-        return f"{_HUMAN[name]} `{name}`"
+        return _HUMAN[name]
     for prefix, what in (
         ("w.T", "weight profile, Chebyshev coefficient of degree "),
         ("lag.T", "lag profile, Chebyshev coefficient of degree "),
     ):
         if name.startswith(prefix):
-            return f"{what}{name[len(prefix) :]} `{name}`"
-    return name
+            return f"{what}{name[len(prefix) :]}"
+    return ""
 
 
 @dataclass(frozen=True)
@@ -370,7 +370,11 @@ def _table(ests: list, first: str) -> list[str]:
         "|---|---|---|---|---|---|---|---|",
     ]
     for e in ests:
-        label = f"{e.y_mm:+.2f}" if e.y_mm is not None and first.startswith("y") else f"{human_name(e.name)} ({e.unit})"
+        label = (
+            f"{e.y_mm:+.2f}"
+            if e.y_mm is not None and first.startswith("y")
+            else f"{e.name} ({e.unit}): {human_name(e.name)}".rstrip(": ")
+        )
         status = e.status if not e.note else f"{e.status}: {e.note}"
         parts = f"{_fmt(e.sys_resolution)} | {_fmt(e.sys_model)}"
         if e.status == "at_bound":
@@ -943,7 +947,7 @@ def error_budget(
     # profile that is one parameter per mirror pair by construction (never from equal values: a
     # disc's rings have no mirror, and a rim taper's flat rings are equal without being one)
     aliases = []
-    drop = set()
+    drop: set[str] = set()
     for prefix, profile in (("w[", spec.weights), ("lag_us[", spec.lags)):
         pairs = _mirror_pairs(spec, profile)
         pairs = [(a, b) for a, b in pairs if f"{prefix}{a}]" in est and f"{prefix}{b}]" in est]

@@ -67,8 +67,8 @@ def test_angle_rad_level_linear_fits_to_the_same_diameter(tmp_path: Path, patter
 @pytest.mark.parametrize(
     ("header", "match"),
     [
-        ("angle_grad,level_db", "does not name one angle and one level column"),
-        ("angle,level", "does not name one angle and one level column"),
+        ("angle_grad,level_db", "does not name its two columns with their units"),
+        ("angle,level", "does not name its two columns with their units"),
         (None, "no header line naming the columns' units"),
     ],
 )
@@ -89,3 +89,68 @@ def test_unknown_or_missing_unit_is_refused(tmp_path: Path, capsys, header, matc
     lines = err.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: ") and "[data.lobe]" in lines[0], err
     assert "angle_deg | angle_rad" in lines[0] and "level_db | level_linear | level_pa | level_v" in lines[0], err
+
+
+WAVE_CAPTURE = Path(__file__).resolve().parents[2] / "data" / "emulated" / "piston_disc" / "wave.csv"
+
+
+@pytest.mark.parametrize("units", [("x_mm", "phase_deg"), ("x_m", "phase_mdeg"), ("x_mm", "delay_us")])
+def test_a_wavefront_table_in_any_unit_gives_the_capture_data(tmp_path: Path, units) -> None:
+    """The shipped piston wavefront capture written as a plain table (its x and lag, in the
+    header's units) loads to the same positions and phases as the capture itself (phase mod 360)."""
+    from difflattice.capture.files import load_capture, load_wave_table
+    from difflattice.fit.data import wave_from_capture, wave_from_table
+
+    cap = load_capture(WAVE_CAPTURE)
+    ref = wave_from_capture(cap, sigma_deg=0.106)
+    f = float(cap.metadata["freq_hz"])
+    x = np.asarray(cap.x_m, float) * (1e3 if units[0] == "x_mm" else 1.0)
+    lag = np.asarray(cap.phase_deg, float)
+    col = {"phase_deg": lag, "phase_mdeg": lag * 1e3, "delay_us": lag / (360 * f) * 1e6}[units[1]]
+    p = tmp_path / "wave.csv"
+    p.write_text(f"{units[0]},{units[1]}\n" + "".join(f"{a:.12g},{b:.12g}\n" for a, b in zip(x, col)))
+    t = load_wave_table(p)
+    w = wave_from_table(t, frequency_hz=f, z_m=ref.z_m, temperature_c=ref.temperature_c, sigma_deg=0.106)
+    np.testing.assert_allclose(w.x_m, ref.x_m, rtol=0, atol=1e-12)
+    d = np.angle(np.exp(1j * (w.phase_rad - ref.phase_rad)))
+    assert np.max(np.abs(d)) < 1e-9
+
+
+def test_unknown_wavefront_unit_is_refused(tmp_path: Path, capsys) -> None:
+    table = tmp_path / "wave.csv"
+    table.write_text("x_inch,phase_deg\n" + "".join(f"{x},{x * x:.3f}\n" for x in range(-5, 6)))
+    cfg = tmp_path / "fit.toml"
+    cfg.write_text(
+        f'[data]\nwave = "{table}"\nfrequency_hz = 40000\ntemperature_c = 20.0\nwave_z_m = 0.0165\n'
+        "[model]\nline_length_m = 0.042\n"
+    )
+    code = main(["fit", str(cfg), "--out", str(tmp_path / "out")])
+    _, err = capsys.readouterr()
+    lines = err.strip().splitlines()
+    assert code == 2 and len(lines) == 1 and "[data.wave]" in lines[0], err
+    assert "x_m | x_mm" in lines[0] and "phase_deg | phase_mdeg | delay_us" in lines[0], err
+
+
+def test_a_wavefront_table_through_the_config(tmp_path: Path) -> None:
+    """`[data] wave` may be a plain table; the config gives its frequency, temperature and z (here
+    the capture's own), and the fit data equal the capture's."""
+    from difflattice.capture.files import load_capture
+    from difflattice.fit.config import load_config, load_fit_data
+
+    cap = load_capture(WAVE_CAPTURE)
+    p = tmp_path / "wave.csv"
+    p.write_text(
+        "x_mm;phase_mdeg\n" + "".join(f"{a * 1e3:.12g};{b * 1e3:.12g}\n" for a, b in zip(cap.x_m, cap.phase_deg))
+    )
+    base = f'lobe = "{WAVE_CAPTURE.parent / "lobe.csv"}"\nfrequency_hz = {cap.metadata["freq_hz"]}\n'
+    z = float(np.median(cap.z_m))
+    cfg = tmp_path / "fit.toml"
+    cfg.write_text(
+        f'[data]\n{base}wave = "{p}"\ntemperature_c = 21.0\nwave_z_m = {z}\n[model]\nline_length_m = 0.042\n'
+    )
+    table = load_fit_data(load_config(cfg)).wave
+    cfg.write_text(f'[data]\n{base}wave = "{WAVE_CAPTURE}"\ntemperature_c = 21.0\n[model]\nline_length_m = 0.042\n')
+    ref = load_fit_data(load_config(cfg)).wave
+    assert table.z_m == pytest.approx(ref.z_m) and len(table.x_m) == len(ref.x_m)
+    np.testing.assert_allclose(table.x_m, ref.x_m, rtol=0, atol=1e-12)
+    assert np.max(np.abs(np.angle(np.exp(1j * (table.phase_rad - ref.phase_rad))))) < 1e-9

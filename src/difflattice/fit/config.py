@@ -63,7 +63,7 @@ class DataSection(Section):
     wave: str | None = setting(
         None,
         kind="str",
-        doc="wavefront capture file (`difflattice capture wave`)",
+        doc="wavefront file: capture (`difflattice capture wave`), or plain table with a units header (e.g. x_mm,phase_deg)",
         fix="give the path relative to the config file",
     )
     lobe_mask_deg: tuple = setting(
@@ -110,6 +110,15 @@ class DataSection(Section):
         unit="degC",
         doc="air temperature: required for a plain table; with capture files it replaces the temperature they record (the report says so)",
         fix="give the air temperature in degrees Celsius",
+    )
+    wave_z_m: float | None = setting(
+        None,
+        kind="number",
+        gt=0,
+        le=10,
+        unit="m",
+        doc="distance of a plain wavefront table's scan line from the face: required for a plain table; with a capture file it must agree with its z",
+        fix="give the scan line's distance from the face in metres, e.g. 0.0165",
     )
     lobe_sigma_db: float | None = setting(
         None,
@@ -588,6 +597,43 @@ def _lobe_data(cfg: FitConfig, notes: list[str]):
     )
 
 
+def _wave_table(cfg: FitConfig, p: Path, notes: list[str]):
+    """A plain wavefront table with a units header, with the metadata the config gives."""
+    from ..capture.errors import CaptureFileError
+    from ..capture.files import load_wave_table
+    from .data import wave_from_table
+
+    d = cfg.data
+    try:
+        table = load_wave_table(p)
+    except CaptureFileError as e:
+        raise cfg.error(
+            "data.wave",
+            f"= {show(d.wave)} is neither a capture file nor a plain wavefront table with a units header: {e}",
+        ) from None
+    for k, what in (
+        ("frequency_hz", "the drive frequency in Hz"),
+        ("temperature_c", "the air temperature in degC"),
+        ("wave_z_m", "the scan line's distance from the face in m"),
+    ):
+        if getattr(d, k) is None:
+            raise cfg.error(f"data.{k}", f"is required: {p.name} is a plain table without metadata; fix: give {what}")
+    assert d.frequency_hz is not None and d.temperature_c is not None and d.wave_z_m is not None
+    notes.append(
+        f"{p.name}: plain wavefront table ({len(table.x_m)} points), with frequency {d.frequency_hz:g} Hz, "
+        f"z {d.wave_z_m:g} m, {d.temperature_c:g} degC and sigma {cfg.solver.wave_sigma_deg:g} deg from the config; "
+        f"columns {' and '.join(table.units)}"
+    )
+    wave = wave_from_table(
+        table,
+        frequency_hz=d.frequency_hz,
+        z_m=d.wave_z_m,
+        temperature_c=d.temperature_c,
+        sigma_deg=cfg.solver.wave_sigma_deg,
+    )
+    return wave, p
+
+
 def _wave_data(cfg: FitConfig, notes: list[str]):
     from ..capture.errors import CaptureFileError
     from ..capture.files import is_capture_file
@@ -600,12 +646,10 @@ def _wave_data(cfg: FitConfig, notes: list[str]):
     except CaptureFileError as e:
         raise cfg.error("data.wave", f"= {show(d.wave)} cannot be read: {e}") from None
     if not capture:
-        raise cfg.error(
-            "data.wave",
-            f"= {show(d.wave)} is not a capture file (first line '# format: "
-            "difflattice-capture/1'); wavefront data must come from `difflattice capture wave`",
-        )
+        return _wave_table(cfg, p, notes)
     cap = _capture(cfg, "data.wave", d.wave, p, notes)
+    if d.wave_z_m is not None and len(cap.z_m):
+        _check_agrees(cfg, "data.wave_z_m", d.wave_z_m, float(np.median(cap.z_m)), p.name, 1e-4, "m")
     _check_agrees(cfg, "data.frequency_hz", d.frequency_hz, cap.metadata["freq_hz"], p.name, 0.5, "Hz")
     if len(cap.seq) < 3:
         raise cfg.error("data.wave", f"= {show(d.wave)} holds only {len(cap.seq)} points; a fit needs >= 3")

@@ -378,7 +378,7 @@ def _table(ests: list, first: str) -> list[str]:
         status = e.status if not e.note else f"{e.status}: {e.note}"
         parts = f"{_fmt(e.sys_resolution)} | {_fmt(e.sys_model)}"
         if e.status == "at_bound":
-            lines.append(f"| {label} | {e.limit} | {_fmt(e.stat)} | — | — | {parts} | {status} |")
+            lines.append(f"| {label} | {e.limit} | — | — | — | — | — | {status} |")  # a limit, not a value ± error
             continue
         if e.status in ("reference", "fixed", "inactive") or (e.status == "undetermined" and not e.alternatives):
             lines.append(f"| {label} | {e.value:.5g} | — | — | — | — | — | {status} |")

@@ -94,8 +94,8 @@ def fit_outcome(result: FitResult, budget=None) -> dict:
             hints.append("a richer model: the residuals exceed the noise beyond the outliers the loss sets aside")
     for e in [] if budget is None else budget.scalars:
         if e.status == "at_bound" or (e.status == "undetermined" and "bound" in e.note):
-            reasons.append(f"{e.name} at a bound ({e.limit or 'no useful limit'}): {e.note}")
-            hints.append(e.note.split(": ", 1)[-1] if ": " in e.note else "widen the parameter's allowed range")
+            reasons.insert(0, f"{e.name} at a bound ({e.limit or 'no useful limit'}): {e.note}")  # the root cause
+            hints.insert(0, e.note.split(": ", 1)[-1] if ": " in e.note else "widen the parameter's allowed range")
     if not reasons:
         return {
             "outcome": "consistent",

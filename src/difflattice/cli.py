@@ -283,7 +283,12 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--only", nargs="*", help="scene names to render (default: all)")
     g.set_defaults(func=_gallery)
 
-    d = sub.add_parser("demo", help="main job: emulated rig -> capture -> fit -> report")
+    d = sub.add_parser(
+        "demo",
+        help="main job: emulated rig -> capture -> fit -> report",
+        epilog="exit codes: those of the fit (`difflattice fit --help`): 0 converged and consistent with the data, "
+        "3 not converged, 4 converged but the model does not describe the data; 2 unusable options",
+    )
     d.add_argument(
         "--out",
         type=Path,
@@ -302,14 +307,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     from .config import keys_help
     from .fit.config import SECTIONS as FIT_SECTIONS
+    from .fit.verdict import EXIT_CODES_HELP as FIT_EXIT_CODES
 
     f = sub.add_parser(
         "fit",
         help="fit a transducer model to captured data (config file)",
         description="Fit a transducer model to captured data, as a TOML config file says. A config "
         "that cannot be used exits with code 2 and one line naming the key; a fit that "
-        "did not converge exits with code 3.",
-        epilog="config keys (every unit, allowed range and meaning in docs/fitting.md):\n"
+        "did not converge exits with code 3; one that converged but does not describe the data, 4.",
+        epilog=FIT_EXIT_CODES
+        + "\n\nconfig keys (every unit, allowed range and meaning in docs/fitting.md):\n"
         + keys_help(FIT_SECTIONS, width=96),
     )
     f.add_argument("config", type=Path, help="fit config (TOML, see docs/fitting.md)")

@@ -98,10 +98,10 @@ def test_plain_lobe_table(tmp_path: Path) -> None:
     np.testing.assert_allclose(t.angle_deg, [0, 10, 20])
     np.testing.assert_allclose(t.level_db, [0, -3.5, -12])
     assert not is_capture_file(path) and is_capture_file(write_lobe(tmp_path / "c.csv", [0], finish=False))
-    path.write_text("0,0\n10,-3\n200,-9\n")
-    with pytest.raises(CaptureFileError, match=r"sheet.csv:3: angle 200 deg outside \[-180, 180\]"):
+    path.write_text("angle_deg,level_db\n0,0\n10,-3\n200,-9\n")  # issue 27: the header names the units
+    with pytest.raises(CaptureFileError, match=r"sheet.csv:4: angle 200 deg outside \[-180, 180\]"):
         load_lobe_table(path)
-    path.write_text("0,0\n10,-3\n")
+    path.write_text("angle_deg,level_db\n0,0\n10,-3\n")
     with pytest.raises(CaptureFileError, match="at least 3 rows"):
         load_lobe_table(path)
 

@@ -305,8 +305,8 @@ def test_given_diameter_starts_a_fitted_one(tmp_path: Path, monkeypatch: pytest.
     class Stop(Exception):
         pass
 
-    def fake_fit(spec, transfer, lobe, wave, options, *, params0=None, progress=False):
-        seen["params0"], seen["spec"] = params0, spec
+    def fake_fit(spec, transfer, lobe, wave, options, *, params0=None, progress=False, multistart=False):
+        seen["params0"], seen["spec"], seen["multistart"] = params0, spec, multistart
         raise Stop
 
     monkeypatch.setattr(solve, "fit", fake_fit)
@@ -319,6 +319,7 @@ def test_given_diameter_starts_a_fitted_one(tmp_path: Path, monkeypatch: pytest.
     spec, p0 = seen["spec"], seen["params0"]
     assert p0 is not None and "diam" in p0
     assert float(spec.physical(p0)["diameter_m"]) == pytest.approx(0.036, rel=1e-9)
+    assert seen["multistart"]  # issue 27: the given start is one of two (the scan's best is the other)
 
 
 # -- one declaration, everything generated from it ----------------------------------------------

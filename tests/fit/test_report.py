@@ -16,6 +16,7 @@ from difflattice.fit.report import beam_metrics, write_report
 from difflattice.fit.solve import FitOptions, fit
 
 from ._emulated import data, spec, transfer
+from ._sane import assert_sane_report
 
 
 def test_beam_metrics_of_a_uniform_line():
@@ -57,6 +58,7 @@ def test_report_lists_every_parameter_and_the_curves(tmp_path):
     for f in ("lobe", "wavefront", "aperture", "convergence"):
         assert (tmp_path / f"{f}.png").exists()
     assert rep["fit"]["convergence"]["converged"]
+    assert_sane_report(tmp_path)  # issue 27: no NaN, no ±0, every cell listed
 
 
 def test_plots_without_pyplot_colour_bar_and_polar_labels():

@@ -14,6 +14,8 @@ import pytest
 from difflattice.config import ConfigError
 from difflattice.fit.config import config_from_dict, run_fit
 
+from ._sane import assert_sane_report
+
 ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -40,6 +42,7 @@ def test_rz_disc_fit_report_has_field_image_and_family(tmp_path):
     md = (out / "report.md").read_text()
     assert "- model: disc family," in md and "rings of" in md and "baffle none" in md
     assert "![field](field.png)" in md
+    assert_sane_report(out)  # issue 27: every ring listed, no NaN, no ±0, no unphysical limit
 
 
 @pytest.mark.parametrize(

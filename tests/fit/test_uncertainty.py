@@ -109,6 +109,10 @@ def test_bound_reported_as_bound():
     d = b.get("diameter_mm")
     assert d.status == "at_bound" and d.bound_side == "upper"
     assert d.limit.startswith(">=") and d.limit_value <= s.d_max_m * 1e3 + 1e-9
+    assert d.limit_value > 0.5 * s.d_max_m * 1e3  # issue 27: a limit inside the physical range, not ">= -1480"
+    from difflattice.fit.verdict import EXIT_INADEQUATE, fit_outcome
+
+    assert fit_outcome(r, b)["exit_code"] == EXIT_INADEQUATE  # pinned at a bound: not "consistent"
     assert "line_length_m" in d.note
     assert d.covers(35.6)  # the truth lies beyond the one-sided limit
     md = "\n".join(b.markdown())

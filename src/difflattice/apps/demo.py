@@ -291,6 +291,8 @@ def run_demo(out: str | Path, *, quick: bool = False, model: str = "disc") -> in
         "loss": f.get("loss"),
         "chi2_red": float(f["chi2_reduced"]),
         "chi2_reduced": float(f["chi2_reduced"]),
+        "goodness": f.get("goodness"),
+        "outcome": f["outcome"],
         "variance_factor": f.get("variance_factor"),
         "rms": f["rms"],
         "recovery": comparison,
@@ -310,7 +312,7 @@ def run_demo(out: str | Path, *, quick: bool = False, model: str = "disc") -> in
                 f"within their total uncertainty of the truth (max {c['max_error_in_total']:.2f} total)"
             )
     print(f"[demo] done in {total:.1f} s: report at {out / 'report' / 'report.md'}")
-    return 0 if f["converged"] else 3
+    return int(f["outcome"]["exit_code"])  # 0 consistent, 3 not converged, 4 the model does not describe the data
 
 
 def truth_quantities(truth: dict, model: str = "line", rings: dict | None = None) -> dict:

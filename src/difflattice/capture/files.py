@@ -22,7 +22,8 @@ Header keys are declared once (:class:`ScanHeader`, :class:`Measurement`; the do
 capture command's options are generated from them). ``phase_mdeg`` is the rig's lag of the
 received carrier behind the drive in [0, 360000) (rig protocol, "Field conventions"); the loader
 refuses other values rather than guess a convention. :func:`load_lobe_table` reads a plain
-two-column lobe table (angle_deg, level_db), e.g. a digitised datasheet pattern.
+two-column lobe table whose header names the units (angle_deg | angle_rad, level_db |
+level_linear | level_pa | level_v), e.g. a digitised datasheet pattern.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ import os
 import re
 import warnings
 import zlib
+from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -516,13 +518,24 @@ def _f64(values: NDArray[Any]) -> NDArray[np.float64]:
 @dataclass(frozen=True)
 class LobeTable:
     """A plain two-column lobe table: angle [deg] and level [dB, any reference], e.g. a digitised
-    datasheet beam pattern. It carries no frequency, range, temperature or uncertainty: whoever
-    uses it must state them. Rows in file order."""
+    datasheet beam pattern, converted from the units its header names (`units`: the two column
+    names as written, e.g. ``("angle_rad", "level_linear")``). It carries no frequency, range,
+    temperature or uncertainty: whoever uses it must state them. Rows in file order."""
 
     path: Path
     angle_deg: NDArray[np.float64]
     level_db: NDArray[np.float64]
+    units: tuple[str, str] = ("angle_deg", "level_db")
 
+
+ANGLE_UNITS = {"angle_deg": 1.0, "angle_rad": 180.0 / np.pi}
+"""Accepted angle columns of a plain lobe table, with their factor to degrees."""
+LEVEL_UNITS = ("level_db", "level_linear", "level_pa", "level_v")
+"""Accepted level columns: dB (any reference), or an amplitude (dimensionless, Pa or V), read
+as 20 log10 |value| (the fit's gain absorbs the reference)."""
+LEVEL_FLOOR_REL = 1e-6
+"""An amplitude column's zeros (a null of a digitised pattern) become this fraction of its largest
+value (-120 dB re the peak: far below the fit's soft floor)."""
 
 _SPLIT = re.compile(r"[,;\t ]+")
 
@@ -536,13 +549,29 @@ def is_capture_file(path: str | Path) -> bool:
         raise CaptureFileError(f"{path}: cannot read: {exc.strerror}") from None
 
 
-def load_lobe_table(path: str | Path) -> LobeTable:
-    """Load a plain lobe table: lines of ``angle_deg,level_db`` (comma, semicolon, tab or spaces
-    between them), an optional header line naming the two columns (``angle_deg`` and ``level_db``
-    in either order; other names: angle first), ``#`` comments and blank lines ignored.
+def _table_units(
+    path: Path, lineno: int, cells: list[str], first: Sequence[str], second: Sequence[str]
+) -> tuple[tuple[int, int], tuple[str, str]]:
+    """The column order and names of a plain table's header line (one name of `first`, one of
+    `second`, either order), or a one-line error listing the accepted names."""
+    names = [c.strip().lower() for c in cells]
+    a = [i for i, n in enumerate(names) if n in first]
+    b = [i for i, n in enumerate(names) if n in second]
+    if len(a) != 1 or len(b) != 1:
+        raise CaptureFileError(
+            f"{path}:{lineno}: header {', '.join(cells)!s} does not name its two columns with their units; "
+            f"accepted: {' | '.join(first)} and {' | '.join(second)} (e.g. {first[0]},{second[0]})"
+        )
+    return (a[0], b[0]), (names[a[0]], names[b[0]])
 
-    Raises :class:`CaptureFileError` naming the file and line for a row that is not two finite
-    numbers, an angle outside [-180, 180] deg, or fewer than 3 rows."""
+
+def _plain_table(
+    path: str | Path, first: Sequence[str], second: Sequence[str]
+) -> tuple[Path, NDArray[np.float64], tuple[str, str], list[int]]:
+    """(path, rows as (n, 2) in the order (first, second), the header's unit names, the rows'
+    line numbers) of a plain two-column table: a header line naming the columns with their units,
+    then rows of two finite numbers (comma, semicolon, tab or spaces between them); ``#``
+    comments and blank lines ignored."""
     path = Path(path)
     try:
         text = path.read_text(encoding="utf-8-sig")
@@ -550,37 +579,92 @@ def load_lobe_table(path: str | Path) -> LobeTable:
         raise CaptureFileError(
             f"{path}: cannot read as a text table: {getattr(exc, 'strerror', None) or exc}"
         ) from None
-    order = (0, 1)
+    accepted = f"{' | '.join(first)} and {' | '.join(second)}"
+    order: tuple[int, int] | None = None
+    units = (first[0], second[0])
     rows: list[tuple[float, float]] = []
-    header_seen = False
+    lines: list[int] = []
     for lineno, line in enumerate(text.splitlines(), start=1):
         line = line.split("#", 1)[0].strip()
         if not line:
             continue
         cells = [c for c in _SPLIT.split(line) if c]
         if len(cells) != 2:
-            raise CaptureFileError(
-                f"{path}:{lineno}: expected 2 columns (angle_deg, level_db), got {len(cells)}: {line!r}"
-            )
+            raise CaptureFileError(f"{path}:{lineno}: expected 2 columns ({accepted}), got {len(cells)}: {line!r}")
         try:
             a, b = float(cells[0]), float(cells[1])
         except ValueError:
-            if rows or header_seen:
-                raise CaptureFileError(
-                    f"{path}:{lineno}: expected two numbers (angle_deg, level_db), got {line!r}"
-                ) from None
-            names = [c.strip().lower() for c in cells]
-            if set(names) == {"angle_deg", "level_db"}:
-                order = (names.index("angle_deg"), names.index("level_db"))
-            header_seen = True
+            if order is not None:
+                raise CaptureFileError(f"{path}:{lineno}: expected two numbers, got {line!r}") from None
+            order, units = _table_units(path, lineno, cells, first, second)
             continue
-        ang, lev = (a, b)[order[0]], (a, b)[order[1]]
-        if not (np.isfinite(ang) and np.isfinite(lev)):
+        if order is None:
+            raise CaptureFileError(
+                f"{path}:{lineno}: no header line naming the columns' units before the first row; add one, "
+                f"e.g. {first[0]},{second[0]} (accepted: {accepted})"
+            )
+        if not (np.isfinite(a) and np.isfinite(b)):
             raise CaptureFileError(f"{path}:{lineno}: non-finite value in {line!r}")
+        rows.append(((a, b)[order[0]], (a, b)[order[1]]))
+        lines.append(lineno)
+    if len(rows) < 3:
+        raise CaptureFileError(f"{path}: a table needs at least 3 rows of {units[0]}, {units[1]}; found {len(rows)}")
+    return path, np.asarray(rows, dtype=float), units, lines
+
+
+def load_lobe_table(path: str | Path) -> LobeTable:
+    """Load a plain lobe table: a header line naming the two columns with their units (in either
+    order: ``angle_deg`` or ``angle_rad``; ``level_db`` (any reference) or an amplitude
+    ``level_linear``, ``level_pa``, ``level_v``, read as 20 log10 |value|), then rows of two
+    numbers (comma, semicolon, tab or spaces between them); ``#`` comments and blank lines
+    ignored.
+
+    Raises :class:`CaptureFileError` naming the file and line for a missing header or a column
+    name that is not an accepted unit (the accepted ones listed), a row that is not two finite
+    numbers, an angle outside [-180, 180] deg, or fewer than 3 rows."""
+    path, arr, units, lines = _plain_table(path, tuple(ANGLE_UNITS), LEVEL_UNITS)
+    angle = arr[:, 0] * ANGLE_UNITS[units[0]]
+    for ang, lineno in zip(angle, lines):
         if not -180.0 <= ang <= 180.0:
             raise CaptureFileError(f"{path}:{lineno}: angle {ang:g} deg outside [-180, 180]")
-        rows.append((ang, lev))
-    if len(rows) < 3:
-        raise CaptureFileError(f"{path}: a lobe table needs at least 3 rows of angle_deg, level_db; found {len(rows)}")
-    arr = np.asarray(rows, dtype=float)
-    return LobeTable(path=path, angle_deg=arr[:, 0], level_db=arr[:, 1])
+    level = arr[:, 1]
+    if units[1] != "level_db":
+        amp = np.abs(level)
+        if not amp.max() > 0:
+            raise CaptureFileError(f"{path}: the {units[1]} column is all zero: no level to fit")
+        level = 20 * np.log10(np.maximum(amp, LEVEL_FLOOR_REL * amp.max()))
+    return LobeTable(path=path, angle_deg=angle, level_db=level, units=units)
+
+
+POSITION_UNITS = {"x_m": 1.0, "x_mm": 1e-3}
+"""Accepted position columns of a plain wavefront table, with their factor to metres."""
+PHASE_UNITS = ("phase_deg", "phase_mdeg", "delay_us")
+"""Accepted phase columns: the LAG of the received carrier behind the drive (as the rig's
+``phase_mdeg``: a later arrival has a larger lag) in degrees or millidegrees, or an arrival delay
+in microseconds (lag = 360 f delay)."""
+
+
+@dataclass(frozen=True)
+class WaveTable:
+    """A plain two-column wavefront table: lateral position x [m] and the carrier's lag behind the
+    drive, either in degrees (`lag_deg`) or as a delay [s] (`delay_s`, lag = 360 f delay: the
+    frequency comes from the caller); the other is None. `units` as the header names them."""
+
+    path: Path
+    x_m: NDArray[np.float64]
+    lag_deg: NDArray[np.float64] | None
+    delay_s: NDArray[np.float64] | None
+    units: tuple[str, str]
+
+
+def load_wave_table(path: str | Path) -> WaveTable:
+    """Load a plain wavefront table: a header naming the columns with their units (``x_m`` or
+    ``x_mm``; ``phase_deg``, ``phase_mdeg`` (the lag of the carrier behind the drive) or
+    ``delay_us``), then rows of two numbers, as :func:`load_lobe_table`. Raises
+    :class:`CaptureFileError` for a missing or unknown unit (the accepted ones listed)."""
+    path, arr, units, _ = _plain_table(path, tuple(POSITION_UNITS), PHASE_UNITS)
+    x = arr[:, 0] * POSITION_UNITS[units[0]]
+    if units[1] == "delay_us":
+        return WaveTable(path=path, x_m=x, lag_deg=None, delay_s=arr[:, 1] * 1e-6, units=units)
+    lag = arr[:, 1] * (1e-3 if units[1] == "phase_mdeg" else 1.0)
+    return WaveTable(path=path, x_m=x, lag_deg=lag, delay_s=None, units=units)

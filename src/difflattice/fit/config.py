@@ -47,7 +47,8 @@ parameters (docs/accuracy.md); it is allowed, with a warning."""
 @dataclass(frozen=True)
 class DataSection(Section):
     """What is fitted. Paths are relative to the config file. A lobe file is a capture file
-    (`difflattice capture lobe`) or a plain two-column table (angle_deg, level_db), e.g. a
+    (`difflattice capture lobe`) or a plain two-column table whose header names the units
+    (angle_deg | angle_rad, level_db | level_linear | level_pa | level_v), e.g. a
     digitised datasheet beam pattern; a plain table carries no metadata, so `frequency_hz`,
     `range_m`, `temperature_c` and `lobe_sigma_db` must then be given here. An incomplete capture
     (a gap of missing points) is fitted with the points it holds, and the report says so."""
@@ -56,13 +57,13 @@ class DataSection(Section):
     lobe: str | None = setting(
         None,
         kind="str",
-        doc="lobe file: capture or plain angle_deg, level_db table",
+        doc="lobe file: capture, or plain table with a units header (e.g. angle_deg,level_db)",
         fix="give the path relative to the config file",
     )
     wave: str | None = setting(
         None,
         kind="str",
-        doc="wavefront capture file (`difflattice capture wave`)",
+        doc="wavefront file: capture (`difflattice capture wave`), or plain table with a units header (e.g. x_mm,phase_deg)",
         fix="give the path relative to the config file",
     )
     lobe_mask_deg: tuple = setting(
@@ -109,6 +110,15 @@ class DataSection(Section):
         unit="degC",
         doc="air temperature: required for a plain table; with capture files it replaces the temperature they record (the report says so)",
         fix="give the air temperature in degrees Celsius",
+    )
+    wave_z_m: float | None = setting(
+        None,
+        kind="number",
+        gt=0,
+        le=10,
+        unit="m",
+        doc="distance of a plain wavefront table's scan line from the face: required for a plain table; with a capture file it must agree with its z",
+        fix="give the scan line's distance from the face in metres, e.g. 0.0165",
     )
     lobe_sigma_db: float | None = setting(
         None,
@@ -611,7 +621,7 @@ def _lobe_data(cfg: FitConfig, notes: list[str]):
         table = load_lobe_table(p)
     except CaptureFileError as e:
         raise cfg.error(
-            "data.lobe", f"= {show(d.lobe)} is neither a capture file nor a plain angle_deg, level_db table: {e}"
+            "data.lobe", f"= {show(d.lobe)} is neither a capture file nor a plain lobe table with a units header: {e}"
         ) from None
     for k, what in (
         ("frequency_hz", "the drive frequency in Hz"),
@@ -625,7 +635,7 @@ def _lobe_data(cfg: FitConfig, notes: list[str]):
     assert d.temperature_c is not None and d.lobe_sigma_db is not None
     notes.append(
         f"{p.name}: plain lobe table ({len(table.angle_deg)} points), with frequency {d.frequency_hz:g} Hz, "
-        f"range {d.range_m:g} m, {d.temperature_c:g} degC and sigma {d.lobe_sigma_db:g} dB from the config"
+        f"range {d.range_m:g} m, {d.temperature_c:g} degC and sigma {d.lobe_sigma_db:g} dB from the config; columns {' and '.join(table.units)}"
     )
     return (
         lobe_from_table(
@@ -640,6 +650,43 @@ def _lobe_data(cfg: FitConfig, notes: list[str]):
     )
 
 
+def _wave_table(cfg: FitConfig, p: Path, notes: list[str]):
+    """A plain wavefront table with a units header, with the metadata the config gives."""
+    from ..capture.errors import CaptureFileError
+    from ..capture.files import load_wave_table
+    from .data import wave_from_table
+
+    d = cfg.data
+    try:
+        table = load_wave_table(p)
+    except CaptureFileError as e:
+        raise cfg.error(
+            "data.wave",
+            f"= {show(d.wave)} is neither a capture file nor a plain wavefront table with a units header: {e}",
+        ) from None
+    for k, what in (
+        ("frequency_hz", "the drive frequency in Hz"),
+        ("temperature_c", "the air temperature in degC"),
+        ("wave_z_m", "the scan line's distance from the face in m"),
+    ):
+        if getattr(d, k) is None:
+            raise cfg.error(f"data.{k}", f"is required: {p.name} is a plain table without metadata; fix: give {what}")
+    assert d.frequency_hz is not None and d.temperature_c is not None and d.wave_z_m is not None
+    notes.append(
+        f"{p.name}: plain wavefront table ({len(table.x_m)} points), with frequency {d.frequency_hz:g} Hz, "
+        f"z {d.wave_z_m:g} m, {d.temperature_c:g} degC and sigma {cfg.solver.wave_sigma_deg:g} deg from the config; "
+        f"columns {' and '.join(table.units)}"
+    )
+    wave = wave_from_table(
+        table,
+        frequency_hz=d.frequency_hz,
+        z_m=d.wave_z_m,
+        temperature_c=d.temperature_c,
+        sigma_deg=cfg.solver.wave_sigma_deg,
+    )
+    return wave, p
+
+
 def _wave_data(cfg: FitConfig, notes: list[str]):
     from ..capture.errors import CaptureFileError
     from ..capture.files import is_capture_file
@@ -652,12 +699,10 @@ def _wave_data(cfg: FitConfig, notes: list[str]):
     except CaptureFileError as e:
         raise cfg.error("data.wave", f"= {show(d.wave)} cannot be read: {e}") from None
     if not capture:
-        raise cfg.error(
-            "data.wave",
-            f"= {show(d.wave)} is not a capture file (first line '# format: "
-            "difflattice-capture/1'); wavefront data must come from `difflattice capture wave`",
-        )
+        return _wave_table(cfg, p, notes)
     cap = _capture(cfg, "data.wave", d.wave, p, notes)
+    if d.wave_z_m is not None and len(cap.z_m):
+        _check_agrees(cfg, "data.wave_z_m", d.wave_z_m, float(np.median(cap.z_m)), p.name, 1e-4, "m")
     _check_agrees(cfg, "data.frequency_hz", d.frequency_hz, cap.metadata["freq_hz"], p.name, 0.5, "Hz")
     if len(cap.seq) < 3:
         raise cfg.error("data.wave", f"= {show(d.wave)} holds only {len(cap.seq)} points; a fit needs >= 3")
@@ -962,7 +1007,7 @@ def _fit_line(cfg: FitConfig, lobe, wave, f: float, c: float, ppw: float, opts, 
         raise cfg.error("model", str(e)) from None
     # a given diameter is the start of a fitted one (no scan over diameters)
     params0 = spec.init_params() if (m.fit_diameter and m.diameter_m is not None) else None
-    fitted = fit(spec, transfer, lobe, wave, opts, progress=verbose, params0=params0)
+    fitted = fit(spec, transfer, lobe, wave, opts, progress=verbose, params0=params0, multistart=True)
     uspec = ModelSpec(
         n_cells=n_cells,
         dx_m=dx,
@@ -1032,7 +1077,7 @@ def _fit_disc(cfg: FitConfig, lobe, wave, f: float, c: float, ppw: float, opts, 
     make_transfer = _Prefetched(setup.make_transfer, prefetch)
     spec, transfer = setup.spec, cast(Any, setup.transfer)  # a DiscTransfer: the interface of a Transfer
     params0 = spec.init_params() if (m.fit_diameter and m.diameter_m is not None) else None
-    fitted = fit(spec, transfer, lobe, wave, opts, progress=verbose, params0=params0)
+    fitted = fit(spec, transfer, lobe, wave, opts, progress=verbose, params0=params0, multistart=True)
     uniform = fit(setup.uniform_spec, transfer, lobe, wave, opts)
     return fitted, uniform, transfer, make_transfer, t_transfer
 
@@ -1126,8 +1171,9 @@ def run_fit(cfg: FitConfig, *, out: str | Path | None = None, quick: bool = Fals
 
 def _print_summary(rep: dict, out_dir: Path) -> None:
     f = rep["fit"]
-    if not f["converged"]:
-        print("!" * 72 + f"\n!! FIT DID NOT CONVERGE: {f['result_code']} after {f['n_steps']} steps\n" + "!" * 72)
+    verdict = f["outcome"]
+    if verdict["outcome"] != "consistent":
+        print("!" * 72 + f"\n!! {verdict['line']}\n" + "!" * 72)
     for w in f["warnings"]:
         print(f"warning: {w}")
     p = f["parameters"]
@@ -1140,26 +1186,41 @@ def _print_summary(rep: dict, out_dir: Path) -> None:
     t = rep["provenance"]["timing_s"]
     d = next((e for e in rep.get("budget", {}).get("scalars", []) if e["name"] == "diameter_mm"), None)
     dtxt = (
-        f"{p['diameter_m'] * 1e3:.3f} ± {p['diameter_stderr_m'] * 1e3:.3f} (stat)"
+        f"{p['diameter_m'] * 1e3:.3f} (fixed)"
         if d is None
         else f"{d['limit']} ({d['status']})"
         if d["status"] == "at_bound"
-        else f"{d['value']:.3f} ± {d['stat']:.3f} (stat) ± {d['systematic']:.3f} (sys) = ± {d['total']:.3f}"
+        else f"{d['value']:.3f} ({d['status']}: {d['note']})"
+        if d["status"] != "determined"
+        else f"{d['value']:.4g} ± {d['stat']:.2g} (stat) ± {d['systematic']:.2g} (sys) = ± {d['total']:.2g}"
     )
     print(
-        f"fit: {f['result_code']} in {f['n_steps']} steps; D = {dtxt} mm; RMS {rms}; chi2_red {f['chi2_reduced']:.3g}; "
+        f"fit: {f['result_code']} in {f['n_steps']} steps; D = {dtxt} mm; RMS {rms}; {_chi2_text(f)}; "
         f"transfer {t['transfer_simulation']:.1f} s + fit {t['fit']:.1f} s + error budget {t.get('error_budget', 0):.1f} s"
     )
     for u in rep.get("budget", {}).get("undetermined", []):
         print(f"not determined by the data: {u}")
     print(f"report: {out_dir / 'report.md'}")
+    print(f"{verdict['outcome'].replace('_', ' ')} (exit {verdict['exit_code']}): {verdict['line']}")
+
+
+def _chi2_text(f: dict) -> str:
+    """'chi2_red 0.98 (p 0.61; lobe 1.0, wave 0.93)': per measured datum, joint and per data set."""
+    g = f.get("goodness") or {}
+    j = g.get("joint")
+    if j is None:
+        return f"chi2_red {f['chi2_reduced']:.3g}"
+    sets = ", ".join(f"{k} {g[k]['chi2_reduced']:.3g}" for k in ("lobe", "wave") if k in g)
+    return f"chi2_red {j['chi2_reduced']:.3g} (p {j['p']:.2g}; {sets})"
 
 
 def run_fit_config(path: str | Path, *, out=None, quick: bool = False) -> int:
-    """`difflattice fit`: load, run, report; exit code 0 (converged) or 3 (did not converge)."""
+    """`difflattice fit`: load, run, report; exit code 0 (converged and consistent with the data),
+    3 (did not converge) or 4 (converged, but the model does not describe the data): see
+    `fit.verdict`."""
     cfg = load_config(path)
     rep = run_fit(cfg, out=out, quick=quick)
-    return 0 if rep["fit"]["converged"] else 3
+    return int(rep["fit"]["outcome"]["exit_code"])
 
 
 def config_markdown() -> str:

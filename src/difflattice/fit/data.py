@@ -143,6 +143,27 @@ def wave_from_capture(cap, *, sigma_deg: float) -> WaveData:
     )
 
 
+def wave_from_table(table, *, frequency_hz: float, z_m: float, temperature_c: float, sigma_deg: float) -> WaveData:
+    """WaveData from a plain wavefront table (`difflattice.capture.files.load_wave_table`): the
+    lag (deg, or 360 f delay) becomes the models' phase -lag in radians, with the stated
+    frequency (Hz), scan distance `z_m` (m), air temperature (degC) and phase 1-sigma (deg) that
+    the table does not carry."""
+    if not sigma_deg > 0:
+        raise ValueError(f"wave sigma_deg = {sigma_deg} must be > 0 deg")
+    lag_deg = table.lag_deg if table.lag_deg is not None else 360.0 * frequency_hz * np.asarray(table.delay_s)
+    order = np.argsort(table.x_m, kind="stable")
+    return WaveData(
+        x_m=np.asarray(table.x_m, float)[order],
+        phase_rad=-np.radians(np.mod(np.asarray(lag_deg, float), 360.0))[order],
+        sigma_rad=np.full(len(order), math.radians(sigma_deg)),
+        z_m=float(z_m),
+        frequency_hz=float(frequency_hz),
+        cycles=0.0,
+        temperature_c=float(temperature_c),
+        source=str(table.path),
+    )
+
+
 def _outside(values: np.ndarray, ranges) -> np.ndarray:
     keep = np.ones(len(values), bool)
     for lo, hi in ranges:

@@ -85,6 +85,7 @@ def _summary(r: FitResult) -> dict:
         "compile_s": r.trace.compile_s if r.trace is not None else None,
         "cost": r.cost,
         "chi2_reduced": r.chi2_reduced,
+        "goodness": r.goodness,
         "variance_factor": r.variance_factor,
         "effective_params": r.effective_params,
         "dof": r.dof,
@@ -158,7 +159,7 @@ def aperture_arrays(fitted: FitResult, budget) -> dict:
                 complete = False
                 break
             vals.append(e.value * scale)
-            ok = e.status in ("determined", "reference", "at_bound")
+            ok = e.status in ("determined", "reference", "fixed", "at_bound")
             errs.append(e.total * scale if ok else float("nan"))
             alts.append(e.alternatives[0] * scale if e.alternatives else e.value * scale)
         if complete:
@@ -406,6 +407,7 @@ def write_report(
     "weights", "lags_s"}): overlaid on the aperture plot (emulated data). `figures`: the figures
     `start_figures` began (`field_image` then applies there); else they are drawn here."""
     from .uncertainty import error_budget
+    from .verdict import fit_outcome
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -419,6 +421,7 @@ def write_report(
                 "(fit.uncertainty.error_budget); the totals are statistical (chi2-inflated) only"
             )
         rep = {"fit": _summary(fitted), "budget": budget.to_dict(), "provenance": provenance, "transfer": transfer.info}
+        rep["fit"]["outcome"] = fit_outcome(fitted, budget)
         if uniform is not None:
             rep["untuned_uniform_model"] = {
                 "rms": uniform.rms,
@@ -444,7 +447,7 @@ def write_report(
         figures.close()
     order = ("lobe", "wavefront", "aperture", "convergence", "field")
     rep["figures"] = {k: str(figs[k]) for k in order if k in figs}
-    (out / "report.json").write_text(json.dumps(rep, indent=2, default=_default))
+    (out / "report.json").write_text(json.dumps(_finite_or_null(rep), indent=2, default=_default, allow_nan=False))
     (out / "report.md").write_text(_markdown(rep, fitted, uniform, budget))
     return rep
 
@@ -556,6 +559,12 @@ def _markdown(rep: dict, fitted: FitResult, uniform: FitResult | None, budget) -
     f = rep["fit"]
     m = f["model"]
     lines = ["# Fit report", ""]
+    verdict = f.get("outcome")
+    if verdict is not None:
+        lines += [
+            f"**Outcome: {verdict['outcome'].replace('_', ' ')}** (exit code {verdict['exit_code']}): {verdict['line']}",
+            "",
+        ]
     if not f["converged"]:
         lines += [
             "> **WARNING: THE FIT DID NOT CONVERGE** (`"
@@ -580,12 +589,14 @@ def _markdown(rep: dict, fitted: FitResult, uniform: FitResult | None, budget) -
         + f"; loss {f['loss']}",
         f"- convergence: **{'converged' if f['converged'] else 'NOT CONVERGED'}** — {c['reason']} ({stages} steps; "
         f"{f['wall_time_s']:.2f} s, of which compilation {_fmt(f['compile_s'], '.2f')} s)",
-        f"- reduced chi-square (all data points): {f['chi2_reduced']:.3g}; variance factor of the errors: "
-        f"{f['variance_factor']:.3g} (1 = residuals at the stated noise); effective parameters {f['effective_params']:.1f}",
+        f"- reduced chi-square (all data points, one residual per measured datum): {f['chi2_reduced']:.3g}; "
+        f"variance factor of the errors: {f['variance_factor']:.3g} (1 = residuals at the stated noise); "
+        f"effective parameters {f['effective_params']:.1f}",
         f"- Jacobian condition number: {f['condition_number']:.3g}",
         "- strongest correlations of the fitted parameters: "
         + (", ".join(f"{a}/{b} {v:+.2f}" for a, b, v in f["correlation"]["strongest"]) or "n/a"),
     ]
+    lines += _goodness_lines(f)
     for name, o in f["outliers"].items():
         lines.append(
             f"- {name} residuals: RMS {o['rms']:.3g} sigma, robust sigma (MAD) {o['robust_sigma']:.3g}; "
@@ -632,6 +643,34 @@ def _markdown(rep: dict, fitted: FitResult, uniform: FitResult | None, budget) -
     return "\n".join(lines)
 
 
+def _goodness_lines(f: dict) -> list[str]:
+    """The goodness-of-fit table: chi-square per data set and joint, counted per measured datum."""
+    g = f.get("goodness") or {}
+    if not g:
+        return []
+    lines = [
+        "",
+        "| data set | points | dof | chi2 | chi2_red | P(chi2 >= this) | sign runs (noise: expected) | P(runs <= this) |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for key, name in (("lobe", "lobe"), ("wave", "wavefront"), ("joint", "joint")):
+        s = g.get(key)
+        if not s:
+            continue
+        runs = f"{s['runs']} ({s['runs_expected']:.1f})" if "runs" in s else "—"
+        lines.append(
+            f"| {name} | {s['n']} | {s['dof']:.1f} | {s['chi2']:.4g} | {s['chi2_reduced']:.3g} | {s['p']:.3g} | "
+            f"{runs} | {s['runs_p']:.3g} |"
+        )
+    lines += [
+        "",
+        f"dof = points less the set's share of the fitted parameters (its leverages); a probability below "
+        f"{g.get('p_min', 1e-3):g} means the model does not describe that data set at the stated noise.",
+        "",
+    ]
+    return lines
+
+
 def _top_correlations(r: FitResult, k: int = 3) -> list:
     """The k strongest correlations between the fitted (raw) parameters: distinct parameters
     only (a symmetric profile's mirror cells are one raw parameter, so never listed as a pair)."""
@@ -645,6 +684,20 @@ def _top_correlations(r: FitResult, k: int = 3) -> list:
     ]
     pairs.sort(key=lambda p: -p[0])
     return [(a, b, v) for _, a, b, v in pairs[:k]]
+
+
+def _finite_or_null(o):
+    """The report with every non-finite number (an error that is not determined, a convergence
+    measure never taken) as JSON null: report.json holds no NaN or Infinity (not JSON)."""
+    if isinstance(o, dict):
+        return {k: _finite_or_null(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_finite_or_null(v) for v in o]
+    if isinstance(o, np.ndarray):
+        return _finite_or_null(o.tolist())
+    if isinstance(o, (float, np.floating)) and not math.isfinite(float(o)):
+        return None
+    return o
 
 
 def _default(o):

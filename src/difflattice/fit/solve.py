@@ -54,6 +54,7 @@ from ..transforms import logit
 from .data import LobeData, WaveData
 from .model import ModelSpec, device_array, lobe_model_db, soft_floor_db, wave_model_phase
 from .transfer import Transfer
+from .verdict import GOODNESS_P_MIN
 
 Solver = Literal["levenberg_marquardt", "dogleg", "gauss_newton", "bfgs"]
 SOLVERS = ("levenberg_marquardt", "dogleg", "gauss_newton", "bfgs")
@@ -182,7 +183,8 @@ class FitResult:
     covariance_raw: np.ndarray | None = None
     raw_labels: list = field(default_factory=list)
     null_space: np.ndarray | None = None  # (n_params, k) directions the data do not constrain
-    dof: int = 0
+    dof: int = 0  # minimised residuals counted per measured datum (prior rows included) - parameters
+    goodness: dict = field(default_factory=dict)  # per data set and joint: chi2, dof, chi2_red, p (`goodness_of_fit`)
     outliers: dict = field(default_factory=dict)
     loss: str = "l2"
     variance_factor: float = 1.0  # multiplies the statistical covariance (chi2_red for l2, robust for others)
@@ -614,6 +616,7 @@ def fit(
     *,
     params0: dict | None = None,
     progress: bool = False,
+    multistart: bool = False,
 ) -> FitResult:
     """Fit `spec` to the data. Never raises on non-convergence: the result says so (`converged`,
     `result_code`, `convergence`, `warnings`). `progress` shows a bar of solver steps with the cost.
@@ -623,29 +626,44 @@ def fit(
     (2) everything, with the sigmas floored at 1 dB and 5 deg (a smoother cost: with 0.05 dB
     sigmas the first long steps of a free profile can jump to a far local minimum, e.g. an
     aperture dominated by its edges); (3) everything with the measured sigmas. The reported
-    convergence is that of the last stage."""
+    convergence is that of the last stage.
+
+    `multistart` (with a `params0` whose diameter is fitted, e.g. a user's start diameter): the
+    first stage runs from `params0` and from the diameter scan's best start, and the fit goes on
+    from the lower cost: a lobe's cost in D has a local minimum near every null, so a start far
+    from the truth (0.75 x, 1.3 x) would otherwise stay in one."""
     t_start = time.perf_counter()
     problem = build_problem(spec, transfer, lobe, wave, options)
     p0 = initial_params(problem, params0)
+    starts = [p0]
+    if multistart and params0 is not None and "diam" in p0:
+        starts.append(initial_params(problem, None))
     bar = None
     if progress:
         from tqdm import tqdm
 
         bar = tqdm(desc="fit", unit="step")
     try:
-        stages = _fit_stages(problem, p0, options, params0 is None, bar)
+        stages = _fit_stages(problem, starts, options, params0 is None, bar)
     finally:
         if bar is not None:
             bar.close()
     return _result(problem, spec, stages, options, lobe, wave, time.perf_counter() - t_start)
 
 
-def _fit_stages(problem: Problem, p0: dict, options: FitOptions, scan: bool, bar) -> list[tuple[int, _Stage]]:
+def _fit_stages(
+    problem: Problem, starts: dict | list[dict], options: FitOptions, scan: bool, bar
+) -> list[tuple[int, _Stage]]:
+    """The stages from one start (a dict) or the first stage from each of several (a list), the
+    rest from the best of those."""
+    starts = [starts] if isinstance(starts, dict) else list(starts)
     out = []
-    start = p0
+    p0 = start = starts[0]
     profiles = frozenset(k for k in p0 if k in ("w", "lag"))
-    if profiles and scan and "diam" in p0:
-        s1 = _run_stage(_relaxed(problem), p0, options, hold=profiles, stage=1, bar=bar)
+    if (profiles and scan and "diam" in p0) or len(starts) > 1:
+        firsts = [_run_stage(_relaxed(problem), p, options, hold=profiles, stage=1, bar=bar) for p in starts]
+        ok = [s for s in firsts if _finite(s.y)]
+        s1 = min(ok, key=lambda s: s.cost[-1] if s.cost else math.inf) if ok else firsts[0]
         out.append((1, s1))
         if _finite(s1.y):
             start = s1.y
@@ -742,8 +760,6 @@ def _result(problem: Problem, spec: ModelSpec, stages, options: FitOptions, lobe
     J = np.asarray(_jacobian(problem, {}, params))
     m, npar = J.shape
     cost = 0.5 * float(np.sum(r * r))
-    dof = max(m - npar, 1)
-    chi2 = 2 * cost / dof
     finite = finite and bool(np.all(np.isfinite(J)))
     if finite:
         _, s, vt = np.linalg.svd(J, full_matrices=False)
@@ -776,7 +792,18 @@ def _result(problem: Problem, spec: ModelSpec, stages, options: FitOptions, lobe
     G = arrays["G"]
     # residual statistics: RMS per observable, outliers, chi2 of all data points
     data_res = arrays["data_res"]
+    goodness = goodness_of_fit(
+        data_res, J[n_prior:], cov_raw if finite else None, npar, _datum_weights(problem, arrays)
+    )
+    # degrees of freedom per measured datum (a wavefront point is one phase, whose chord residual
+    # is minimised as the pair (sin d, 1 - cos d) of the same squared norm; a lobe level below
+    # the soft floor counts as the share of a datum its residual carries) and per prior row
+    n_data = goodness["joint"]["n_data"] if goodness else float(m - n_prior)
+    dof = max(int(round(n_data)) + n_prior - npar, 1)
+    chi2 = 2 * cost / max(n_data + n_prior - npar, 1.0)
     chi2_data, var_factor = _chi2_and_variance_factor(data_res, options, npar, chi2)
+    if options.loss == "l2" and "joint" in goodness:
+        chi2_data = goodness["joint"]["chi2_reduced"]
     se = np.sqrt(np.clip(np.diag(G @ cov_raw @ G.T), 0, None) * max(var_factor, 1.0))
     stderr = {lab: float(v) for lab, v in zip(phys_labels, se)}
     outliers = outlier_diagnostics(data_res)
@@ -860,12 +887,98 @@ def _result(problem: Problem, spec: ModelSpec, stages, options: FitOptions, lobe
         raw_labels=labels,
         null_space=null,
         dof=dof,
+        goodness=goodness,
         outliers=outliers,
         loss=options.loss,
         variance_factor=var_factor,
         effective_params=edf,
         options=options,
     )
+
+
+def runs_test(r) -> tuple[int, float, float]:
+    """(runs, expected runs, one-sided p of so few) of the signs of the residuals `r` in data
+    order (Wald-Wolfowitz, normal approximation): a model that misses a structure leaves long
+    runs of one sign, noise leaves about n/2 + 1. p = 1 where there are too few of either sign."""
+    from scipy.stats import norm
+
+    s = np.sign(np.asarray(r, float))
+    s = s[s != 0]
+    n1, n2 = int(np.sum(s > 0)), int(np.sum(s < 0))
+    n = n1 + n2
+    runs = 1 + int(np.sum(s[1:] != s[:-1])) if n else 0
+    if n1 < 2 or n2 < 2:
+        return runs, float(runs), 1.0
+    mu = 2.0 * n1 * n2 / n + 1
+    var = 2.0 * n1 * n2 * (2.0 * n1 * n2 - n) / (n * n * (n - 1))
+    return runs, mu, float(norm.cdf((runs - mu + 0.5) / math.sqrt(var)))
+
+
+def _datum_weights(problem: Problem, arrays: dict) -> dict:
+    """Per data set, the share of a datum each point's residual carries: its expected squared
+    normalised residual from noise alone. 1 for a wavefront phase; for a lobe level L the soft
+    floor F compresses the noise by its slope 1 / (1 + 10^((F - L)/10)), so a point far below
+    the floor carries almost nothing (it says only "below the floor")."""
+    out = {}
+    if problem.lobe_floor is not None and arrays.get("lobe_db") is not None:
+        level = np.asarray(arrays["lobe_db"], float)
+        out["lobe"] = 1.0 / (1.0 + 10.0 ** ((problem.lobe_floor - level) / 10.0)) ** 2
+    return out
+
+
+def goodness_of_fit(
+    data_res: dict, J_data: np.ndarray, cov_raw: np.ndarray | None, npar: int, datum_weights: dict | None = None
+) -> dict:
+    """Chi-square per data set and joint, counted per measured datum: a lobe point is one level,
+    a wavefront point one phase (its residual: the chord 2 sin(d/2) / sigma, ~ d / sigma); a
+    point's count is its `datum_weights` entry where given (a lobe level below the soft floor:
+    less than one, `_datum_weights`), so `n_data` is the data's equivalent number of points. Each
+    set's degrees of freedom are that number less its share of the fitted parameters, the sum of
+    its rows' leverages (the hat matrix's diagonal; the joint sum is the effective number of
+    parameters, `npar` without a smoothness prior). Per set: `chi2`, `n` (points), `n_data`,
+    `dof`, `chi2_reduced`, `p` (scipy.stats.chi2.sf: the probability of a chi-square this large
+    from a correct model at the stated noise) and the runs test of the residual signs (`runs`,
+    `runs_expected`, `runs_p`)."""
+    from scipy.stats import chi2 as chi2_dist
+
+    if not data_res:
+        return {}
+    lev = None
+    if cov_raw is not None and np.all(np.isfinite(cov_raw)) and np.all(np.isfinite(J_data)):
+        lev = np.einsum("ij,jk,ik->i", J_data, cov_raw, J_data)
+    out: dict = {}
+    row = 0
+    tot_chi2 = tot_n = tot_d = tot_h = 0.0
+    for name, res in data_res.items():
+        res = np.asarray(res, float)
+        n = len(res)
+        rows = n if name == "lobe" else 2 * n  # a wavefront point: the rows sin d and 1 - cos d
+        h = float(np.sum(lev[row : row + rows])) if lev is not None else npar * n / max(len(J_data), 1)
+        row += rows
+        c2 = float(np.sum(res * res))
+        w = (datum_weights or {}).get(name)
+        n_data = float(np.sum(w)) if w is not None and len(w) == n else float(n)
+        out[name] = _goodness_entry(c2, n, n_data, h, chi2_dist)
+        runs, mu, p_runs = runs_test(res)
+        out[name].update(runs=runs, runs_expected=mu, runs_p=p_runs)
+        tot_chi2, tot_n, tot_d, tot_h = tot_chi2 + c2, tot_n + n, tot_d + n_data, tot_h + h
+    out["joint"] = _goodness_entry(tot_chi2, int(tot_n), tot_d, tot_h, chi2_dist)
+    out["joint"]["runs_p"] = min(v["runs_p"] for k, v in out.items() if k != "joint")
+    out["p_min"] = GOODNESS_P_MIN
+    return out
+
+
+def _goodness_entry(c2: float, n: int, n_data: float, h: float, dist) -> dict:
+    dof = max(n_data - h, 1.0)
+    return {
+        "chi2": c2,
+        "n": n,
+        "n_data": n_data,
+        "params_share": h,
+        "dof": dof,
+        "chi2_reduced": c2 / dof,
+        "p": float(dist.sf(c2, dof)) if math.isfinite(c2) else 0.0,
+    }
 
 
 def _chi2_and_variance_factor(data_res: dict, options: FitOptions, npar: int, chi2_fit: float) -> tuple[float, float]:

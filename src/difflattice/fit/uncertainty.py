@@ -83,7 +83,43 @@ NUISANCE = ("gain_db", "phase0_deg")
 OFFSET_LABELS = ("diameter.logit", "gain_db", "phase0_rad")
 """Raw parameters that are not profile coefficients (their physical forms are budget scalars)."""
 """Offsets whose meaning depends on the lattice's unit source cell (no resolution term)."""
-STATUSES = ("determined", "reference", "at_bound", "undetermined", "inactive")
+STATUSES = ("determined", "reference", "fixed", "at_bound", "undetermined", "inactive")
+_COEF_UNITS = {
+    "w.rim_log": "ln(rim weight)",
+    "lag.rim_atanh": "artanh(2 lag / T)",
+}
+_HUMAN = {
+    "diameter_mm": "active diameter",
+    "gain_db": "gain (re the centre cell)",
+    "phase0_deg": "wavefront phase offset (re the centre cell)",
+    "w.rim_log": "rim weight (log)",
+    "lag.rim_atanh": "rim lag",
+    "w.rim_width_logit": "weight taper's rim width (logit of its share of the radius)",
+    "lag.rim_width_logit": "lag taper's rim width (logit of its share of the radius)",
+}
+
+
+def coefficient_unit(label: str) -> str:
+    """The unit of a raw profile coefficient: smooth weight coefficients multiply Chebyshev
+    polynomials of the log weight, lag coefficients those of artanh(2 lag / T)."""
+    if label in _COEF_UNITS:
+        return _COEF_UNITS[label]
+    if label.endswith("_logit"):
+        return "logit"
+    return "ln(weight)" if label.startswith("w.") else "artanh(2 lag / T)"
+
+
+def human_name(name: str) -> str:
+    """A reader's name for a budget quantity ("" where the name says it)."""
+    if name in _HUMAN:
+        return _HUMAN[name]
+    for prefix, what in (
+        ("w.T", "weight profile, Chebyshev coefficient of degree "),
+        ("lag.T", "lag profile, Chebyshev coefficient of degree "),
+    ):
+        if name.startswith(prefix):
+            return f"{what}{name[len(prefix) :]}"
+    return ""
 
 
 @dataclass(frozen=True)
@@ -138,6 +174,8 @@ class Estimate:
         f = f".{digits}g"
         if self.status == "at_bound":
             return f"{self.limit} ({self.note})" if self.note else str(self.limit)
+        if self.status in ("reference", "fixed"):
+            return f"{self.value:{f}} ({self.status})"
         if self.status in ("undetermined", "inactive"):
             alt = f"; also {', '.join(format(a, f) for a in self.alternatives)}" if self.alternatives else ""
             return f"{self.value:{f}} (undetermined{alt})"
@@ -282,12 +320,14 @@ class ErrorBudget:
         ):
             if not ests:
                 continue
-            active = [e for e in ests if e.status != "inactive"]
-            n_in = len(ests) - len(active)
+            n_in = sum(e.status == "inactive" for e in ests)
             lines += ["", f"### {title}", ""]
-            lines += _table(active, first="y (mm)")
+            lines += _table(ests, first="y (mm)")
             if n_in:
-                lines += ["", f"{n_in} cells outside the active aperture are not determined by the data (not listed)."]
+                lines += [
+                    "",
+                    f"{n_in} cells outside the active aperture are listed as inactive: the data do not determine them.",
+                ]
         if self.aliases:
             lines += ["", "One parameter by construction (listed once): " + "; ".join(self.aliases)]
         if self.undetermined:
@@ -330,13 +370,17 @@ def _table(ests: list, first: str) -> list[str]:
         "|---|---|---|---|---|---|---|---|",
     ]
     for e in ests:
-        label = f"{e.y_mm:+.2f}" if e.y_mm is not None and first.startswith("y") else f"{e.name} ({e.unit})"
+        label = (
+            f"{e.y_mm:+.2f}"
+            if e.y_mm is not None and first.startswith("y")
+            else f"{e.name} ({e.unit}): {human_name(e.name)}".rstrip(": ")
+        )
         status = e.status if not e.note else f"{e.status}: {e.note}"
         parts = f"{_fmt(e.sys_resolution)} | {_fmt(e.sys_model)}"
         if e.status == "at_bound":
-            lines.append(f"| {label} | {e.limit} | {_fmt(e.stat)} | — | — | {parts} | {status} |")
+            lines.append(f"| {label} | {e.limit} | — | — | — | — | — | {status} |")  # a limit, not a value ± error
             continue
-        if e.status == "reference":
+        if e.status in ("reference", "fixed", "inactive") or (e.status == "undetermined" and not e.alternatives):
             lines.append(f"| {label} | {e.value:.5g} | — | — | — | — | — | {status} |")
             continue
         alt = f" (or {', '.join(f'{a:.4g}' for a in e.alternatives)})" if e.alternatives else ""
@@ -384,7 +428,7 @@ def quantities(spec: ModelSpec, params: dict):
     if coef:
         parts.append(flat[jnp.asarray(coef)])
         names += [labels[i] for i in coef]
-        units += ["raw"] * len(coef)
+        units += [coefficient_unit(labels[i]) for i in coef]
     return jnp.concatenate(parts), names, units
 
 
@@ -795,6 +839,22 @@ def error_budget(
                     sys_family=0.0,
                 )
 
+    # quantities the fit does not move (a uniform profile's cells, a rim taper's flat part, a
+    # fixed diameter): fixed by the model, not determined by the data
+    gnorm = np.linalg.norm(G, axis=1) if G.size else np.zeros(len(names))
+    for i, k in enumerate(names):
+        per_cell = k.startswith(("w[", "lag_us["))  # a scalar is listed only when it is fitted
+        if per_cell and est[k].status == "determined" and gnorm[i] <= 1e-12 * max(abs(float(v[i])), 1.0):
+            est[k] = dataclasses.replace(
+                est[k],
+                status="fixed",
+                note="set by the model, not fitted",
+                stat=0.0,
+                sys_resolution=None,
+                sys_chi2=0.0,
+                sys_family=None,
+            )
+
     # null directions of the Jacobian
     N = fitted.null_space
     if N is not None and N.size:
@@ -805,9 +865,12 @@ def error_budget(
                 est[k], status="undetermined", note="the data do not constrain it (null direction of the Jacobian)"
             )
         if hit:
+            raw = spec.raw_labels(params)
+            dirs = "; ".join(_direction_text(N[:, j], raw) for j in range(min(N.shape[1], 3)))
             undetermined.append(
                 f"{_describe(hit)}: along {N.shape[1]} direction(s) the data do not constrain the "
-                "parameters (Jacobian null space); their values are arbitrary there"
+                f"parameters (Jacobian condition number {fitted.condition_number:.3g}; flat direction(s) {dirs}); "
+                "the data determine only the combinations orthogonal to them"
             )
 
     # symmetries of the data
@@ -860,35 +923,8 @@ def error_budget(
     # bounds
     bounds = spec.bounds()
     soft_mm = spec.edge_softness_m * 1e3
-    if "diameter_mm" in est:
-        e = est["diameter_mm"]
-        lo, hi = bounds["diameter_mm"]
-        # pinned at a bound: within what the fit itself resolves (not the systematic spread) of it
-        margin = max(2 * e.stat * math.sqrt(max(vf, 1.0)), 2 * soft_mm)
-        labels = spec.raw_labels(params)
-        j = labels.index("diameter.logit")
-        sd_raw = math.sqrt(max(float(cov[j, j]), 0.0) * max(vf, 1.0)) if cov is not None else 0.0
-        d_raw = float(params["diam"])
-        if hi - e.value < margin:
-            lim = min(e.value - 2 * e.total, hi * sigmoid(d_raw - 2 * sd_raw))
-            est["diameter_mm"] = dataclasses.replace(
-                e,
-                status="at_bound",
-                bound_side="upper",
-                limit_value=lim,
-                limit=f">= {lim:.4g}",
-                note=f"at the upper bound, the modelled line's {hi:.4g} mm: lengthen model.line_length_m",
-            )
-        elif e.value - lo < margin:
-            lim = max(e.value + 2 * e.total, hi * sigmoid(d_raw + 2 * sd_raw))
-            est["diameter_mm"] = dataclasses.replace(
-                e,
-                status="at_bound",
-                bound_side="lower",
-                limit_value=lim,
-                limit=f"<= {lim:.4g}",
-                note="at the lower bound 0",
-            )
+    if "diameter_mm" in est and est["diameter_mm"].status in ("determined", "undetermined"):
+        est["diameter_mm"] = _diameter_bound(est["diameter_mm"], bounds["diameter_mm"], soft_mm, spec, params, cov, vf)
     lo, hi = bounds["lag_us"]
     for k in names:
         if k.startswith("lag_us[") and est[k].status == "determined":
@@ -897,6 +933,7 @@ def error_budget(
             if hi - lag_abs < max(2 * e.stat * math.sqrt(max(vf, 1.0)), 0.01 * hi):
                 side = "upper" if e.value > 0 else "lower"
                 lim = e.value - 2 * e.total if side == "upper" else e.value + 2 * e.total
+                lim = min(max(lim, -(hi - lo)), hi - lo)  # a relative lag lies within one period
                 est[k] = dataclasses.replace(
                     e,
                     status="at_bound",
@@ -906,24 +943,37 @@ def error_budget(
                     note="the lag reaches +-T/2 (defined modulo the period)",
                 )
 
-    # mirror duplicates: identical rows of d quantity / d parameters and equal values
+    # mirror duplicates, from the model's structure: cells at mirrored positions (y and -y) of a
+    # profile that is one parameter per mirror pair by construction (never from equal values: a
+    # disc's rings have no mirror, and a rim taper's flat rings are equal without being one)
     aliases = []
-    drop = set()
-    for prefix in ("w[", "lag_us["):
-        pairs = 0
-        for k in range(n // 2):
-            a, b = f"{prefix}{k}]", f"{prefix}{n - 1 - k}]"
-            if a in est and b in est:
-                ia, ib = names.index(a), names.index(b)
-                same_value = abs(v[ia] - v[ib]) <= 1e-9 * max(1.0, abs(float(v[ia])))  # (a disc's rings differ)
-                if same_value and np.allclose(
-                    G[ia], G[ib], rtol=1e-9, atol=1e-12 * max(1.0, float(np.abs(G[ia]).max()))
-                ):
-                    drop.add(a)
-                    pairs += 1
+    drop: set[str] = set()
+    for prefix, profile in (("w[", spec.weights), ("lag_us[", spec.lags)):
+        pairs = _mirror_pairs(spec, profile)
+        pairs = [(a, b) for a, b in pairs if f"{prefix}{a}]" in est and f"{prefix}{b}]" in est]
+        drop.update(f"{prefix}{a}]" for a, _ in pairs)
         if pairs:
             aliases.append(
-                f"{pairs} mirror pairs {prefix}k] = {prefix}n-1-k] (symmetric profile): the cells at y >= 0 listed"
+                f"{len(pairs)} mirror pairs {prefix}k] = {prefix}n-1-k] ({profile} profile of a symmetric model: one "
+                "parameter per pair): the cells at y >= 0 listed"
+            )
+
+    # never NaN, never a zero error for a quantity the fit moves
+    for k in names:
+        e = est[k]
+        if e.status in ("determined", "undetermined") and not (math.isfinite(e.total) and math.isfinite(e.value)):
+            est[k] = dataclasses.replace(
+                e,
+                status="undetermined",
+                stat=0.0,
+                sys_chi2=0.0,
+                sys_resolution=None,
+                sys_family=None,
+                note="its uncertainty is not finite (singular covariance): the data do not determine it",
+            )
+        elif e.status == "determined" and not e.total > 1e-12 * max(abs(e.value), 1.0):
+            est[k] = dataclasses.replace(
+                e, status="undetermined", note="zero uncertainty for a fitted quantity: a flat or saturated direction"
             )
 
     scalars = [est[k] for k in names if not k.startswith(("w[", "lag_us["))]
@@ -932,6 +982,8 @@ def error_budget(
     for e in scalars:
         if e.status == "at_bound":
             undetermined.append(f"{e.name}: {e.note}; reported as the one-sided limit {e.limit}")
+        elif e.status == "undetermined" and e.note and not any(e.name in u for u in undetermined):
+            undetermined.append(f"{e.name}: {e.note}")
     return ErrorBudget(
         scalars=scalars,
         weights=weights,
@@ -944,6 +996,71 @@ def error_budget(
         aliases=aliases,
         notes=notes,
     )
+
+
+def _diameter_bound(e: Estimate, bound: tuple, soft_mm: float, spec: ModelSpec, params: dict, cov, vf: float):
+    """The diameter's estimate with its bound status. "at_bound" only when the value is AT the
+    bound (within 2 edge softnesses, or 0.1 %, of it); its one-sided limit is the likelihood's:
+    2 inflated standard errors of the raw (logit) parameter away from the bound, mapped into the
+    allowed range (0, modelled line). Where that limit says nothing (the data do not bound the
+    diameter away from the other end) the diameter is "undetermined", never a negative or
+    vanishing limit."""
+    lo, hi = bound
+    at = max(2 * soft_mm, 1e-3 * hi)
+    side = "upper" if hi - e.value < at else "lower" if e.value - lo < at else None
+    if side is None:
+        return e
+    labels = spec.raw_labels(params)
+    j = labels.index("diameter.logit")
+    var = float(cov[j, j]) * max(vf, 1.0) if cov is not None else math.nan
+    sd_raw = math.sqrt(var) if math.isfinite(var) and var > 0 else math.nan
+    d_raw = float(params["diam"])
+    lim = hi * sigmoid(d_raw - 2 * sd_raw) if side == "upper" else hi * sigmoid(d_raw + 2 * sd_raw)
+    if not math.isfinite(lim):
+        lim = e.value  # no curvature at all: the only statement is the bound itself
+    fix = (
+        "lengthen model.line_length_m (the optimum lies beyond the modelled face)"
+        if side == "upper"
+        else "the data see no active face: check the data's units and the model"
+    )
+    useful = lim > max(2 * soft_mm, 0.01 * hi) if side == "upper" else lim < hi - max(2 * soft_mm, 0.01 * hi)
+    if not useful:
+        return dataclasses.replace(
+            e,
+            status="undetermined",
+            note=f"at the {side} bound {hi if side == 'upper' else lo:.4g} mm and the data set no useful limit: {fix}",
+        )
+    where = f"the modelled line's {hi:.4g} mm" if side == "upper" else f"{lo:g} mm"
+    return dataclasses.replace(
+        e,
+        status="at_bound",
+        bound_side=side,
+        limit_value=lim,
+        limit=f"{'>=' if side == 'upper' else '<='} {lim:.4g}",
+        note=f"at the {side} bound, {where}: {fix}",
+    )
+
+
+def _mirror_pairs(spec: ModelSpec, profile: str) -> list[tuple[int, int]]:
+    """(k, n-1-k) pairs that are one parameter by the model's construction: cells at mirrored
+    positions (y_k = -y_(n-1-k)) of a profile that is even in y ("symmetric", "uniform", or
+    "smooth" with even degrees only). A disc's rings (y >= 0) have none."""
+    y = np.asarray(spec.y_m, float)
+    n = len(y)
+    even = profile in ("symmetric", "uniform") or (profile == "smooth" and bool(spec.symmetric))
+    if not even or not np.any(y < 0):
+        return []
+    tol = 1e-9 * max(float(np.max(np.abs(y))), 1e-12)
+    return [(k, n - 1 - k) for k in range(n // 2) if abs(y[k] + y[n - 1 - k]) <= tol]
+
+
+def _direction_text(d: np.ndarray, labels: Sequence[str]) -> str:
+    """'0.71 diameter.logit - 0.70 w.T2' for a unit direction in raw-parameter space (its
+    components above 0.1)."""
+    d = np.asarray(d, float)
+    order = np.argsort(-np.abs(d))
+    terms = [f"{d[i]:+.2f} {labels[i]}" for i in order if abs(d[i]) >= 0.1][:4]
+    return " ".join(terms).lstrip("+") or "(spread over many parameters)"
 
 
 def _describe(keys: Sequence[str]) -> str:

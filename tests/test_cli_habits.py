@@ -146,7 +146,9 @@ def test_ctrl_c_during_simulate_exits_130_with_one_line(tmp_path):
     assert len(lines) == 1 and lines[0].startswith("interrupted (Ctrl-C)"), text[-2000:]
     assert waited < 10, waited  # at once, not after the compiled piece returns
     if out.is_dir() and any(p.name != INCOMPLETE for p in out.iterdir()):
-        assert (out / INCOMPLETE).exists()
+        # partial outputs are marked; a run that had finished before the interrupt took effect
+        # (e.g. a warm cache: fig02 runs in well under a second) says its outputs are complete
+        assert (out / INCOMPLETE).exists() or lines[0].endswith("are complete"), lines
 
 
 def test_the_top_level_names_do_not_change_with_import_order():

@@ -32,7 +32,7 @@ META = {
     "transducer_id": "EMULATED-piston-38.4mm",
     "microphone": "EMULATED-ideal",
     "temperature_c": 21.0,
-    "humidity_pct": 45.0,
+    "humidity_pct": 0.0,  # the emulated rig's air is dry (its ground truth has no humidity)
     "pressure_hpa": 1013.25,
     "operator": "make_samples.py",
     "note": "EMULATED data from difflattice rig emulator, not a measurement",

@@ -546,7 +546,17 @@ def _install_interrupt_handler() -> None:
     import signal
     import socket
 
-    signal.signal(signal.SIGINT, signal.default_int_handler)  # also where the shell had ignored it
+    def on_sigint(signum, frame):
+        _SESSION["interrupted"] = True  # seen by `main` even where the KeyboardInterrupt is lost
+        raise KeyboardInterrupt
+
+    def unraisable(u) -> None:  # a KeyboardInterrupt raised inside a gc callback or __del__ is
+        if isinstance(u.exc_value, KeyboardInterrupt):  # "ignored" by Python: not a traceback here
+            return
+        sys.__unraisablehook__(u)
+
+    signal.signal(signal.SIGINT, on_sigint)  # also where the shell had ignored it
+    sys.unraisablehook = unraisable
     try:
         r, w = socket.socketpair()
         w.setblocking(False)
@@ -592,6 +602,11 @@ def main(argv: list[str] | None = None) -> int:
             configure()
         code = _run(args, quiet=quiet, verbose=verbose)
         _SESSION["complete"] = True
+        if _SESSION.get("interrupted") and _INTERRUPT_LOCK.acquire(blocking=False):
+            # Ctrl-C whose KeyboardInterrupt Python dropped (raised inside a gc callback): the job
+            # ran to its end, so its outputs are complete; the exit code still says interrupted
+            print(f"\n{_interrupted_line()}", file=sys.stderr)
+            return 130
         return code
     except KeyboardInterrupt:
         if _INTERRUPT_LOCK.acquire(blocking=False):  # not already reported by the watcher thread

@@ -86,7 +86,7 @@ def test_simulate_prints_the_air(tmp_path, capsys):
         '[edges]\nkind = "pml"\nthickness_cells = 6\n\n'
         "[[transducers]]\ncentre_m = [0.01, 0.01]\nn_cells = 4\ncycles = 1\n\n[run]\nn_steps = 20\n"
     )
-    rc = main(["simulate", str(scene), "--out", str(tmp_path / "out"), "--quiet", "--no-frames", "--no-animation"])
+    rc = main(["simulate", str(scene), "--out", str(tmp_path / "out"), "--no-frames", "--no-animation"])
     assert rc == 0
     out = capsys.readouterr().out
     assert "air: 25 deg C, 60 % RH, 101325 Pa" in out and "dB/m at 40 kHz (ISO 9613-1)" in out

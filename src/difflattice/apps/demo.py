@@ -233,7 +233,7 @@ def run_demo(out: str | Path, *, quick: bool = False, model: str = "disc") -> in
         "transducer_id": f"emulated-{'circular-disc' if model == 'disc' else 'polaroid-like-line'}",
         "microphone": "emulated",
         "operator": "difflattice demo",
-        "humidity_pct": 50.0,
+        "humidity_pct": 0.0,  # the emulated rig's air is dry (its ground truth has no humidity)
         "pressure_hpa": 1013.25,
     }
     print(f"[demo] starting the emulated rig at {link}")

@@ -32,13 +32,22 @@ def _layer_of(parts: tuple[str, ...]) -> str:
     return parts[0] if parts else "__init__"
 
 
-def _imports(path: Path) -> list[tuple[tuple[str, ...], int]]:
+def _imports(path: Path, *, at_run_time: bool = False) -> list[tuple[tuple[str, ...], int]]:
     """Every difflattice module a file imports (module level and inside functions), as parts
-    relative to the package, with the line number."""
+    relative to the package, with the line number; `at_run_time`: leave out the imports under
+    `if TYPE_CHECKING:` (for type checkers only)."""
     rel = path.relative_to(PKG).with_suffix("").parts
     package = rel[:-1] if path.name != "__init__.py" else rel[:-1]
     out = []
-    for node in ast.walk(ast.parse(path.read_text())):
+    tree = ast.parse(path.read_text())
+    typing_only: set[int] = set()
+    if at_run_time:
+        for node in ast.walk(tree):
+            if isinstance(node, ast.If) and getattr(node.test, "id", getattr(node.test, "attr", "")) == "TYPE_CHECKING":
+                typing_only |= {id(n) for b in node.body for n in ast.walk(b)}
+    for node in ast.walk(tree):
+        if id(node) in typing_only:
+            continue
         if isinstance(node, ast.ImportFrom):
             if node.level:
                 base = package[: len(package) - (node.level - 1)] if node.level > 1 else package
@@ -103,3 +112,54 @@ def test_capture_and_air_import_without_jax():
     )
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr[-2000:]
+
+
+def _module_of(parts: tuple[str, ...]) -> tuple[str, ...] | None:
+    """The module (file) that importing `parts` runs: a module file, a package's __init__, or, for
+    `from pkg import name` where name is no module, the package."""
+    while parts:
+        if (PKG.joinpath(*parts).with_suffix(".py")).is_file():
+            return parts
+        if (PKG.joinpath(*parts) / "__init__.py").is_file():
+            return parts + ("__init__",)
+        parts = parts[:-1]
+    return None
+
+
+def test_no_import_circles_even_through_function_level_imports():
+    """The graph of every import the package runs (module level and inside functions, each also
+    running the __init__ of the packages it passes through, except the importer's own; not those
+    under `if TYPE_CHECKING:`) has no cycle. The top-level package's __init__ only re-exports lazily and is left out."""
+    graph: dict[tuple[str, ...], set[tuple[str, ...]]] = {}
+    for path in _modules():
+        src = path.relative_to(PKG).with_suffix("").parts
+        if src == ("__init__",):
+            continue
+        own = {src[:i] for i in range(len(src))}
+        edges = graph.setdefault(src, set())
+        for target, _ in _imports(path, at_run_time=True):
+            dst = _module_of(target)
+            if dst is None or dst == src or dst == ("__init__",):
+                continue
+            edges.add(dst)
+            for i in range(1, len(dst) - 1):  # packages on the way run their __init__ first
+                pkg = dst[:i]
+                if pkg not in own and (PKG.joinpath(*pkg) / "__init__.py").is_file():
+                    edges.add(pkg + ("__init__",))
+    cycles, state = [], {}
+
+    def visit(node, stack):
+        state[node] = "open"
+        stack.append(node)
+        for nxt in sorted(graph.get(node, set())):
+            if state.get(nxt) == "open":
+                cycles.append(" -> ".join(".".join(p) for p in stack[stack.index(nxt) :] + [nxt]))
+            elif nxt not in state:
+                visit(nxt, stack)
+        stack.pop()
+        state[node] = "done"
+
+    for node in sorted(graph):
+        if node not in state:
+            visit(node, [])
+    assert not cycles, "\n".join(cycles)

@@ -9,10 +9,10 @@ from .loop import (
     check_finite,
     check_result,
     check_speed,
-    grid_sharding,
     run,
     simulate,
 )
+from .scan import grid_sharding
 from .sensors import Sensors, received_signal
 from .sources import (
     ContinuousWave,

@@ -39,7 +39,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..lattice.operators import _along, operator, stencil
+from ..lattice.operators import _along, _face_coefficients, operator, stencil
+from .native.kernels import adjoint_supported, chunk_kernel
 from .stepper import cell_index, source_injection
 
 
@@ -106,8 +107,6 @@ def _forward(stepper, n_steps: int, chunk: int, save, native: bool):
     native kernels (else the JAX scan)."""
     n_chunks, rem = divmod(n_steps, chunk)
     if native:
-        from .native.kernels import chunk_kernel
-
         advance = chunk_kernel(stepper).advance
     else:
 
@@ -392,8 +391,6 @@ def _native_backward(stepper) -> bool:
     It records every source cell, then zeroes the hard ones; JAX's backward step does both source
     by source (last first), which differs only where a hard source shares a cell with another
     source: so hard sources run natively when they are the only source."""
-    from .native.kernels import adjoint_supported
-
     srcs = stepper.sources
     return adjoint_supported(stepper) and (len(srcs) <= 1 or all(s.adds for s in srcs))
 
@@ -410,9 +407,6 @@ def _native_backward_pass(stepper, g1, g0, n_steps: int, segment: int, saved, pr
     blocking, no stored fields); with them, `difflattice_adjoint_chunk` runs it segment by segment
     (`segment` steps each, then the rest) from the fields the forward run saved at each segment's
     end (`saved` = (stacked ends, None, final fields)), stepping the forward field back alongside."""
-    from ..lattice.operators import _face_coefficients
-    from .native.kernels import chunk_kernel
-
     lat, grid, sens = stepper.lattice, stepper.grid, stepper.sensors
     dtype, shape = grid.jnp_dtype, grid.shape
     nx, ny = shape

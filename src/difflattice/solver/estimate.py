@@ -294,8 +294,15 @@ def _time_run(ndim: int, stepper: str, dtype: Literal["float32", "float64"], het
     from ..lattice.coefficients import Edges
     from ..lattice.grid import make_grid
     from ..lattice.medium import Medium
-    from .loop import run
+    from .native import dispatch
+    from .scan import run_jax
     from .stepper import Stepper
+
+    def run(stepper, n: int):  # what `loop.run` does for a forward run: native where it runs, else JAX
+        out = dispatch(
+            stepper, n, state=None, checkpoint=None, unroll=None, sharding=None, adjoint="autodiff", backend="auto"
+        )
+        return out if out is not None else run_jax(stepper, n)
 
     if dtype == "float64" and not jax.config.read("jax_enable_x64"):
         raise ValueError("measure_mlups(dtype='float64') needs jax_enable_x64 (set it in your script)")

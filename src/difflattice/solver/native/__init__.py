@@ -43,14 +43,10 @@ def dispatch(stepper, n_steps: int, *, state, checkpoint, unroll, sharding, adjo
         raise ValueError(f"backend = {backend!r}; allowed: {', '.join(map(repr, BACKENDS))}")
     if backend == "jax":
         return None
-    if adjoint == "auto":
-        from ..adjoint import supports
-
-        if supports(stepper, state) is None and sharding is None:
-            adjoint = "lattice"  # what "auto" picks here; otherwise it is "autodiff"
     if adjoint == "lattice":
         # the adjoint-wave-equation reverse mode has its own forward and backward passes
-        # (solver/adjoint.py), on these kernels where they run the scene
+        # (solver/adjoint.py), on these kernels where they run the scene; `loop.run` resolves
+        # adjoint="auto" before asking here
         return None
     reason = why_not(stepper, state, sharding)
     if reason is not None:

@@ -23,6 +23,7 @@ import numpy as np
 
 from ...lattice.coefficients import Lattice
 from ...lattice.operators import _face_coefficients
+from ..scan import Result, chunking, run_jax
 from ..stepper import LeapfrogState, StaggeredState, State, Stepper
 
 # Lattice fields the kernels implement; a field added to `Lattice` later is refused (the JAX loop
@@ -533,10 +534,9 @@ def _loop(stepper, state, *, n_steps, chunk, checkpoint, unroll, threads, levels
 @_loop.def_jvp
 def _loop_jvp(primals, tangents, *, n_steps, chunk, checkpoint, unroll, threads, levels, bands):
     """Derivatives of the native loop = those of the JAX reference loop (same chunks)."""
-    from ..loop import run as jax_run
 
     def reference(stepper, state):
-        r = jax_run(stepper, n_steps, state=state, checkpoint=checkpoint, unroll=unroll, backend="jax")
+        r = run_jax(stepper, n_steps, state=state, checkpoint=checkpoint, unroll=unroll)
         return r.final, r.probes, r.peak_history, r.snapshots
 
     return eqx.filter_jvp(reference, primals, tangents)
@@ -571,9 +571,7 @@ def adjoint_supported(stepper: Stepper) -> bool:
 
 def run_native(stepper: Stepper, n_steps: int, *, state: State | None, checkpoint, unroll):
     """`loop.run` on the native kernels (the caller checked `unsupported` and the library)."""
-    from ..loop import Result, _chunking
-
-    chunk = _chunking(n_steps, stepper.sensors, checkpoint)
+    chunk = chunking(n_steps, stepper.sensors, checkpoint)
     state = stepper.init() if state is None else state
     threads, levels, bands = schedule(stepper)
     final, ys, peaks, snaps = _loop(

@@ -1,0 +1,102 @@
+"""What every part of a scene's build shares: the scene errors (naming the file, the key and the
+fix), the side names, and small readers of keys (points, vectors, materials, signals, run length)."""
+
+from __future__ import annotations
+
+import math
+from typing import TYPE_CHECKING, NoReturn
+
+import numpy as np
+
+from .schema import ConfigError, fail, validate_section
+
+if TYPE_CHECKING:
+    from ..lattice.grid import Grid
+    from ..lattice.medium import Material
+    from ..solver.sources import Signal
+    from .model import Scene
+
+
+class SceneError(ConfigError):
+    """A scene file that cannot be used: the message names the file, the key and the fix."""
+
+
+def _fail(path, key, msg) -> NoReturn:
+    fail(path, key, msg, SceneError)
+
+
+def _validate_table(path, section: str, table: dict, where: str) -> dict:
+    return validate_section(path, section, table, where, SceneError)
+
+
+class SceneTooLargeError(SceneError):
+    """A scene (any lattice kind) whose run would not fit in the available memory; the message
+    gives the estimate (`solver.estimate`) and the fix. Raised before any grid-sized array is
+    built."""
+
+
+_SIDES_2D = ("x_lo", "x_hi", "y_lo", "y_hi")
+
+
+_NO_CELLS = np.zeros((0, 2), np.int32)
+
+
+_SIDES_3D = _SIDES_2D + ("z_lo", "z_hi")
+
+
+_TRANSDUCER_KEYS_3D = ("axis", "ring_edges_m", "fit_report", "gate_start_s")
+
+
+_OBJECT_KEYS_3D = ("size_m", "angles_deg", "axis", "length_m", "point_m", "normal", "parts")
+
+
+def _signal(path, where: str, t: dict, grid: Grid) -> Signal:
+    from ..solver.sources import ContinuousWave, ToneBurst
+
+    f = t["frequency_hz"] or grid.frequency_hz
+    try:
+        if t["signal"] == "burst":
+            return ToneBurst(f, t["cycles"], t["window"], t["amplitude_pa"])
+        return ContinuousWave(f, t["ramp_cycles"], t["amplitude_pa"])
+    except (ValueError, TypeError) as err:
+        _fail(path, where, str(err))
+
+
+def _n_steps(scene: Scene, grid: Grid) -> int:
+    p, r = scene.path, scene.run
+    if (r["n_steps"] is None) == (r["duration_s"] is None):
+        _fail(p, "run", "give exactly one of n_steps or duration_s (s)")
+    n_steps = r["n_steps"] if r["n_steps"] is not None else int(math.ceil(grid.s_to_steps(r["duration_s"])))
+    if n_steps < 1:
+        _fail(p, "run", f"n_steps = {n_steps} must be >= 1")
+    return n_steps
+
+
+def _raw_item(raw: dict, section: str, i: int) -> dict:
+    items = raw.get(section) or []
+    item = items[i] if i < len(items) else {}
+    return item if isinstance(item, dict) else {}
+
+
+def _points(path, key: str, points, ndim: int) -> np.ndarray:
+    """Points [[x, y(, z)], ...] in metres as an (n, ndim) array, each checked for its length."""
+    for j, pt in enumerate(points):
+        if not isinstance(pt, (list, tuple)) or len(pt) != ndim:
+            _fail(path, f"{key}[{j}]", f"= {pt!r}: give {ndim} coordinates in metres")
+    try:
+        return np.asarray(points, dtype=float).reshape(-1, ndim)
+    except (TypeError, ValueError) as e:
+        _fail(path, key, f"not numbers: {e}")
+
+
+def _vector(path, key: str, v) -> tuple[float, float, float]:
+    if v is None or len(v) != 3:
+        _fail(path, key, f"= {v!r}: give 3 numbers [x, y, z]")
+    return (float(v[0]), float(v[1]), float(v[2]))
+
+
+def _material(path, key, name, lookup) -> Material:
+    try:
+        return lookup(name)
+    except ValueError as e:
+        _fail(path, key, str(e))

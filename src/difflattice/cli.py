@@ -143,6 +143,7 @@ def _fit(args) -> int:
 
 def _accuracy(args) -> int:
     from .apps import accuracy as acc
+    from .apps import accuracy_piston, accuracy_wall
 
     cpw = tuple(args.cells_per_wavelength) if args.cells_per_wavelength else None
     if cpw is not None and min(cpw) < 4:
@@ -158,12 +159,14 @@ def _accuracy(args) -> int:
         acc.write(res, args.out)
         print(f"wrote {args.out}/accuracy.json, accuracy_table.md, accuracy.png")
     elif args.case == "piston":
-        res = acc.piston_sweep(cpw or (6, 8, 10, 14, 20, 28, 40), dtype=args.dtype[-1], repeats=args.repeats)
-        acc.write_piston(res, args.out)
+        res = accuracy_piston.piston_sweep(
+            cpw or (6, 8, 10, 14, 20, 28, 40), dtype=args.dtype[-1], repeats=args.repeats
+        )
+        accuracy_piston.write_piston(res, args.out)
         print(f"wrote {args.out}/accuracy_piston.json, accuracy_piston_table.md, accuracy_piston.png")
     elif args.case == "wall":
-        res = acc.wall_sweep(cpw or (6, 8, 10, 14, 20, 30), tuple(args.dtype), repeats=args.repeats)
-        acc.write_wall(res, args.out)
+        res = accuracy_wall.wall_sweep(cpw or (6, 8, 10, 14, 20, 30), tuple(args.dtype), repeats=args.repeats)
+        accuracy_wall.write_wall(res, args.out)
         print(f"wrote {args.out}/accuracy_wall.json, accuracy_wall_table.md, accuracy_wall.png")
     elif args.case == "air":
         from .apps import accuracy_air
@@ -172,8 +175,10 @@ def _accuracy(args) -> int:
         accuracy_air.write(rows, args.out, accuracy_air.point_source())
         print(f"wrote {args.out}/{accuracy_air.FILES}")
     else:
-        res = acc.edge_sweep(cpw or (10, 20), tuple(args.thickness_cells), args.dtype[0], repeats=args.repeats)
-        acc.write_edges(res, args.out)
+        res = accuracy_wall.edge_sweep(
+            cpw or (10, 20), tuple(args.thickness_cells), args.dtype[0], repeats=args.repeats
+        )
+        accuracy_wall.write_edges(res, args.out)
         print(f"wrote {args.out}/accuracy_edges.json, accuracy_edges_table.md, accuracy_edges.png")
     return 0
 

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from difflattice.apps.accuracy import (
+from difflattice.apps.accuracy_wall import (
     _delay_steps,
     edge_sweep,
     image_source_reference,

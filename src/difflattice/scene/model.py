@@ -183,13 +183,10 @@ class Scene:
         return nbytes
 
     def _build_plane(self, available_bytes: int | None = None) -> BuiltScene:
-        """The 2-D and r-z lattices."""
+        """The 2-D and r-z lattices: grid (estimated before any grid-sized array), objects and
+        housings, medium, edges, sources, the far-field surface and the sensors."""
         from ..lattice import geometry as geo
-        from ..lattice.coefficients import Edges
-        from ..observe.farfield import box_around
-        from ..observe.farfield_rz import cylinder_around
         from ..solver.sensors import Sensors, probe_cells
-        from ..solver.sources import disc_housing, disc_transducer, line_transducer
 
         p = self.path
         med = self.medium
@@ -205,7 +202,6 @@ class Scene:
             n_probes=len(s["probes_m"] or ()),
             field_stats=int(s["p_max"]) + int(s["p_rms"]) + int(s["arrival_threshold_pa"] is not None),
         )
-        rz = grid.kind.ring_metric
         for i, t in enumerate(self.transducers):
             for k in _TRANSDUCER_KEYS_3D:
                 if t[k] is not None:
@@ -222,6 +218,44 @@ class Scene:
                 occupancies.append(np.asarray(geo.rasterise(shape, grid, med["rasterise"])))
             except ValueError as e:
                 _fail(p, "medium.rasterise", str(e))
+        housings = self._housings(grid)
+        medium = _medium(self, grid, bg, mats, occupancies, housings, lambda occs: geo.union_occupancy(occs))
+        edges = self._plane_edges(grid)
+        sources = self._plane_sources(grid, edges)
+        probes = probe_cells(grid, _points(p, "sensors.probes_m", s["probes_m"], 2)) if s["probes_m"] else None
+        contour, phasor_cells, ff_index = self._farfield_surface(grid, edges, sources, [*occupancies, *housings])
+        try:
+            sensors = Sensors(
+                probes=probes if probes is not None else _NO_CELLS,
+                phasor_cells=phasor_cells if phasor_cells is not None else _NO_CELLS,
+                p_max=s["p_max"],
+                p_rms=s["p_rms"],
+                arrival_threshold_pa=s["arrival_threshold_pa"],
+                snapshot_every=s["snapshot_every_steps"],
+            )
+            sensors.check_inside(grid)
+        except ValueError as err:
+            _fail(p, "sensors", str(err))
+
+        n_steps = _n_steps(self, grid)
+        return BuiltScene(
+            grid,
+            medium,
+            tuple(sources),
+            sensors,
+            edges,
+            n_steps,
+            contour,
+            ff_index,
+            self.show_steps(grid, n_steps),
+            self.render_every(grid),
+        )
+
+    def _housings(self, grid: Grid) -> list[np.ndarray]:
+        """Occupancies of the rz discs' housings (a can or an open ring; none for a rigid baffle)."""
+        from ..solver.sources import disc_housing
+
+        p, rz = self.path, grid.kind.ring_metric
         housings = []
         for i, t in enumerate(self.transducers):
             if t["type"] == "disc" and rz and t["baffle"] != "rigid" and t["diameter_m"] is not None:
@@ -240,8 +274,13 @@ class Scene:
                     )
                 except ValueError as err:
                     _fail(p, f"transducers[{i}]", str(err))
-        medium = _medium(self, grid, bg, mats, occupancies, housings, lambda occs: geo.union_occupancy(occs))
+        return housings
 
+    def _plane_edges(self, grid: Grid) -> Edges:
+        """The window's edges of a plane or rz scene, checked against the lattice kind."""
+        from ..lattice.coefficients import Edges
+
+        p, ed, rz = self.path, self.edges, grid.kind.has_axis_edge
         try:
             if rz:
                 for side in _SIDES_2D:
@@ -271,6 +310,13 @@ class Scene:
         except ValueError as err:
             _fail(p, "edges", str(err))
 
+        return edges
+
+    def _plane_sources(self, grid: Grid, edges: Edges) -> list[PointSources]:
+        """The transducers of a plane (line) or rz (disc) scene."""
+        from ..solver.sources import disc_transducer, line_transducer
+
+        p, rz = self.path, grid.kind.ring_metric
         sources = []
         if not self.transducers:
             _fail(p, "transducers", "a scene needs at least one [[transducers]] entry")
@@ -329,7 +375,17 @@ class Scene:
             except (ValueError, TypeError) as err:
                 _fail(p, where, str(err))
 
-        probes = probe_cells(grid, _points(p, "sensors.probes_m", s["probes_m"], 2)) if s["probes_m"] else None
+        return sources
+
+    def _farfield_surface(
+        self, grid: Grid, edges: Edges, sources, solids_occupancy
+    ) -> tuple[BoxContour | CylinderSurface | None, np.ndarray | None, int]:
+        """The far-field surface (`[farfield]`): it encloses the transducer and every object, or
+        the scene is refused with the reason; returns (surface, its phasor cells, transducer index)."""
+        from ..observe.farfield import box_around
+        from ..observe.farfield_rz import cylinder_around
+
+        p, rz = self.path, grid.kind.ring_metric
         contour: BoxContour | CylinderSurface | None = None
         phasor_cells = None
         ff_index = 0
@@ -342,7 +398,7 @@ class Scene:
                 ff_index = names.index(ff["transducer"])
             # the surface encloses the transducer and every object (a surface through an object
             # would integrate a field that is not free space: a wrong lobe), or the scene is refused
-            solids = [np.argwhere(np.asarray(o) > 0) for o in (*occupancies, *housings)]
+            solids = [np.argwhere(np.asarray(o) > 0) for o in solids_occupancy]
             enclosed = np.concatenate([np.asarray(sources[ff_index].cells_array).reshape(-1, 2), *solids])
             if rz:
                 baffled = self.transducers[ff_index]["baffle"] == "rigid"
@@ -365,32 +421,7 @@ class Scene:
                     else str(err)
                 )
                 _fail(p, "farfield.gap_cells", why)
-        try:
-            sensors = Sensors(
-                probes=probes if probes is not None else _NO_CELLS,
-                phasor_cells=phasor_cells if phasor_cells is not None else _NO_CELLS,
-                p_max=s["p_max"],
-                p_rms=s["p_rms"],
-                arrival_threshold_pa=s["arrival_threshold_pa"],
-                snapshot_every=s["snapshot_every_steps"],
-            )
-            sensors.check_inside(grid)
-        except ValueError as err:
-            _fail(p, "sensors", str(err))
-
-        n_steps = _n_steps(self, grid)
-        return BuiltScene(
-            grid,
-            medium,
-            tuple(sources),
-            sensors,
-            edges,
-            n_steps,
-            contour,
-            ff_index,
-            self.show_steps(grid, n_steps),
-            self.render_every(grid),
-        )
+        return contour, phasor_cells, ff_index
 
     # ---------------------------------------------------------------------------------------
     def _build_3d(self, available_bytes: int | None) -> BuiltScene:

@@ -96,13 +96,19 @@ class Edges(eqx.Module):
         return cls(x_lo=kind, x_hi=kind, y_lo=kind, y_hi=kind, z_lo=kind, z_hi=kind, **kwargs)
 
     def sides_for(self, ndim: int) -> tuple[str, ...]:
-        """The sides of a grid of rank `ndim` (x_lo, x_hi, y_lo, y_hi[, z_lo, z_hi])."""
-        return self.sides if ndim == 2 else self.sides + self.sides_z
+        """The sides of a grid of rank `ndim` (x_lo, x_hi[, y_lo, y_hi[, z_lo, z_hi]])."""
+        return (self.sides + self.sides_z)[: 2 * ndim]
 
     def for_rank(self, ndim: int) -> Edges:
         """These edges for a grid of rank `ndim`: a plane or rz grid drops the z sides, a 3-D grid
-        fills unset ones with "pml" (and refuses Mur edges, which exist in 2-D only)."""
-        if ndim == 2:
+        fills unset ones with "pml" (and refuses Mur edges, which exist in 2-D only); a rank-1 grid
+        refuses PML and Mur edges."""
+        if ndim < 2 and self.kinds() & {"pml", "mur"}:
+            raise ValueError(
+                "PML and Mur edges are written for rank-2 and rank-3 grids (the split-field state has x and y "
+                "parts): use sponge, rigid or soft edges on a rank-1 grid (e.g. Edges.all('sponge'))"
+            )
+        if ndim < 3:
             if self.z_lo is None and self.z_hi is None:
                 return self
             return dataclasses.replace(self, z_lo=None, z_hi=None)
@@ -361,7 +367,7 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
     dtype = grid.jnp_dtype
     shape = tuple(grid.shape)
     ndim = len(shape)
-    ny = shape[1]
+    ny = shape[1] if ndim > 1 else 1
     c = jnp.asarray(grid.speed_to_lattice(medium.sound_speed_m_s), dtype)
     rho = jnp.asarray(medium.density_kg_m3, dtype)
     for name, arr in (("sound_speed_m_s", c), ("density_kg_m3", rho), ("rigid", medium.rigid), ("soft", medium.soft)):

@@ -158,12 +158,12 @@ INJECTIONS = ("soft", "hard", "velocity")
 
 
 def as_cells(cells) -> Cells:
-    """Cell indices as an (n, 2) or, on a 3-D grid, (n, 3) int32 array: NumPy when given concrete
+    """Cell indices as an (n, rank) int32 array ((n, 2); (n, 3) on a 3-D grid): NumPy when given concrete
     values (traced by `eqx.filter_jit` as data, so new positions do not recompile), left alone
     when traced. An empty set is (0, 2) (no cell to index on any grid)."""
     if isinstance(cells, jax.Array) and not isinstance(cells, np.ndarray):
-        if cells.ndim != 2 or cells.shape[-1] not in (2, 3) or not jnp.issubdtype(cells.dtype, jnp.integer):
-            raise ValueError(f"cells must be an (n, 2) or (n, 3) integer array, got {cells.shape} {cells.dtype}")
+        if cells.ndim != 2 or cells.shape[-1] < 1 or not jnp.issubdtype(cells.dtype, jnp.integer):
+            raise ValueError(f"cells must be an (n, rank) integer array, e.g. (n, 2), got {cells.shape} {cells.dtype}")
         return cells
     arr = np.asarray(cells)
     if arr.size == 0:
@@ -175,8 +175,10 @@ def as_cells(cells) -> Cells:
                 "with difflattice.sensors.probe_cells or line_cells"
             )
     d = arr.shape[-1] if arr.ndim >= 1 else 0
-    if d not in (2, 3) or arr.ndim > 2:
-        raise ValueError(f"cells must be (n, 2) or (n, 3) cell indices, got an array of shape {arr.shape}")
+    if d < 1 or arr.ndim > 2:
+        raise ValueError(
+            f"cells must be (n, rank) cell indices, one column per grid axis (e.g. (n, 2)), got an array of shape {arr.shape}"
+        )
     return arr.astype(np.int32).reshape(-1, d)
 
 

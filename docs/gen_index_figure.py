@@ -45,8 +45,9 @@ def disc_field(cells_per_wavelength: float = 20.0):
 
 def fitted_lobe():
     """The measured lobe, the fitted disc model and the uniform piston (dB), from a quick fit."""
+    from difflattice.apps.fitting import run_fit
     from difflattice.apps.jaxconfig import configure
-    from difflattice.fit.config import load_config, run_fit
+    from difflattice.fit.config import load_config
 
     configure()  # float64, as the `fit` command runs
 

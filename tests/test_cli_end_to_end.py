@@ -8,8 +8,9 @@ from pathlib import Path
 
 import pytest
 
+from difflattice.apps.fitting import run_fit
 from difflattice.cli import main
-from difflattice.fit.config import load_config, run_fit
+from difflattice.fit.config import load_config
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -81,7 +82,7 @@ def test_fit_config_is_reproducible(tmp_path, monkeypatch):
     second with it simulated when the budget asks (no prefetch)."""
     import threading
 
-    import difflattice.fit.config as fc
+    import difflattice.apps.fitting as fc
     import difflattice.fit.transfer as ft
 
     calls = []

@@ -61,7 +61,7 @@ _LAZY: dict[str, tuple[str, str]] = {
     "run_scene3d": ("difflattice.apps.scenes3d", "run_scene3d"),
     # fitting (the `fit` command) and design (the `design` command)
     "load_fit_config": ("difflattice.fit.config", "load_config"),
-    "run_fit": ("difflattice.fit.config", "run_fit"),
+    "run_fit": ("difflattice.apps.fitting", "run_fit"),
     "design_horn": ("difflattice.design.presets", "design_horn"),
     "design_reflector": ("difflattice.design.presets", "design_reflector"),
 }

@@ -136,7 +136,7 @@ def _demo(args) -> int:
 
 
 def _fit(args) -> int:
-    from .fit.config import run_fit_config
+    from .apps.fitting import run_fit_config
 
     return run_fit_config(args.config, out=args.out, quick=args.quick)
 

@@ -198,7 +198,8 @@ def test_readings_match_the_ground_truth(captures: dict) -> None:
 def test_captured_scans_fit_to_the_simulated_diameter(captures: dict) -> None:
     """The project's fit entry (disc model, lobe + wavefront, quick resolution) on the captured
     files: the fitted diameter within its quoted total uncertainty of the simulated 38.4 mm."""
-    from difflattice.fit.config import load_config, run_fit
+    from difflattice.apps.fitting import run_fit
+    from difflattice.fit.config import load_config
 
     tmp = captures["dir"]
     sigma = PHASE_JITTER_DEG / math.sqrt(N_AVG)

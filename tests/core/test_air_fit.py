@@ -5,7 +5,8 @@ import pytest
 
 from difflattice import air
 from difflattice.capture.files import CaptureWriter
-from difflattice.fit.config import config_from_dict, fit_air, load_fit_data
+from difflattice.fit.config import config_from_dict
+from difflattice.fit.loading import fit_air, load_fit_data
 
 HEADER = {
     "kind": "lobe",

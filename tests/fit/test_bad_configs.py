@@ -19,7 +19,8 @@ import pytest
 from difflattice.capture.files import CaptureWriter
 from difflattice.cli import main
 from difflattice.config import ConfigError, ConfigWarning
-from difflattice.fit.config import load_config, load_fit_data
+from difflattice.fit.config import load_config
+from difflattice.fit.loading import load_fit_data
 
 ROOT = Path(__file__).resolve().parents[2]
 LOBE = ROOT / "data" / "emulated" / "lobe_piston38_40k.csv"  # 40 kHz
@@ -313,7 +314,7 @@ def test_given_diameter_starts_a_fitted_one(tmp_path: Path, monkeypatch: pytest.
     cfg = tmp_path / "fit.toml"
     cfg.write_text(patched(model={"diameter_m": "0.036", "fit_diameter": "true", "cells_per_wavelength": "8"}))
     with pytest.raises(Stop):
-        from difflattice.fit.config import run_fit
+        from difflattice.apps.fitting import run_fit
 
         run_fit(load_config(cfg), out=tmp_path / "o", verbose=False)
     spec, p0 = seen["spec"], seen["params0"]

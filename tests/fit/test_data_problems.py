@@ -16,7 +16,8 @@ from scipy.special import j1
 
 from difflattice.cli import main
 from difflattice.config import ConfigWarning
-from difflattice.fit.config import load_config, load_fit_data
+from difflattice.fit.config import load_config
+from difflattice.fit.loading import load_fit_data
 
 ROOT = Path(__file__).resolve().parents[2]
 LOBE = ROOT / "data" / "emulated" / "lobe_piston38_40k.csv"  # 38.4 mm piston, 40 kHz, -90..90 deg

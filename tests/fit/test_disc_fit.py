@@ -161,7 +161,8 @@ def test_shipped_config_recovers_the_piston(tmp_path):
     38.4 mm inside the quoted total uncertainty (statistical + resolution + model)."""
     from pathlib import Path
 
-    from difflattice.fit.config import load_config, run_fit
+    from difflattice.apps.fitting import run_fit
+    from difflattice.fit.config import load_config
 
     root = Path(__file__).resolve().parents[2]
     rep = run_fit(load_config(root / "fitting" / "piston_disc.toml"), out=tmp_path, verbose=False)

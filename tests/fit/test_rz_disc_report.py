@@ -11,8 +11,9 @@ from pathlib import Path
 
 import pytest
 
+from difflattice.apps.fitting import run_fit
 from difflattice.config import ConfigError
-from difflattice.fit.config import config_from_dict, run_fit
+from difflattice.fit.config import config_from_dict
 
 from ._sane import assert_sane_report
 

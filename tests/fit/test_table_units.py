@@ -135,7 +135,8 @@ def test_a_wavefront_table_through_the_config(tmp_path: Path) -> None:
     """`[data] wave` may be a plain table; the config gives its frequency, temperature and z (here
     the capture's own), and the fit data equal the capture's."""
     from difflattice.capture.files import load_capture
-    from difflattice.fit.config import load_config, load_fit_data
+    from difflattice.fit.config import load_config
+    from difflattice.fit.loading import load_fit_data
 
     cap = load_capture(WAVE_CAPTURE)
     p = tmp_path / "wave.csv"

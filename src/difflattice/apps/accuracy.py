@@ -255,7 +255,8 @@ def fit_sweep(config_path, out_dir: str | Path, cells_per_wavelength=(8, 10, 14,
     to `out_dir`/ppw<N>."""
     from dataclasses import replace
 
-    from ..fit.config import load_config, run_fit
+    from ..fit.config import load_config
+    from .fitting import run_fit
 
     base = load_config(config_path)
     rows = []

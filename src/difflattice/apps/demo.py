@@ -273,7 +273,8 @@ def run_demo(out: str | Path, *, quick: bool = False, model: str = "disc") -> in
     cfg_path = out / "fit.toml"
     config_text = disc_fit_config_text if model == "disc" else fit_config_text
     cfg_path.write_text(config_text("data/lobe.csv", "data/wave.csv", out_dir=str(out / "report")))
-    from ..fit.config import load_config, run_fit
+    from ..fit.config import load_config
+    from .fitting import run_fit
 
     rep = run_fit(load_config(cfg_path), quick=quick)
     comparison = recovery(rep, truth, model=model)

@@ -15,7 +15,8 @@ import numpy as np
 
 from difflattice.fit import solve
 from difflattice.fit.model import ModelSpec, device_array
-from difflattice.fit.solve import FitOptions, build_problem, initial_params
+from difflattice.fit.problem import build_problem, initial_params
+from difflattice.fit.solve import FitOptions
 from difflattice.fit.transfer import Transfer
 from difflattice.lattice.grid import make_grid
 from difflattice.observe.farfield import BoxContour, field_at

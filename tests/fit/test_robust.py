@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from difflattice.fit.data import LobeData
-from difflattice.fit.solve import FitOptions, fit, robust_factor
+from difflattice.fit.problem import robust_factor
+from difflattice.fit.solve import FitOptions, fit
 
 from ._emulated import ANG, F, data, spec, transfer
 

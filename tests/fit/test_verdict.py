@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from difflattice.fit.data import LobeData
-from difflattice.fit.solve import FitOptions, fit, runs_test
+from difflattice.fit.goodness import runs_test
+from difflattice.fit.solve import FitOptions, fit
 from difflattice.fit.uncertainty import error_budget
 from difflattice.fit.verdict import EXIT_CONSISTENT, EXIT_INADEQUATE, EXIT_NOT_CONVERGED, fit_outcome
 

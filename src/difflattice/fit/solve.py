@@ -50,20 +50,33 @@ import numpy as np
 import optimistix as optx
 from jax.flatten_util import ravel_pytree
 
-from ..transforms import logit
 from .data import LobeData, WaveData
-from .model import ModelSpec, device_array, lobe_model_db, soft_floor_db, wave_model_phase
+from .goodness import (
+    OUTLIER_SIGMAS,
+    _chi2_and_variance_factor,
+    _datum_weights,
+    goodness_of_fit,
+    outlier_diagnostics,
+)
+from .model import ModelSpec, device_array, soft_floor_db
+from .problem import (
+    LOSSES,
+    Problem,
+    _cost_aux,
+    _model_curves,
+    _residual_aux,
+    _residuals,
+    build_problem,
+    initial_params,
+)
 from .transfer import Transfer
-from .verdict import GOODNESS_P_MIN
 
 Solver = Literal["levenberg_marquardt", "dogleg", "gauss_newton", "bfgs"]
 SOLVERS = ("levenberg_marquardt", "dogleg", "gauss_newton", "bfgs")
 Loss = Literal["l2", "huber", "cauchy"]
-LOSSES = ("l2", "huber", "cauchy")
 
 CONVERGENCE_WINDOW = 5
 """Accepted steps over which the relative cost change and the step are measured."""
-OUTLIER_SIGMAS = 4.0
 """A residual further than this many robust sigmas (MAD, at least the stated 1-sigma) from the
 median is counted as an outlier (a Gaussian gives one in 16 000)."""
 STAGE_NAMES = {
@@ -202,120 +215,6 @@ def _make_solver(o: FitOptions):
     return optx.BFGS(rtol=o.rtol, atol=o.atol)
 
 
-def robust_factor(a, loss: str, scale: float):
-    """phi(a) = sqrt(2 rho(a)) / a for residual magnitudes `a` >= 0 (sigma units), so that
-    (phi(|r|) r)^2 = 2 rho(r): 1 for "l2"; Huber and Cauchy with scale `scale` (1 inside)."""
-    if loss == "l2":
-        return jnp.ones_like(a)
-    u = a / scale
-    if loss == "huber":
-        big = u > 1
-        us = jnp.where(big, u, 1.0)
-        return jnp.where(big, jnp.sqrt(2 * us - 1) / us, 1.0)
-    if loss == "cauchy":
-        u2 = u * u
-        small = u2 < 1e-6
-        u2s = jnp.where(small, 1.0, u2)
-        return jnp.sqrt(jnp.where(small, 1 - u2 / 2 + u2 * u2 / 3, jnp.log1p(u2s) / u2s))
-    raise ValueError(f"loss = {loss!r}; allowed: {', '.join(LOSSES)}")
-
-
-class Problem(eqx.Module):
-    """The residual function's data (arrays) and structure (static)."""
-
-    spec: ModelSpec = eqx.field(static=True)
-    lobe_T: jax.Array | None
-    lobe_db: jax.Array | None
-    lobe_sigma: jax.Array | None
-    lobe_floor: float | None = eqx.field(static=True)
-    wave_T: jax.Array | None
-    wave_phase: jax.Array | None
-    wave_sigma: jax.Array | None
-    w_lobe: float = eqx.field(static=True)
-    w_wave: float = eqx.field(static=True)
-    smoothness_sigma: float = eqx.field(static=True, default=0.05)
-    loss: str = eqx.field(static=True, default="l2")
-    loss_scale: float = eqx.field(static=True, default=3.0)
-
-    def data_residuals(self, params) -> dict:
-        """Normalised data residuals (model - data) / sigma per observable, before weights and the
-        robust transform: lobe (soft-floored dB) and wave (2 sin(d/2), the chord of the phase
-        difference d on the unit circle)."""
-        out = {}
-        if self.lobe_T is not None:
-            m = lobe_model_db(self.spec, params, self.lobe_T)
-            out["lobe"] = (
-                soft_floor_db(m, self.lobe_floor) - soft_floor_db(self.lobe_db, self.lobe_floor)
-            ) / jnp.asarray(self.lobe_sigma)
-        if self.wave_T is not None:
-            d = wave_model_phase(self.spec, params, self.wave_T) - self.wave_phase
-            out["wave"] = 2 * jnp.sin(d / 2) / jnp.asarray(self.wave_sigma)
-        return out
-
-    def residuals(self, params):
-        parts = self._smoothness(params)
-        if self.lobe_T is not None:
-            m = lobe_model_db(self.spec, params, self.lobe_T)
-            r = (soft_floor_db(m, self.lobe_floor) - soft_floor_db(self.lobe_db, self.lobe_floor)) / self.lobe_sigma
-            parts.append(math.sqrt(self.w_lobe) * r * robust_factor(jnp.abs(r), self.loss, self.loss_scale))
-        if self.wave_T is not None:
-            d = wave_model_phase(self.spec, params, self.wave_T) - self.wave_phase
-            f = math.sqrt(self.w_wave) * robust_factor(
-                2 * jnp.abs(jnp.sin(d / 2)) / self.wave_sigma, self.loss, self.loss_scale
-            )
-            parts.append(f * jnp.sin(d) / self.wave_sigma)
-            parts.append(f * (1 - jnp.cos(d)) / self.wave_sigma)
-        return jnp.concatenate(parts)
-
-    def _smoothness(self, params) -> list:
-        """Per-cell profiles have components that do not radiate (cell-to-cell oscillations
-        beyond the wavenumber k): a weak prior on second differences of log-weight and lag phase
-        (`smoothness_sigma` per cell) removes that null space, so free fits converge."""
-        spec, out = self.spec, []
-        for key, profile in (("w", spec.weights), ("lag", spec.lags)):
-            if key in params and profile in ("free", "symmetric"):
-                ph = spec.physical(params)
-                v = jnp.log(ph["weights_raw"]) if key == "w" else 2 * math.pi * spec.frequency_hz * ph["lags_s"]
-                out.append((v[2:] - 2 * v[1:-1] + v[:-2]) / self.smoothness_sigma)
-        return out
-
-
-def build_problem(
-    spec: ModelSpec, transfer: Transfer, lobe: LobeData | None, wave: WaveData | None, o: FitOptions
-) -> Problem:
-    """Bundle the data, transfer matrices and options into the residual function's `Problem`."""
-    if lobe is None and wave is None:
-        raise ValueError("nothing to fit: give lobe data, wavefront data or both")
-    if transfer.n_cells != spec.n_cells:
-        raise ValueError(f"transfer has {transfer.n_cells} cells but the model {spec.n_cells}")
-    return Problem(
-        spec=spec,
-        lobe_T=None if lobe is None else device_array(transfer.lobe),
-        lobe_db=None if lobe is None else device_array(lobe.level_db),
-        lobe_sigma=None if lobe is None else device_array(lobe.sigma_db),
-        lobe_floor=None if lobe is None else float(np.max(lobe.level_db) - o.floor_db),
-        wave_T=None if wave is None else device_array(transfer.wave),
-        wave_phase=None if wave is None else device_array(wave.phase_rad),
-        wave_sigma=None if wave is None else device_array(wave.sigma_rad),
-        w_lobe=o.lobe_weight,
-        w_wave=o.wave_weight,
-        smoothness_sigma=o.smoothness_sigma,
-        loss=o.loss,
-        loss_scale=float(o.loss_scale),
-    )
-
-
-@eqx.filter_jit
-def _cost(problem: Problem, params: dict):
-    r = problem.residuals(params)
-    return jnp.sum(r * r)
-
-
-@eqx.filter_jit
-def _residuals(problem: Problem, params: dict):
-    return problem.residuals(params)
-
-
 @eqx.filter_jit
 def _result_arrays(problem: Problem, params: dict) -> dict:
     """What `_result` reports beyond the residuals and their Jacobian, as one program (five
@@ -333,66 +232,7 @@ def _result_arrays(problem: Problem, params: dict) -> dict:
     }
 
 
-def _model_curves(problem: Problem, params: dict):
-    """(model lobe level in dB, model wave phase) at the data points (None where there are no
-    data)."""
-    lobe = None if problem.lobe_T is None else lobe_model_db(problem.spec, params, problem.lobe_T)
-    wave = None if problem.wave_T is None else wave_model_phase(problem.spec, params, problem.wave_T)
-    return lobe, wave
-
-
-_models = eqx.filter_jit(_model_curves)  # as one program
-
-
-def initial_params(problem: Problem, params=None) -> dict:
-    """Start from the model's initial parameters with the gain and phase offset set in closed form,
-    and (when it is fitted) the diameter chosen by a scan over 0.5-1 x the modelled line: the
-    lobe's null angles scale with 1/D, so the cost in D has many local minima."""
-    spec = problem.spec
-    p = dict(spec.init_params() if params is None else params)
-    # offsets the data cannot see are not parameters (they would make J singular)
-    if problem.lobe_T is None:
-        p.pop("gain_db", None)
-    if problem.wave_T is None:
-        p.pop("phase0", None)
-    if "diam" in p and params is None:
-        best: tuple[float, dict] | None = None
-        for frac in np.linspace(0.5, 0.98, 25):
-            q = _with_offsets(problem, {**p, "diam": device_array(logit(frac))})
-            c = float(_cost(problem, q))
-            if np.isfinite(c) and (best is None or c < best[0]):
-                best = (c, q)
-        if best is not None:  # else every scanned diameter gave a non-finite cost: the fit says so
-            return best[1]
-    return _with_offsets(problem, p)
-
-
-def _with_offsets(problem: Problem, p: dict) -> dict:
-    p = dict(p)
-    if "gain_db" in p:
-        m = np.asarray(_models(problem, {**p, "gain_db": device_array(0.0)})[0])
-        data = np.asarray(problem.lobe_db)
-        top = data > data.max() - 10
-        p["gain_db"] = device_array(float(np.median(data[top] - m[top])))
-    if "phase0" in p:
-        m = np.asarray(_models(problem, {**p, "phase0": device_array(0.0)})[1])
-        d = np.asarray(problem.wave_phase) - m
-        p["phase0"] = device_array(float(np.angle(np.mean(np.exp(1j * d)))))
-    return p
-
-
 # -- the stepped solve ---------------------------------------------------------------------
-def _residual_aux(y, args):
-    """The residuals at `y`, with the parameters `free` marks False taken from `held` instead
-    (their Jacobian columns are zero, so the solver's steps leave them alone): which parameters
-    a stage holds is data, so every stage of a fit runs the same compiled solver programs."""
-    problem, held, free = args
-    return problem.residuals({k: jnp.where(free[k], v, held[k]) for k, v in y.items()}), None
-
-
-def _cost_aux(y, args):
-    r, _ = _residual_aux(y, args)
-    return 0.5 * jnp.sum(r * r), None
 
 
 def _solver_fn(solver):
@@ -707,37 +547,6 @@ def _trace(stages: list[tuple[int, _Stage]]) -> FitTrace:
     )
 
 
-def outlier_diagnostics(data_residuals: dict) -> dict:
-    """Per observable: RMS of the normalised residuals, a robust sigma (1.4826 MAD), their ratio
-    and the points further than `OUTLIER_SIGMAS` robust sigmas (at least 1) from the median.
-    `suspect` is set when at least 2 points and 1 % of them lie out there (a Gaussian sample of
-    200 has one such point with probability ~1 %) or the RMS exceeds twice the robust sigma."""
-    out = {}
-    for name, r in data_residuals.items():
-        r = np.asarray(r, float)
-        n = len(r)
-        if n < 8 or not np.all(np.isfinite(r)):
-            continue
-        med = float(np.median(r))
-        mad = 1.4826 * float(np.median(np.abs(r - med)))
-        rms = float(np.sqrt(np.mean(r**2)))
-        s = max(mad, 1.0)
-        far = np.abs(r - med) > OUTLIER_SIGMAS * s
-        k = int(far.sum())
-        ratio = rms / max(mad, 1e-12)
-        out[name] = {
-            "n": n,
-            "n_outliers": k,
-            "fraction": k / n,
-            "rms": rms,
-            "robust_sigma": mad,
-            "rms_over_robust": ratio,
-            "indices": np.flatnonzero(far).tolist(),
-            "suspect": bool(k >= max(2, math.ceil(0.01 * n)) and (k / n >= 0.01 or ratio > 2.0)),
-        }
-    return out
-
-
 def _result(problem: Problem, spec: ModelSpec, stages, options: FitOptions, lobe, wave, wall: float) -> FitResult:
     last = stages[-1][1]
     params = jax.block_until_ready(last.y)
@@ -894,113 +703,6 @@ def _result(problem: Problem, spec: ModelSpec, stages, options: FitOptions, lobe
         effective_params=edf,
         options=options,
     )
-
-
-def runs_test(r) -> tuple[int, float, float]:
-    """(runs, expected runs, one-sided p of so few) of the signs of the residuals `r` in data
-    order (Wald-Wolfowitz, normal approximation): a model that misses a structure leaves long
-    runs of one sign, noise leaves about n/2 + 1. p = 1 where there are too few of either sign."""
-    from scipy.stats import norm
-
-    s = np.sign(np.asarray(r, float))
-    s = s[s != 0]
-    n1, n2 = int(np.sum(s > 0)), int(np.sum(s < 0))
-    n = n1 + n2
-    runs = 1 + int(np.sum(s[1:] != s[:-1])) if n else 0
-    if n1 < 2 or n2 < 2:
-        return runs, float(runs), 1.0
-    mu = 2.0 * n1 * n2 / n + 1
-    var = 2.0 * n1 * n2 * (2.0 * n1 * n2 - n) / (n * n * (n - 1))
-    return runs, mu, float(norm.cdf((runs - mu + 0.5) / math.sqrt(var)))
-
-
-def _datum_weights(problem: Problem, arrays: dict) -> dict:
-    """Per data set, the share of a datum each point's residual carries: its expected squared
-    normalised residual from noise alone. 1 for a wavefront phase; for a lobe level L the soft
-    floor F compresses the noise by its slope 1 / (1 + 10^((F - L)/10)), so a point far below
-    the floor carries almost nothing (it says only "below the floor")."""
-    out = {}
-    if problem.lobe_floor is not None and arrays.get("lobe_db") is not None:
-        level = np.asarray(arrays["lobe_db"], float)
-        out["lobe"] = 1.0 / (1.0 + 10.0 ** ((problem.lobe_floor - level) / 10.0)) ** 2
-    return out
-
-
-def goodness_of_fit(
-    data_res: dict, J_data: np.ndarray, cov_raw: np.ndarray | None, npar: int, datum_weights: dict | None = None
-) -> dict:
-    """Chi-square per data set and joint, counted per measured datum: a lobe point is one level,
-    a wavefront point one phase (its residual: the chord 2 sin(d/2) / sigma, ~ d / sigma); a
-    point's count is its `datum_weights` entry where given (a lobe level below the soft floor:
-    less than one, `_datum_weights`), so `n_data` is the data's equivalent number of points. Each
-    set's degrees of freedom are that number less its share of the fitted parameters, the sum of
-    its rows' leverages (the hat matrix's diagonal; the joint sum is the effective number of
-    parameters, `npar` without a smoothness prior). Per set: `chi2`, `n` (points), `n_data`,
-    `dof`, `chi2_reduced`, `p` (scipy.stats.chi2.sf: the probability of a chi-square this large
-    from a correct model at the stated noise) and the runs test of the residual signs (`runs`,
-    `runs_expected`, `runs_p`)."""
-    from scipy.stats import chi2 as chi2_dist
-
-    if not data_res:
-        return {}
-    lev = None
-    if cov_raw is not None and np.all(np.isfinite(cov_raw)) and np.all(np.isfinite(J_data)):
-        lev = np.einsum("ij,jk,ik->i", J_data, cov_raw, J_data)
-    out: dict = {}
-    row = 0
-    tot_chi2 = tot_n = tot_d = tot_h = 0.0
-    for name, res in data_res.items():
-        res = np.asarray(res, float)
-        n = len(res)
-        rows = n if name == "lobe" else 2 * n  # a wavefront point: the rows sin d and 1 - cos d
-        h = float(np.sum(lev[row : row + rows])) if lev is not None else npar * n / max(len(J_data), 1)
-        row += rows
-        c2 = float(np.sum(res * res))
-        w = (datum_weights or {}).get(name)
-        n_data = float(np.sum(w)) if w is not None and len(w) == n else float(n)
-        out[name] = _goodness_entry(c2, n, n_data, h, chi2_dist)
-        runs, mu, p_runs = runs_test(res)
-        out[name].update(runs=runs, runs_expected=mu, runs_p=p_runs)
-        tot_chi2, tot_n, tot_d, tot_h = tot_chi2 + c2, tot_n + n, tot_d + n_data, tot_h + h
-    out["joint"] = _goodness_entry(tot_chi2, int(tot_n), tot_d, tot_h, chi2_dist)
-    out["joint"]["runs_p"] = min(v["runs_p"] for k, v in out.items() if k != "joint")
-    out["p_min"] = GOODNESS_P_MIN
-    return out
-
-
-def _goodness_entry(c2: float, n: int, n_data: float, h: float, dist) -> dict:
-    dof = max(n_data - h, 1.0)
-    return {
-        "chi2": c2,
-        "n": n,
-        "n_data": n_data,
-        "params_share": h,
-        "dof": dof,
-        "chi2_reduced": c2 / dof,
-        "p": float(dist.sf(c2, dof)) if math.isfinite(c2) else 0.0,
-    }
-
-
-def _chi2_and_variance_factor(data_res: dict, options: FitOptions, npar: int, chi2_fit: float) -> tuple[float, float]:
-    """(chi2_red of the data points, variance factor for the errors). For "l2" both are the
-    reduced chi-square of the minimised residuals (the smoothness prior included). For a robust
-    loss the factor is Huber's M-estimator one, sum psi(r)^2 / dof / (mean psi'(r))^2 with psi =
-    rho' (Huber: the residual clipped at +-k; Cauchy: r / (1 + r^2/k^2)): outliers count by
-    their bounded influence, not by their size, so a robust fit's errors are not blown up by the
-    points it set aside."""
-    r = np.concatenate([np.asarray(v, float) for v in data_res.values()]) if data_res else np.zeros(0)
-    dof = max(len(r) - npar, 1)
-    chi2_data = float(np.sum(r * r)) / dof
-    if options.loss == "l2":
-        return chi2_fit, chi2_fit
-    k = options.loss_scale
-    if options.loss == "huber":
-        psi, dpsi = np.clip(r, -k, k), (np.abs(r) <= k).astype(float)
-    else:
-        u2 = (r / k) ** 2
-        psi, dpsi = r / (1 + u2), (1 - u2) / (1 + u2) ** 2
-    mean_dpsi = max(float(np.mean(dpsi)), 1e-3)
-    return chi2_data, float(np.sum(psi * psi)) / dof / mean_dpsi**2
 
 
 def physical_vector(spec: ModelSpec, params: dict):

@@ -1,7 +1,7 @@
 """A fit's outcome in one of three classes, each with its own exit code and console line.
 
 - **consistent** (exit 0): converged, every data set's chi-square probability (per measured
-  datum, `solve.goodness_of_fit`) at or above `GOODNESS_P_MIN`, and the residual-sign runs test
+  datum, `goodness.goodness_of_fit`) at or above `GOODNESS_P_MIN`, and the residual-sign runs test
   too where the set's chi2_red is >= 1; no fitted parameter at a bound of its allowed range;
 - **inadequate** (exit 4): converged, but the model does not describe the data: a chi-square
   probability below `GOODNESS_P_MIN`, a runs-test probability below it in a data set whose

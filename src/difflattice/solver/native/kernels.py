@@ -47,11 +47,28 @@ KNOWN_LATTICE_FIELDS = frozenset(
         "mur",
         "stencil",  # both run natively (attribute `stencil` of the FFI calls)
         "uniform_faces",  # a stability-limit fact, no term
+        "relax",  # air absorption: the leapfrog kernel's memory fields (not the staggered one yet)
     }
 )
 # likewise the carried state, the sensors' options and the sources' injection modes
 KNOWN_STATE_FIELDS = frozenset(
-    {"n", "p", "p_prev", "px", "py", "wx", "wy", "src_acc", "c_r", "phasor_re", "phasor_im", "p_max", "p_sq", "arrival"}
+    {
+        "n",
+        "p",
+        "p_prev",
+        "px",
+        "py",
+        "wx",
+        "wy",
+        "src_acc",
+        "c_r",
+        "phasor_re",
+        "phasor_im",
+        "p_max",
+        "p_sq",
+        "arrival",
+        "relax_q",
+    }
 )
 KNOWN_SENSOR_FIELDS = frozenset(
     {
@@ -109,6 +126,9 @@ def unsupported(stepper: Stepper, state: State | None, sharding) -> str | None:
         return f"carried state the kernels do not update ({', '.join(new_state)})"
     if any(lat.mur):
         return "Mur edges"
+    why = _relax_unsupported(stepper)
+    if why:
+        return why
     if lat.stencil != "standard":
         m = getattr(lat, "metric", None)
         if m is not None and not all(jnp.shape(v)[:-1] in ((), (1,)) for v in (m.lo, m.hi)):
@@ -139,6 +159,30 @@ def unsupported(stepper: Stepper, state: State | None, sharding) -> str | None:
     if state is not None and stepper.staggered != isinstance(state, StaggeredState):
         return "a start state of the other stepper"
     return None
+
+
+def _relax_unsupported(stepper: Stepper) -> str | None:
+    """Why the kernels cannot run this scene's air absorption (None: no absorption, or one they run)."""
+    r = stepper.lattice.relax
+    if r is None:
+        return None
+    if stepper.staggered:
+        return (
+            "air absorption with a PML (the split-field kernel has no memory fields yet; "
+            "backend='auto' runs the JAX loop, or use sponge/rigid edges for the native leapfrog)"
+        )
+    if len(r.eps) != 2 or len(r.a) != 2 or len(r.g) != 2:
+        return f"air absorption with {len(r.eps)} relaxation processes (the kernels carry two: O2, N2)"
+    if any(jnp.size(v) != 1 for v in (r.eta, *r.eps, *r.a, *r.g)):
+        return "air absorption whose coefficients vary in space (the kernels take one value each)"
+    return None
+
+
+def _relax_coefficients(lat: Lattice, dt):
+    """The leapfrog kernel's 7 air-absorption coefficients (eta, eps_O, eps_N, a_O, a_N, g_O, g_N)."""
+    r = lat.relax
+    assert r is not None
+    return jnp.stack([jnp.asarray(v, dt).reshape(()) for v in (r.eta, *r.eps, *r.a, *r.g)])
 
 
 def _bands(stepper: Stepper) -> bool:
@@ -229,6 +273,7 @@ class _Chunk:
         metric = getattr(lat, "metric", None)  # rz grids: per-ring factors of the radial faces
         self.metric = [as_dt(None if metric is None else metric.lo), as_dt(None if metric is None else metric.hi)]
         self.sponge = as_dt(lat.sponge)
+        self.relax = _absent(dt) if lat.relax is None else _relax_coefficients(lat, dt)
         if stepper.staggered:
             pml = lat.pml
             self.pml = [
@@ -293,6 +338,7 @@ class _Chunk:
         rec_shape = jax.ShapeDtypeStruct((length, self.n_probes), self.dt)
         stat_shapes = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in stats]
         if isinstance(st, LeapfrogState):
+            rq = [_absent(self.dt)] * 2 if st.relax_q is None else list(st.relax_q)
             args = [
                 st.p,
                 st.p_prev,
@@ -309,12 +355,15 @@ class _Chunk:
                 sin,
                 *stats,
                 n0,
+                *rq,
+                self.relax,
             ]
             field = jax.ShapeDtypeStruct(self.shape, self.dt)
+            rq_shapes = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in rq]
             out = jax.ffi.ffi_call(
                 "difflattice_leapfrog",
-                [field, field, rec_shape, *stat_shapes],
-                input_output_aliases={0: 0, 1: 1, 18: 3, 19: 4, 20: 5, 21: 6, 22: 7},
+                [field, field, rec_shape, *stat_shapes, *rq_shapes],
+                input_output_aliases={0: 0, 1: 1, 18: 3, 19: 4, 20: 5, 21: 6, 22: 7, 24: 8, 25: 9},
                 vmap_method="sequential",
             )(
                 *args,
@@ -324,8 +373,10 @@ class _Chunk:
                 bands=self.bands,
                 **self.attrs,
             )
-            p, p_prev, rec, *stats_out = out
+            p, p_prev, rec, *stats_out, rq0, rq1 = out
             st = eqx.tree_at(lambda s: (s.p, s.p_prev), st, (p, p_prev))
+            if st.relax_q is not None:
+                st = eqx.tree_at(lambda s: s.relax_q, st, (rq0, rq1))
         else:
             assert isinstance(st, StaggeredState)  # unsupported() refuses the other stepper's state
             acc = self._acc_in(st)
@@ -397,7 +448,8 @@ class _Chunk:
             "difflattice_leapfrog",
             [field, field, jax.ShapeDtypeStruct((length, n_rec), dt)]
             + [jax.ShapeDtypeStruct((0,), dt)] * 4
-            + [jax.ShapeDtypeStruct((0,), jnp.int32)],
+            + [jax.ShapeDtypeStruct((0,), jnp.int32)]
+            + [jax.ShapeDtypeStruct((0,), dt)] * 2,
             input_output_aliases={0: 0, 1: 1},
             vmap_method="sequential",
         )(
@@ -424,6 +476,9 @@ class _Chunk:
             e,
             _absent(jnp.int32),
             jnp.asarray(0, jnp.int32),
+            e,
+            e,
+            e,
             n_steps=np.int64(length),
             combine=np.int64(2),
             stencil=np.int64(0),
@@ -566,6 +621,7 @@ def adjoint_supported(stepper: Stepper) -> bool:
         and lat.keep is None
         and lat.sponge is None
         and lat.eta == 0
+        and lat.relax is None
     )
 
 

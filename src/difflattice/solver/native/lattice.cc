@@ -740,6 +740,11 @@ struct LeapfrogArgs {
   Coef<T> K, bx, by, qs, keep, sponge;
   Coef<T> my_lo, my_hi;  // rz metric: factors of each cell's low and high y face (per column)
   double eta;  // viscous coefficient (0: none); q = qs ((1 + eta) p - eta pp)
+  // air absorption (lattice.coefficients.AirRelaxation; rq[0] == nullptr: lossless, none of it
+  // runs): the operand adds r_eta (p - pp) + eps_0 Q_0 + eps_1 Q_1 (before qs), and after the
+  // sources Q_i = a_i Q_i + g_i (P(t+1) - P(t)), in place, row by row
+  T* rq[2] = {nullptr, nullptr};
+  T r_eta = T(0), r_eps[2] = {T(0), T(0)}, r_a[2] = {T(0), T(0)}, r_g[2] = {T(0), T(0)};
   CellOps<T> cells;
 };
 
@@ -959,11 +964,12 @@ bool leapfrog(const LeapfrogArgs<T>& a) {
   const CellPlan<T> cplan(a.cells, nx);
   const bool stats = a.cells.p_max || a.cells.p_sq || a.cells.arrival;
   const bool adj = a.combine == kAdj;
-  const bool extras = !adj && (a.qs.present() || a.keep.present() || a.sponge.present() || a.eta != 0.0);
+  const bool relax = !adj && a.rq[0] != nullptr;
+  const bool extras = !adj && (a.qs.present() || a.keep.present() || a.sponge.present() || a.eta != 0.0 || relax);
   // the adjoint with a scalar K is the forward step: L(K a) = K L(a)
   const bool adj_scalar = adj && a.K.in_register();
   const int cmb = adj_scalar ? kFwd : (adj ? kAdj : (extras ? kD : kFwd));
-  const bool qbuf = (adj && !adj_scalar) || a.qs.present() || a.eta != 0.0;  // q rows computed
+  const bool qbuf = (adj && !adj_scalar) || a.qs.present() || a.eta != 0.0 || relax;  // q rows computed
   RowPlan<T> plan;
   if (!(a.iso ? plan_iso(a, cmb, plan) : plan_rows(a, cmb, plan))) return false;
   const T eta1 = T(1.0 + a.eta), eta = T(a.eta);
@@ -987,6 +993,14 @@ bool leapfrog(const LeapfrogArgs<T>& a) {
       for (int64_t j = 0; j < ny; ++j) dst[j] = eta1 * pr[j] - eta * ppr[j];
     } else {
       for (int64_t j = 0; j < ny; ++j) dst[j] = pr[j];
+    }
+    if (relax) {  // stepper._relaxed_operand, in its order
+      const T* ppr = pp_ + i * ny;
+      const T* q0r = a.rq[0] + i * ny;
+      const T* q1r = a.rq[1] + i * ny;
+      const T re = a.r_eta, e0 = a.r_eps[0], e1 = a.r_eps[1];
+#pragma GCC ivdep
+      for (int64_t j = 0; j < ny; ++j) dst[j] = ((dst[j] + re * (pr[j] - ppr[j])) + e0 * q0r[j]) + e1 * q1r[j];
     }
     if (a.qs.present()) {
       if (a.qs.in_register()) {
@@ -1066,6 +1080,17 @@ bool leapfrog(const LeapfrogArgs<T>& a) {
         }
       }
       if (cplan.busy[i]) leapfrog_cells(a.cells, cplan, i, L - 1, pp);
+      if (relax) {  // stepper._relaxed_memory: step L - 1's q rows of row i are read (q ring)
+        T* q0r = a.rq[0] + i * ny;
+        T* q1r = a.rq[1] + i * ny;
+        const T a0 = a.r_a[0], a1 = a.r_a[1], g0 = a.r_g[0], g1 = a.r_g[1];
+#pragma GCC ivdep
+        for (int64_t j = 0; j < ny; ++j) {
+          const T dp = out[j] - p0[j];
+          q0r[j] = a0 * q0r[j] + g0 * dp;
+          q1r[j] = a1 * q1r[j] + g1 * dp;
+        }
+      }
       if (stats) row_stats(a.cells, i, L - 1, out);
     };
   };
@@ -1713,10 +1738,12 @@ ffi::Error leapfrog_typed(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K,
                           ffi::AnyBuffer zero_cells, ffi::AnyBuffer ph_cells, ffi::AnyBuffer ph_cos,
                           ffi::AnyBuffer ph_sin, ffi::AnyBuffer ph_re, ffi::AnyBuffer ph_im, ffi::AnyBuffer p_max,
                           ffi::AnyBuffer p_sq, ffi::AnyBuffer arrival, ffi::AnyBuffer n0,
+                          ffi::AnyBuffer rq0, ffi::AnyBuffer rq1, ffi::AnyBuffer relax,
                           ffi::Result<ffi::AnyBuffer> p_o, ffi::Result<ffi::AnyBuffer> pp_o,
                           ffi::Result<ffi::AnyBuffer> rec_o, ffi::Result<ffi::AnyBuffer> ph_re_o,
                           ffi::Result<ffi::AnyBuffer> ph_im_o, ffi::Result<ffi::AnyBuffer> p_max_o,
                           ffi::Result<ffi::AnyBuffer> p_sq_o, ffi::Result<ffi::AnyBuffer> arrival_o,
+                          ffi::Result<ffi::AnyBuffer> rq0_o, ffi::Result<ffi::AnyBuffer> rq1_o,
                           int64_t n_steps, int64_t threads, int64_t levels, int64_t bands, int64_t combine,
                           int64_t stencil, double eta, double threshold) {
   auto dims = p.dimensions();
@@ -1754,6 +1781,26 @@ ffi::Error leapfrog_typed(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K,
                 out_from<T>(p_sq_o, p_sq), out_from<int32_t>(arrival_o, arrival), n0, threshold);
   a.cells.zero_cells = reinterpret_cast<const int32_t*>(zero_cells.untyped_data());
   a.cells.n_zero = int64_t(zero_cells.element_count() / 2);
+  if (rq0.element_count() || rq1.element_count() || relax.element_count()) {
+    // air absorption: two memory fields of the grid's shape and (r_eta, eps_0, eps_1, a_0, a_1, g_0, g_1)
+    if (rq0.element_count() != nx * ny || rq1.element_count() != nx * ny || relax.element_count() != 7 ||
+        relax.element_type() != p.element_type() || rq0.element_type() != p.element_type() ||
+        rq1.element_type() != p.element_type())
+      return ffi::Error::InvalidArgument(
+          "difflattice_leapfrog: air absorption needs two memory fields of the grid's shape and 7 coefficients");
+    if (combine == dl::kAdj)
+      return ffi::Error::InvalidArgument("difflattice_leapfrog: the adjoint mode has no air absorption");
+    a.rq[0] = out_from<T>(rq0_o, rq0);
+    a.rq[1] = out_from<T>(rq1_o, rq1);
+    const T* r = reinterpret_cast<const T*>(relax.untyped_data());
+    a.r_eta = r[0];
+    a.r_eps[0] = r[1];
+    a.r_eps[1] = r[2];
+    a.r_a[0] = r[3];
+    a.r_a[1] = r[4];
+    a.r_g[0] = r[5];
+    a.r_g[1] = r[6];
+  }
   if (!dl::leapfrog<T>(a)) return ffi::Error::InvalidArgument("difflattice_leapfrog: unsupported coefficient layout");
   return ffi::Error::Success();
 }
@@ -1765,16 +1812,18 @@ ffi::Error leapfrog_impl(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K, 
                          ffi::AnyBuffer zero_cells, ffi::AnyBuffer ph_cells, ffi::AnyBuffer ph_cos,
                          ffi::AnyBuffer ph_sin, ffi::AnyBuffer ph_re, ffi::AnyBuffer ph_im, ffi::AnyBuffer p_max,
                          ffi::AnyBuffer p_sq, ffi::AnyBuffer arrival, ffi::AnyBuffer n0,
+                         ffi::AnyBuffer rq0, ffi::AnyBuffer rq1, ffi::AnyBuffer relax,
                          ffi::Result<ffi::AnyBuffer> p_o, ffi::Result<ffi::AnyBuffer> pp_o,
                          ffi::Result<ffi::AnyBuffer> rec_o, ffi::Result<ffi::AnyBuffer> ph_re_o,
                          ffi::Result<ffi::AnyBuffer> ph_im_o, ffi::Result<ffi::AnyBuffer> p_max_o,
                          ffi::Result<ffi::AnyBuffer> p_sq_o, ffi::Result<ffi::AnyBuffer> arrival_o,
+                         ffi::Result<ffi::AnyBuffer> rq0_o, ffi::Result<ffi::AnyBuffer> rq1_o,
                          int64_t n_steps, int64_t threads, int64_t levels, int64_t bands, int64_t combine,
                          int64_t stencil, double eta, double threshold) {
 #define DL_ARGS                                                                                                 \
   p, pp, K, bx, by, qs, keep, sponge, my_lo, my_hi, src_cells, src_hard, src_vals, rec_cells, zero_cells, ph_cells, ph_cos, \
-      ph_sin, ph_re, ph_im, p_max, p_sq, arrival, n0, p_o, pp_o, rec_o, ph_re_o, ph_im_o, p_max_o, p_sq_o,     \
-      arrival_o, n_steps, threads, levels, bands, combine, stencil, eta, threshold
+      ph_sin, ph_re, ph_im, p_max, p_sq, arrival, n0, rq0, rq1, relax, p_o, pp_o, rec_o, ph_re_o, ph_im_o, p_max_o,  \
+      p_sq_o, arrival_o, rq0_o, rq1_o, n_steps, threads, levels, bands, combine, stencil, eta, threshold
   switch (p.element_type()) {
     case ffi::DataType::F32:
       return leapfrog_typed<float>(DL_ARGS);
@@ -2002,17 +2051,15 @@ ffi::Error adjoint_chunk_impl(ffi::AnyBuffer p_end, ffi::AnyBuffer pp_end, ffi::
 #define DL_RETS_4 .Ret<ffi::AnyBuffer>().Ret<ffi::AnyBuffer>().Ret<ffi::AnyBuffer>().Ret<ffi::AnyBuffer>()
 
 // args: p pp K bx by qs keep sponge | my_lo my_hi src_cells src_hard src_vals rec_cells zero_cells
-//       ph_cells | ph_cos ph_sin ph_re ph_im p_max p_sq arrival n0
-// rets: p pp rec ph_re ph_im p_max p_sq arrival
+//       ph_cells | ph_cos ph_sin ph_re ph_im p_max p_sq arrival n0 | rq0 rq1 relax (air absorption:
+//       the memory fields Q_O, Q_N and their 7 coefficients; empty: lossless)
+// rets: p pp rec ph_re ph_im p_max p_sq arrival rq0 rq1
 XLA_FFI_DEFINE_HANDLER_SYMBOL(DifflatticeLeapfrog, leapfrog_impl,
-                              ffi::Ffi::Bind() DL_BUFS_8 DL_BUFS_8.Arg<ffi::AnyBuffer>()
+                              ffi::Ffi::Bind() DL_BUFS_8 DL_BUFS_8 DL_BUFS_8.Arg<ffi::AnyBuffer>()
                                   .Arg<ffi::AnyBuffer>()
-                                  .Arg<ffi::AnyBuffer>()
-                                  .Arg<ffi::AnyBuffer>()
-                                  .Arg<ffi::AnyBuffer>()
-                                  .Arg<ffi::AnyBuffer>()
-                                  .Arg<ffi::AnyBuffer>()
-                                  .Arg<ffi::AnyBuffer>() DL_RETS_4 DL_RETS_4.Attr<int64_t>("n_steps")
+                                  .Arg<ffi::AnyBuffer>() DL_RETS_4 DL_RETS_4.Ret<ffi::AnyBuffer>()
+                                  .Ret<ffi::AnyBuffer>()
+                                  .Attr<int64_t>("n_steps")
                                   .Attr<int64_t>("threads")
                                   .Attr<int64_t>("levels")
                                   .Attr<int64_t>("bands")

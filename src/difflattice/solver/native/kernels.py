@@ -47,7 +47,7 @@ KNOWN_LATTICE_FIELDS = frozenset(
         "mur",
         "stencil",  # both run natively (attribute `stencil` of the FFI calls)
         "uniform_faces",  # a stability-limit fact, no term
-        "relax",  # air absorption: the leapfrog kernel's memory fields (not the staggered one yet)
+        "relax",  # air absorption: memory fields Q_O, Q_N (both kernels; `_relax_unsupported`)
     }
 )
 # likewise the carried state, the sensors' options and the sources' injection modes
@@ -166,11 +166,6 @@ def _relax_unsupported(stepper: Stepper) -> str | None:
     r = stepper.lattice.relax
     if r is None:
         return None
-    if stepper.staggered:
-        return (
-            "air absorption with a PML (the split-field kernel has no memory fields yet; "
-            "backend='auto' runs the JAX loop, or use sponge/rigid edges for the native leapfrog)"
-        )
     if len(r.eps) != 2 or len(r.a) != 2 or len(r.g) != 2:
         return f"air absorption with {len(r.eps)} relaxation processes (the kernels carry two: O2, N2)"
     if any(jnp.size(v) != 1 for v in (r.eta, *r.eps, *r.a, *r.g)):
@@ -382,6 +377,7 @@ class _Chunk:
             acc = self._acc_in(st)
             p_prev = _absent(self.dt) if st.p_prev is None else st.p_prev
             c_r = _absent(self.dt) if st.c_r is None else st.c_r
+            rq = [_absent(self.dt)] * 2 if st.relax_q is None else list(st.relax_q)
             args = [
                 st.px,
                 st.py,
@@ -403,13 +399,24 @@ class _Chunk:
                 n0,
                 c_r,
                 *self.radial,
+                *rq,
+                self.relax,
             ]
             fields = (st.px, st.py, st.wx, st.wy, p_prev, acc)
             shapes = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in fields]
             out = jax.ffi.ffi_call(
                 "difflattice_staggered",
-                [*shapes, rec_shape, *stat_shapes, jax.ShapeDtypeStruct(c_r.shape, c_r.dtype)],
-                input_output_aliases={0: 0, 1: 1, 2: 2, 3: 3, 4: 4, 23: 5, 28: 7, 29: 8, 30: 9, 31: 10, 32: 11, 34: 12},
+                [
+                    *shapes,
+                    rec_shape,
+                    *stat_shapes,
+                    jax.ShapeDtypeStruct(c_r.shape, c_r.dtype),
+                    *(jax.ShapeDtypeStruct(a.shape, a.dtype) for a in rq),
+                ],
+                input_output_aliases={
+                    **{0: 0, 1: 1, 2: 2, 3: 3, 4: 4, 23: 5, 28: 7, 29: 8, 30: 9, 31: 10, 32: 11, 34: 12},
+                    **{37: 13, 38: 14},
+                },
                 vmap_method="sequential",
             )(
                 *args,
@@ -417,7 +424,7 @@ class _Chunk:
                 stencil=np.int64(self.stepper.lattice.stencil == "isotropic"),
                 **self.attrs,
             )
-            px, py, wx, wy, p_prev, acc, rec, *stats_out, c_r = out
+            px, py, wx, wy, p_prev, acc, rec, *stats_out, c_r, rq0, rq1 = out
             has_acc, has_prev, new_acc = bool(st.src_acc), st.p_prev is not None, self._acc_out(st, acc)
             if st.c_r is not None:
                 st = eqx.tree_at(lambda s: s.c_r, st, c_r)
@@ -426,6 +433,8 @@ class _Chunk:
                 st = eqx.tree_at(lambda s: s.src_acc, st, new_acc)
             if has_prev:
                 st = eqx.tree_at(lambda s: s.p_prev, st, p_prev)
+            if st.relax_q is not None:
+                st = eqx.tree_at(lambda s: s.relax_q, st, (rq0, rq1))
         names = ("phasor_re", "phasor_im", "p_max", "p_sq", "arrival")
         present = tuple(k for k in names if getattr(st, k) is not None)
         if present:

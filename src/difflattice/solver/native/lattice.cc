@@ -29,6 +29,7 @@
 #include <cstring>
 #include <limits>
 #include <mutex>
+#include <string>
 #include <thread>
 #include <type_traits>
 #include <vector>
@@ -1149,6 +1150,9 @@ struct StaggeredArgs {
   int64_t w = 0;
   double eta;
   bool iso = false;  // the isotropic stencil (uniform faces: x masks per row, y masks per column)
+  // air absorption, as in LeapfrogArgs (rq[0] == nullptr: lossless); needs p_prev
+  T* rq[2] = {nullptr, nullptr};
+  T r_eta = T(0), r_eps[2] = {T(0), T(0)}, r_a[2] = {T(0), T(0)}, r_g[2] = {T(0), T(0)};
   CellOps<T> cells;
 };
 
@@ -1160,6 +1164,7 @@ bool staggered(const StaggeredArgs<T>& a) {
   const bool stats = a.cells.p_max || a.cells.p_sq || a.cells.arrival;
   const T eta1 = T(1.0 + a.eta), eta = T(a.eta);
   const bool has_eta = a.eta != 0.0;
+  const bool relax = a.rq[0] != nullptr;
   // the y-layer columns: PML factors differ from 1 outside [jl, jh) (cells) and [jl, jh] (faces)
   auto y_one = [&](int64_t j, bool face) {
     const Coef<T>& A = face ? a.ayf : a.ayc;
@@ -1196,6 +1201,15 @@ bool staggered(const StaggeredArgs<T>& a) {
       for (int64_t j = 0; j < ny; ++j) dst[j] = eta1 * (x[j] + y[j]) - eta * pr[j];
     } else {
       for (int64_t j = 0; j < ny; ++j) dst[j] = x[j] + y[j];
+    }
+    if (relax) {  // stepper._relaxed_operand, in its order
+      const T* __restrict pr = a.p_prev + i * ny;
+      const T* __restrict q0r = a.rq[0] + i * ny;
+      const T* __restrict q1r = a.rq[1] + i * ny;
+      const T re = a.r_eta, e0 = a.r_eps[0], e1 = a.r_eps[1];
+#pragma GCC ivdep
+      for (int64_t j = 0; j < ny; ++j)
+        dst[j] = ((dst[j] + re * ((x[j] + y[j]) - pr[j])) + e0 * q0r[j]) + e1 * q1r[j];
     }
     if (a.qs.present()) {
       const T* __restrict s_ = S.qs.get(a.qs, i, ny);
@@ -1461,7 +1475,7 @@ bool staggered(const StaggeredArgs<T>& a) {
       } else {
         faces_y(R, i, q0, S.old.data());
       }
-      if (has_eta) {  // P(n - 1) of this row for the next step, before px, py change
+      if (has_eta || relax) {  // P(n - 1) of this row for the next step, before px, py change
         T* pr = a.p_prev + i * ny;
         const T* x = a.px + i * ny;
         const T* y = a.py + i * ny;
@@ -1469,6 +1483,20 @@ bool staggered(const StaggeredArgs<T>& a) {
       }
       cells(R, i);
       if (cplan.busy[i]) staggered_cells(a.cells, cplan, i, L - 1, a.px, a.py);
+      if (relax) {  // stepper._relaxed_memory (p_prev's row holds P(n) now; q rows of row i are read)
+        const T* x = a.px + i * ny;
+        const T* y = a.py + i * ny;
+        const T* pr = a.p_prev + i * ny;
+        T* q0r = a.rq[0] + i * ny;
+        T* q1r = a.rq[1] + i * ny;
+        const T a0 = a.r_a[0], a1 = a.r_a[1], g0 = a.r_g[0], g1 = a.r_g[1];
+#pragma GCC ivdep
+        for (int64_t j = 0; j < ny; ++j) {
+          const T dp = (x[j] + y[j]) - pr[j];
+          q0r[j] = a0 * q0r[j] + g0 * dp;
+          q1r[j] = a1 * q1r[j] + g1 * dp;
+        }
+      }
       if (stats) {
         const T* x = a.px + i * ny;
         const T* y = a.py + i * ny;
@@ -1730,6 +1758,31 @@ void bind_cells(dl::CellOps<T>& c, int64_t ny, const ffi::AnyBuffer& src_cells, 
   c.n0 = *reinterpret_cast<const int32_t*>(n0.untyped_data());
 }
 
+// air absorption's inputs (both kernels): the memory fields Q_O, Q_N (empty: lossless) and their
+// 7 coefficients (eta, eps_O, eps_N, a_O, a_N, g_O, g_N); false: inconsistent sizes or types
+template <typename T, typename Args>
+bool bind_relax(Args& a, int64_t n_cells, ffi::DataType type, const ffi::AnyBuffer& rq0, const ffi::AnyBuffer& rq1,
+                const ffi::AnyBuffer& relax, ffi::Result<ffi::AnyBuffer>& rq0_o, ffi::Result<ffi::AnyBuffer>& rq1_o) {
+  if (!rq0.element_count() && !rq1.element_count() && !relax.element_count()) return true;
+  if (int64_t(rq0.element_count()) != n_cells || int64_t(rq1.element_count()) != n_cells ||
+      relax.element_count() != 7 || relax.element_type() != type || rq0.element_type() != type ||
+      rq1.element_type() != type)
+    return false;
+  a.rq[0] = out_from<T>(rq0_o, rq0);
+  a.rq[1] = out_from<T>(rq1_o, rq1);
+  const T* r = reinterpret_cast<const T*>(relax.untyped_data());
+  a.r_eta = r[0];
+  a.r_eps[0] = r[1];
+  a.r_eps[1] = r[2];
+  a.r_a[0] = r[3];
+  a.r_a[1] = r[4];
+  a.r_g[0] = r[5];
+  a.r_g[1] = r[6];
+  return true;
+}
+
+const char* kRelax = "air absorption needs two memory fields of the grid's shape and 7 coefficients";
+
 template <typename T>
 ffi::Error leapfrog_typed(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K, ffi::AnyBuffer bx, ffi::AnyBuffer by,
                           ffi::AnyBuffer qs, ffi::AnyBuffer keep, ffi::AnyBuffer sponge, ffi::AnyBuffer my_lo,
@@ -1781,26 +1834,10 @@ ffi::Error leapfrog_typed(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K,
                 out_from<T>(p_sq_o, p_sq), out_from<int32_t>(arrival_o, arrival), n0, threshold);
   a.cells.zero_cells = reinterpret_cast<const int32_t*>(zero_cells.untyped_data());
   a.cells.n_zero = int64_t(zero_cells.element_count() / 2);
-  if (rq0.element_count() || rq1.element_count() || relax.element_count()) {
-    // air absorption: two memory fields of the grid's shape and (r_eta, eps_0, eps_1, a_0, a_1, g_0, g_1)
-    if (rq0.element_count() != nx * ny || rq1.element_count() != nx * ny || relax.element_count() != 7 ||
-        relax.element_type() != p.element_type() || rq0.element_type() != p.element_type() ||
-        rq1.element_type() != p.element_type())
-      return ffi::Error::InvalidArgument(
-          "difflattice_leapfrog: air absorption needs two memory fields of the grid's shape and 7 coefficients");
-    if (combine == dl::kAdj)
-      return ffi::Error::InvalidArgument("difflattice_leapfrog: the adjoint mode has no air absorption");
-    a.rq[0] = out_from<T>(rq0_o, rq0);
-    a.rq[1] = out_from<T>(rq1_o, rq1);
-    const T* r = reinterpret_cast<const T*>(relax.untyped_data());
-    a.r_eta = r[0];
-    a.r_eps[0] = r[1];
-    a.r_eps[1] = r[2];
-    a.r_a[0] = r[3];
-    a.r_a[1] = r[4];
-    a.r_g[0] = r[5];
-    a.r_g[1] = r[6];
-  }
+  if (!bind_relax<T>(a, nx * ny, p.element_type(), rq0, rq1, relax, rq0_o, rq1_o))
+    return ffi::Error::InvalidArgument(std::string("difflattice_leapfrog: ") + kRelax);
+  if (a.rq[0] && combine == dl::kAdj)
+    return ffi::Error::InvalidArgument("difflattice_leapfrog: the adjoint mode has no air absorption");
   if (!dl::leapfrog<T>(a)) return ffi::Error::InvalidArgument("difflattice_leapfrog: unsupported coefficient layout");
   return ffi::Error::Success();
 }
@@ -1846,13 +1883,15 @@ ffi::Error staggered_typed(ffi::AnyBuffer px, ffi::AnyBuffer py, ffi::AnyBuffer 
                            ffi::AnyBuffer ph_cells, ffi::AnyBuffer ph_cos, ffi::AnyBuffer ph_sin,
                            ffi::AnyBuffer ph_re, ffi::AnyBuffer ph_im, ffi::AnyBuffer p_max, ffi::AnyBuffer p_sq,
                            ffi::AnyBuffer arrival, ffi::AnyBuffer n0, ffi::AnyBuffer c_r, ffi::AnyBuffer rad_decay,
-                           ffi::AnyBuffer rad_drive, ffi::Result<ffi::AnyBuffer> px_o,
+                           ffi::AnyBuffer rad_drive, ffi::AnyBuffer rq0, ffi::AnyBuffer rq1, ffi::AnyBuffer relax,
+                           ffi::Result<ffi::AnyBuffer> px_o,
                            ffi::Result<ffi::AnyBuffer> py_o, ffi::Result<ffi::AnyBuffer> wx_o,
                            ffi::Result<ffi::AnyBuffer> wy_o, ffi::Result<ffi::AnyBuffer> p_prev_o,
                            ffi::Result<ffi::AnyBuffer> src_acc_o, ffi::Result<ffi::AnyBuffer> rec_o,
                            ffi::Result<ffi::AnyBuffer> ph_re_o, ffi::Result<ffi::AnyBuffer> ph_im_o,
                            ffi::Result<ffi::AnyBuffer> p_max_o, ffi::Result<ffi::AnyBuffer> p_sq_o,
                            ffi::Result<ffi::AnyBuffer> arrival_o, ffi::Result<ffi::AnyBuffer> c_r_o,
+                           ffi::Result<ffi::AnyBuffer> rq0_o, ffi::Result<ffi::AnyBuffer> rq1_o,
                            int64_t n_steps, int64_t threads, int64_t levels, int64_t stencil,
                            double eta, double threshold) {
   auto dims = px.dimensions();
@@ -1895,6 +1934,10 @@ ffi::Error staggered_typed(ffi::AnyBuffer px, ffi::AnyBuffer py, ffi::AnyBuffer 
   a.p_prev = out_from<T>(p_prev_o, p_prev);
   a.eta = eta;
   if (eta != 0.0 && !a.p_prev) return ffi::Error::InvalidArgument("difflattice_staggered: eta needs p_prev");
+  if (!bind_relax<T>(a, nx * ny, px.element_type(), rq0, rq1, relax, rq0_o, rq1_o))
+    return ffi::Error::InvalidArgument(std::string("difflattice_staggered: ") + kRelax);
+  if (a.rq[0] && int64_t(p_prev.element_count()) != nx * ny)
+    return ffi::Error::InvalidArgument("difflattice_staggered: air absorption needs p_prev");
   bind_cells<T>(a.cells, ny, src_cells, src_hard, src_vals, rec_cells, rec_o, ph_cells, ph_cos, ph_sin,
                 out_from<T>(ph_re_o, ph_re), out_from<T>(ph_im_o, ph_im), out_from<T>(p_max_o, p_max),
                 out_from<T>(p_sq_o, p_sq), out_from<int32_t>(arrival_o, arrival), n0, threshold);
@@ -1922,19 +1965,21 @@ ffi::Error staggered_impl(ffi::AnyBuffer px, ffi::AnyBuffer py, ffi::AnyBuffer w
                           ffi::AnyBuffer ph_cells, ffi::AnyBuffer ph_cos, ffi::AnyBuffer ph_sin, ffi::AnyBuffer ph_re,
                           ffi::AnyBuffer ph_im, ffi::AnyBuffer p_max, ffi::AnyBuffer p_sq, ffi::AnyBuffer arrival,
                           ffi::AnyBuffer n0, ffi::AnyBuffer c_r, ffi::AnyBuffer rad_decay, ffi::AnyBuffer rad_drive,
+                          ffi::AnyBuffer rq0, ffi::AnyBuffer rq1, ffi::AnyBuffer relax,
                           ffi::Result<ffi::AnyBuffer> px_o, ffi::Result<ffi::AnyBuffer> py_o,
                           ffi::Result<ffi::AnyBuffer> wx_o, ffi::Result<ffi::AnyBuffer> wy_o,
                           ffi::Result<ffi::AnyBuffer> p_prev_o, ffi::Result<ffi::AnyBuffer> src_acc_o,
                           ffi::Result<ffi::AnyBuffer> rec_o, ffi::Result<ffi::AnyBuffer> ph_re_o,
                           ffi::Result<ffi::AnyBuffer> ph_im_o, ffi::Result<ffi::AnyBuffer> p_max_o,
                           ffi::Result<ffi::AnyBuffer> p_sq_o, ffi::Result<ffi::AnyBuffer> arrival_o,
-                          ffi::Result<ffi::AnyBuffer> c_r_o, int64_t n_steps,
+                          ffi::Result<ffi::AnyBuffer> c_r_o, ffi::Result<ffi::AnyBuffer> rq0_o,
+                          ffi::Result<ffi::AnyBuffer> rq1_o, int64_t n_steps,
                           int64_t threads, int64_t levels, int64_t stencil, double eta, double threshold) {
 #define DL_ARGS                                                                                                  \
   px, py, wx, wy, p_prev, K, bx, by, qs, keep, my_lo, my_hi, axc, bxc, axf, bxf, ayc, byc, ayf, byf, src_cells, src_hard,    \
       src_vals, src_acc, rec_cells, ph_cells, ph_cos, ph_sin, ph_re, ph_im, p_max, p_sq, arrival, n0, c_r,        \
-      rad_decay, rad_drive, px_o, py_o, wx_o, wy_o, p_prev_o, src_acc_o, rec_o, ph_re_o, ph_im_o, p_max_o, p_sq_o, \
-      arrival_o, c_r_o, n_steps, threads, levels, stencil, eta, threshold
+      rad_decay, rad_drive, rq0, rq1, relax, px_o, py_o, wx_o, wy_o, p_prev_o, src_acc_o, rec_o, ph_re_o, ph_im_o,  \
+      p_max_o, p_sq_o, arrival_o, c_r_o, rq0_o, rq1_o, n_steps, threads, levels, stencil, eta, threshold
   switch (px.element_type()) {
     case ffi::DataType::F32:
       return staggered_typed<float>(DL_ARGS);
@@ -2070,14 +2115,13 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(DifflatticeLeapfrog, leapfrog_impl,
 
 // args: px py wx wy p_prev K bx by | qs keep my_lo my_hi axc bxc axf bxf | ayc byc ayf byf src_cells
 //       src_hard src_vals src_acc | rec_cells ph_cells ph_cos ph_sin ph_re ph_im p_max p_sq | arrival n0
-//       c_r rad_decay rad_drive
-// rets: px py wx wy p_prev src_acc rec ph_re ph_im p_max p_sq arrival c_r
+//       c_r rad_decay rad_drive rq0 rq1 relax (air absorption, as the leapfrog's; needs p_prev)
+// rets: px py wx wy p_prev src_acc rec ph_re ph_im p_max p_sq arrival c_r rq0 rq1
 XLA_FFI_DEFINE_HANDLER_SYMBOL(DifflatticeStaggered, staggered_impl,
-                              ffi::Ffi::Bind() DL_BUFS_8 DL_BUFS_8 DL_BUFS_8 DL_BUFS_8.Arg<ffi::AnyBuffer>()
-                                  .Arg<ffi::AnyBuffer>()
-                                  .Arg<ffi::AnyBuffer>()
-                                  .Arg<ffi::AnyBuffer>()
-                                  .Arg<ffi::AnyBuffer>() DL_RETS_4 DL_RETS_4 DL_RETS_4.Ret<ffi::AnyBuffer>()
+                              ffi::Ffi::Bind() DL_BUFS_8 DL_BUFS_8 DL_BUFS_8 DL_BUFS_8 DL_BUFS_8
+                                  DL_RETS_4 DL_RETS_4 DL_RETS_4.Ret<ffi::AnyBuffer>()
+                                  .Ret<ffi::AnyBuffer>()
+                                  .Ret<ffi::AnyBuffer>()
                                   .Attr<int64_t>("n_steps")
                                   .Attr<int64_t>("threads")
                                   .Attr<int64_t>("levels")

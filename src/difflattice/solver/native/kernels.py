@@ -333,7 +333,9 @@ class _Chunk:
         rec_shape = jax.ShapeDtypeStruct((length, self.n_probes), self.dt)
         stat_shapes = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in stats]
         if isinstance(st, LeapfrogState):
-            rq = [_absent(self.dt)] * 2 if st.relax_q is None else list(st.relax_q)
+            # air absorption: the memory fields and coefficients, optional arguments after the others
+            # (a lossless call passes none: the kernels' lossless path)
+            rq = [] if st.relax_q is None else [*st.relax_q, self.relax]
             args = [
                 st.p,
                 st.p_prev,
@@ -351,14 +353,13 @@ class _Chunk:
                 *stats,
                 n0,
                 *rq,
-                self.relax,
             ]
             field = jax.ShapeDtypeStruct(self.shape, self.dt)
-            rq_shapes = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in rq]
+            rq_shapes = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in rq[:2]]
             out = jax.ffi.ffi_call(
                 "difflattice_leapfrog",
                 [field, field, rec_shape, *stat_shapes, *rq_shapes],
-                input_output_aliases={0: 0, 1: 1, 18: 3, 19: 4, 20: 5, 21: 6, 22: 7, 24: 8, 25: 9},
+                input_output_aliases={0: 0, 1: 1, 18: 3, 19: 4, 20: 5, 21: 6, 22: 7, **({24: 8, 25: 9} if rq else {})},
                 vmap_method="sequential",
             )(
                 *args,
@@ -368,16 +369,18 @@ class _Chunk:
                 bands=self.bands,
                 **self.attrs,
             )
-            p, p_prev, rec, *stats_out, rq0, rq1 = out
+            p, p_prev, rec, *stats_out = out[:8]
             st = eqx.tree_at(lambda s: (s.p, s.p_prev), st, (p, p_prev))
-            if st.relax_q is not None:
-                st = eqx.tree_at(lambda s: s.relax_q, st, (rq0, rq1))
+            if rq:
+                st = eqx.tree_at(lambda s: s.relax_q, st, tuple(out[8:]))
         else:
             assert isinstance(st, StaggeredState)  # unsupported() refuses the other stepper's state
             acc = self._acc_in(st)
             p_prev = _absent(self.dt) if st.p_prev is None else st.p_prev
             c_r = _absent(self.dt) if st.c_r is None else st.c_r
-            rq = [_absent(self.dt)] * 2 if st.relax_q is None else list(st.relax_q)
+            # air absorption: the memory fields and coefficients, optional arguments after the others
+            # (a lossless call passes none: the kernels' lossless path)
+            rq = [] if st.relax_q is None else [*st.relax_q, self.relax]
             args = [
                 st.px,
                 st.py,
@@ -400,7 +403,6 @@ class _Chunk:
                 c_r,
                 *self.radial,
                 *rq,
-                self.relax,
             ]
             fields = (st.px, st.py, st.wx, st.wy, p_prev, acc)
             shapes = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in fields]
@@ -411,11 +413,11 @@ class _Chunk:
                     rec_shape,
                     *stat_shapes,
                     jax.ShapeDtypeStruct(c_r.shape, c_r.dtype),
-                    *(jax.ShapeDtypeStruct(a.shape, a.dtype) for a in rq),
+                    *(jax.ShapeDtypeStruct(a.shape, a.dtype) for a in rq[:2]),
                 ],
                 input_output_aliases={
                     **{0: 0, 1: 1, 2: 2, 3: 3, 4: 4, 23: 5, 28: 7, 29: 8, 30: 9, 31: 10, 32: 11, 34: 12},
-                    **{37: 13, 38: 14},
+                    **({37: 13, 38: 14} if rq else {}),
                 },
                 vmap_method="sequential",
             )(
@@ -424,7 +426,7 @@ class _Chunk:
                 stencil=np.int64(self.stepper.lattice.stencil == "isotropic"),
                 **self.attrs,
             )
-            px, py, wx, wy, p_prev, acc, rec, *stats_out, c_r, rq0, rq1 = out
+            px, py, wx, wy, p_prev, acc, rec, *stats_out, c_r = out[:13]
             has_acc, has_prev, new_acc = bool(st.src_acc), st.p_prev is not None, self._acc_out(st, acc)
             if st.c_r is not None:
                 st = eqx.tree_at(lambda s: s.c_r, st, c_r)
@@ -433,8 +435,8 @@ class _Chunk:
                 st = eqx.tree_at(lambda s: s.src_acc, st, new_acc)
             if has_prev:
                 st = eqx.tree_at(lambda s: s.p_prev, st, p_prev)
-            if st.relax_q is not None:
-                st = eqx.tree_at(lambda s: s.relax_q, st, (rq0, rq1))
+            if rq:
+                st = eqx.tree_at(lambda s: s.relax_q, st, tuple(out[13:]))
         names = ("phasor_re", "phasor_im", "p_max", "p_sq", "arrival")
         present = tuple(k for k in names if getattr(st, k) is not None)
         if present:
@@ -457,8 +459,7 @@ class _Chunk:
             "difflattice_leapfrog",
             [field, field, jax.ShapeDtypeStruct((length, n_rec), dt)]
             + [jax.ShapeDtypeStruct((0,), dt)] * 4
-            + [jax.ShapeDtypeStruct((0,), jnp.int32)]
-            + [jax.ShapeDtypeStruct((0,), dt)] * 2,
+            + [jax.ShapeDtypeStruct((0,), jnp.int32)],
             input_output_aliases={0: 0, 1: 1},
             vmap_method="sequential",
         )(
@@ -485,9 +486,6 @@ class _Chunk:
             e,
             _absent(jnp.int32),
             jnp.asarray(0, jnp.int32),
-            e,
-            e,
-            e,
             n_steps=np.int64(length),
             combine=np.int64(2),
             stencil=np.int64(0),

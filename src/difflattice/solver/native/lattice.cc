@@ -29,6 +29,7 @@
 #include <cstring>
 #include <limits>
 #include <mutex>
+#include <optional>
 #include <string>
 #include <thread>
 #include <type_traits>
@@ -958,14 +959,15 @@ bool plan_rows(const LeapfrogArgs<T>& a, int cmb, RowPlan<T>& plan) {
   return true;
 }
 
-template <typename T>
-bool leapfrog(const LeapfrogArgs<T>& a) {
+// RELAX: air absorption (a compile-time flag: the lossless instantiation has none of its code)
+template <typename T, bool RELAX>
+bool leapfrog_steps(const LeapfrogArgs<T>& a) {
   const int64_t nx = a.nx, ny = a.ny;
   const int levels = std::max(1, a.levels);
   const CellPlan<T> cplan(a.cells, nx);
   const bool stats = a.cells.p_max || a.cells.p_sq || a.cells.arrival;
   const bool adj = a.combine == kAdj;
-  const bool relax = !adj && a.rq[0] != nullptr;
+  constexpr bool relax = RELAX;
   const bool extras = !adj && (a.qs.present() || a.keep.present() || a.sponge.present() || a.eta != 0.0 || relax);
   // the adjoint with a scalar K is the forward step: L(K a) = K L(a)
   const bool adj_scalar = adj && a.K.in_register();
@@ -995,7 +997,7 @@ bool leapfrog(const LeapfrogArgs<T>& a) {
     } else {
       for (int64_t j = 0; j < ny; ++j) dst[j] = pr[j];
     }
-    if (relax) {  // stepper._relaxed_operand, in its order
+    if constexpr (relax) {  // stepper._relaxed_operand, in its order
       const T* ppr = pp_ + i * ny;
       const T* q0r = a.rq[0] + i * ny;
       const T* q1r = a.rq[1] + i * ny;
@@ -1081,7 +1083,7 @@ bool leapfrog(const LeapfrogArgs<T>& a) {
         }
       }
       if (cplan.busy[i]) leapfrog_cells(a.cells, cplan, i, L - 1, pp);
-      if (relax) {  // stepper._relaxed_memory: step L - 1's q rows of row i are read (q ring)
+      if constexpr (relax) {  // stepper._relaxed_memory: step L - 1's q rows of row i are read (q ring)
         T* q0r = a.rq[0] + i * ny;
         T* q1r = a.rq[1] + i * ny;
         const T a0 = a.r_a[0], a1 = a.r_a[1], g0 = a.r_g[0], g1 = a.r_g[1];
@@ -1104,6 +1106,12 @@ bool leapfrog(const LeapfrogArgs<T>& a) {
   if (a.bands && !qbuf) bands(nx, a.n_steps, a.n_threads, make_worker, finish);
   else pipeline(nx, ny, a.n_steps, a.n_threads, levels, make_worker, finish);
   return true;
+}
+
+template <typename T>
+bool leapfrog(const LeapfrogArgs<T>& a) {
+  if (a.rq[0] != nullptr && a.combine != kAdj) return leapfrog_steps<T, true>(a);
+  return leapfrog_steps<T, false>(a);
 }
 
 // ----------------------------------------------------------------------------------------------
@@ -1156,15 +1164,15 @@ struct StaggeredArgs {
   CellOps<T> cells;
 };
 
-template <typename T>
-bool staggered(const StaggeredArgs<T>& a) {
+template <typename T, bool RELAX>  // RELAX: air absorption, as in leapfrog_steps
+bool staggered_steps(const StaggeredArgs<T>& a) {
   const int64_t nx = a.nx, ny = a.ny;
   const int levels = std::max(1, a.levels);
   const CellPlan<T> cplan(a.cells, nx);
   const bool stats = a.cells.p_max || a.cells.p_sq || a.cells.arrival;
   const T eta1 = T(1.0 + a.eta), eta = T(a.eta);
   const bool has_eta = a.eta != 0.0;
-  const bool relax = a.rq[0] != nullptr;
+  constexpr bool relax = RELAX;
   // the y-layer columns: PML factors differ from 1 outside [jl, jh) (cells) and [jl, jh] (faces)
   auto y_one = [&](int64_t j, bool face) {
     const Coef<T>& A = face ? a.ayf : a.ayc;
@@ -1202,7 +1210,7 @@ bool staggered(const StaggeredArgs<T>& a) {
     } else {
       for (int64_t j = 0; j < ny; ++j) dst[j] = x[j] + y[j];
     }
-    if (relax) {  // stepper._relaxed_operand, in its order
+    if constexpr (relax) {  // stepper._relaxed_operand, in its order
       const T* __restrict pr = a.p_prev + i * ny;
       const T* __restrict q0r = a.rq[0] + i * ny;
       const T* __restrict q1r = a.rq[1] + i * ny;
@@ -1483,7 +1491,7 @@ bool staggered(const StaggeredArgs<T>& a) {
       }
       cells(R, i);
       if (cplan.busy[i]) staggered_cells(a.cells, cplan, i, L - 1, a.px, a.py);
-      if (relax) {  // stepper._relaxed_memory (p_prev's row holds P(n) now; q rows of row i are read)
+      if constexpr (relax) {  // stepper._relaxed_memory (p_prev's row holds P(n) now; q rows of row i are read)
         const T* x = a.px + i * ny;
         const T* y = a.py + i * ny;
         const T* pr = a.p_prev + i * ny;
@@ -1507,6 +1515,11 @@ bool staggered(const StaggeredArgs<T>& a) {
   };
   pipeline(nx, ny, a.n_steps, a.n_threads, levels, make_worker, [](int, int) {});
   return true;
+}
+
+template <typename T>
+bool staggered(const StaggeredArgs<T>& a) {
+  return a.rq[0] != nullptr ? staggered_steps<T, true>(a) : staggered_steps<T, false>(a);
 }
 
 // ----------------------------------------------------------------------------------------------
@@ -1758,18 +1771,25 @@ void bind_cells(dl::CellOps<T>& c, int64_t ny, const ffi::AnyBuffer& src_cells, 
   c.n0 = *reinterpret_cast<const int32_t*>(n0.untyped_data());
 }
 
-// air absorption's inputs (both kernels): the memory fields Q_O, Q_N (empty: lossless) and their
-// 7 coefficients (eta, eps_O, eps_N, a_O, a_N, g_O, g_N); false: inconsistent sizes or types
+// air absorption's inputs (both kernels), optional arguments and results after the others (a
+// lossless call passes none of them: the call of old): the memory fields Q_O, Q_N and their 7
+// coefficients (eta, eps_O, eps_N, a_O, a_N, g_O, g_N); false: some given, not all, or
+// inconsistent sizes or types
+using Opt = std::optional<ffi::AnyBuffer>;
+using OptRet = std::optional<ffi::Result<ffi::AnyBuffer>>;
+
 template <typename T, typename Args>
-bool bind_relax(Args& a, int64_t n_cells, ffi::DataType type, const ffi::AnyBuffer& rq0, const ffi::AnyBuffer& rq1,
-                const ffi::AnyBuffer& relax, ffi::Result<ffi::AnyBuffer>& rq0_o, ffi::Result<ffi::AnyBuffer>& rq1_o) {
-  if (!rq0.element_count() && !rq1.element_count() && !relax.element_count()) return true;
+bool bind_relax(Args& a, int64_t n_cells, ffi::DataType type, const Opt& rq0_, const Opt& rq1_, const Opt& relax_,
+                OptRet& rq0_o, OptRet& rq1_o) {
+  if (!rq0_ && !rq1_ && !relax_ && !rq0_o && !rq1_o) return true;  // lossless: the call of old
+  if (!rq0_ || !rq1_ || !relax_ || !rq0_o || !rq1_o) return false;
+  const ffi::AnyBuffer &rq0 = *rq0_, &rq1 = *rq1_, &relax = *relax_;
   if (int64_t(rq0.element_count()) != n_cells || int64_t(rq1.element_count()) != n_cells ||
       relax.element_count() != 7 || relax.element_type() != type || rq0.element_type() != type ||
       rq1.element_type() != type)
     return false;
-  a.rq[0] = out_from<T>(rq0_o, rq0);
-  a.rq[1] = out_from<T>(rq1_o, rq1);
+  a.rq[0] = out_from<T>(*rq0_o, rq0);
+  a.rq[1] = out_from<T>(*rq1_o, rq1);
   const T* r = reinterpret_cast<const T*>(relax.untyped_data());
   a.r_eta = r[0];
   a.r_eps[0] = r[1];
@@ -1791,12 +1811,11 @@ ffi::Error leapfrog_typed(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K,
                           ffi::AnyBuffer zero_cells, ffi::AnyBuffer ph_cells, ffi::AnyBuffer ph_cos,
                           ffi::AnyBuffer ph_sin, ffi::AnyBuffer ph_re, ffi::AnyBuffer ph_im, ffi::AnyBuffer p_max,
                           ffi::AnyBuffer p_sq, ffi::AnyBuffer arrival, ffi::AnyBuffer n0,
-                          ffi::AnyBuffer rq0, ffi::AnyBuffer rq1, ffi::AnyBuffer relax,
                           ffi::Result<ffi::AnyBuffer> p_o, ffi::Result<ffi::AnyBuffer> pp_o,
                           ffi::Result<ffi::AnyBuffer> rec_o, ffi::Result<ffi::AnyBuffer> ph_re_o,
                           ffi::Result<ffi::AnyBuffer> ph_im_o, ffi::Result<ffi::AnyBuffer> p_max_o,
                           ffi::Result<ffi::AnyBuffer> p_sq_o, ffi::Result<ffi::AnyBuffer> arrival_o,
-                          ffi::Result<ffi::AnyBuffer> rq0_o, ffi::Result<ffi::AnyBuffer> rq1_o,
+                          Opt rq0, Opt rq1, Opt relax, OptRet rq0_o, OptRet rq1_o,
                           int64_t n_steps, int64_t threads, int64_t levels, int64_t bands, int64_t combine,
                           int64_t stencil, double eta, double threshold) {
   auto dims = p.dimensions();
@@ -1849,18 +1868,16 @@ ffi::Error leapfrog_impl(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K, 
                          ffi::AnyBuffer zero_cells, ffi::AnyBuffer ph_cells, ffi::AnyBuffer ph_cos,
                          ffi::AnyBuffer ph_sin, ffi::AnyBuffer ph_re, ffi::AnyBuffer ph_im, ffi::AnyBuffer p_max,
                          ffi::AnyBuffer p_sq, ffi::AnyBuffer arrival, ffi::AnyBuffer n0,
-                         ffi::AnyBuffer rq0, ffi::AnyBuffer rq1, ffi::AnyBuffer relax,
                          ffi::Result<ffi::AnyBuffer> p_o, ffi::Result<ffi::AnyBuffer> pp_o,
                          ffi::Result<ffi::AnyBuffer> rec_o, ffi::Result<ffi::AnyBuffer> ph_re_o,
                          ffi::Result<ffi::AnyBuffer> ph_im_o, ffi::Result<ffi::AnyBuffer> p_max_o,
                          ffi::Result<ffi::AnyBuffer> p_sq_o, ffi::Result<ffi::AnyBuffer> arrival_o,
-                         ffi::Result<ffi::AnyBuffer> rq0_o, ffi::Result<ffi::AnyBuffer> rq1_o,
-                         int64_t n_steps, int64_t threads, int64_t levels, int64_t bands, int64_t combine,
+                         Opt rq0, Opt rq1, Opt relax, OptRet rq0_o, OptRet rq1_o, int64_t n_steps, int64_t threads, int64_t levels, int64_t bands, int64_t combine,
                          int64_t stencil, double eta, double threshold) {
 #define DL_ARGS                                                                                                 \
   p, pp, K, bx, by, qs, keep, sponge, my_lo, my_hi, src_cells, src_hard, src_vals, rec_cells, zero_cells, ph_cells, ph_cos, \
-      ph_sin, ph_re, ph_im, p_max, p_sq, arrival, n0, rq0, rq1, relax, p_o, pp_o, rec_o, ph_re_o, ph_im_o, p_max_o,  \
-      p_sq_o, arrival_o, rq0_o, rq1_o, n_steps, threads, levels, bands, combine, stencil, eta, threshold
+      ph_sin, ph_re, ph_im, p_max, p_sq, arrival, n0, p_o, pp_o, rec_o, ph_re_o, ph_im_o, p_max_o, p_sq_o,      \
+      arrival_o, rq0, rq1, relax, rq0_o, rq1_o, n_steps, threads, levels, bands, combine, stencil, eta, threshold
   switch (p.element_type()) {
     case ffi::DataType::F32:
       return leapfrog_typed<float>(DL_ARGS);
@@ -1883,15 +1900,14 @@ ffi::Error staggered_typed(ffi::AnyBuffer px, ffi::AnyBuffer py, ffi::AnyBuffer 
                            ffi::AnyBuffer ph_cells, ffi::AnyBuffer ph_cos, ffi::AnyBuffer ph_sin,
                            ffi::AnyBuffer ph_re, ffi::AnyBuffer ph_im, ffi::AnyBuffer p_max, ffi::AnyBuffer p_sq,
                            ffi::AnyBuffer arrival, ffi::AnyBuffer n0, ffi::AnyBuffer c_r, ffi::AnyBuffer rad_decay,
-                           ffi::AnyBuffer rad_drive, ffi::AnyBuffer rq0, ffi::AnyBuffer rq1, ffi::AnyBuffer relax,
-                           ffi::Result<ffi::AnyBuffer> px_o,
+                           ffi::AnyBuffer rad_drive, ffi::Result<ffi::AnyBuffer> px_o,
                            ffi::Result<ffi::AnyBuffer> py_o, ffi::Result<ffi::AnyBuffer> wx_o,
                            ffi::Result<ffi::AnyBuffer> wy_o, ffi::Result<ffi::AnyBuffer> p_prev_o,
                            ffi::Result<ffi::AnyBuffer> src_acc_o, ffi::Result<ffi::AnyBuffer> rec_o,
                            ffi::Result<ffi::AnyBuffer> ph_re_o, ffi::Result<ffi::AnyBuffer> ph_im_o,
                            ffi::Result<ffi::AnyBuffer> p_max_o, ffi::Result<ffi::AnyBuffer> p_sq_o,
                            ffi::Result<ffi::AnyBuffer> arrival_o, ffi::Result<ffi::AnyBuffer> c_r_o,
-                           ffi::Result<ffi::AnyBuffer> rq0_o, ffi::Result<ffi::AnyBuffer> rq1_o,
+                           Opt rq0, Opt rq1, Opt relax, OptRet rq0_o, OptRet rq1_o,
                            int64_t n_steps, int64_t threads, int64_t levels, int64_t stencil,
                            double eta, double threshold) {
   auto dims = px.dimensions();
@@ -1965,21 +1981,20 @@ ffi::Error staggered_impl(ffi::AnyBuffer px, ffi::AnyBuffer py, ffi::AnyBuffer w
                           ffi::AnyBuffer ph_cells, ffi::AnyBuffer ph_cos, ffi::AnyBuffer ph_sin, ffi::AnyBuffer ph_re,
                           ffi::AnyBuffer ph_im, ffi::AnyBuffer p_max, ffi::AnyBuffer p_sq, ffi::AnyBuffer arrival,
                           ffi::AnyBuffer n0, ffi::AnyBuffer c_r, ffi::AnyBuffer rad_decay, ffi::AnyBuffer rad_drive,
-                          ffi::AnyBuffer rq0, ffi::AnyBuffer rq1, ffi::AnyBuffer relax,
                           ffi::Result<ffi::AnyBuffer> px_o, ffi::Result<ffi::AnyBuffer> py_o,
                           ffi::Result<ffi::AnyBuffer> wx_o, ffi::Result<ffi::AnyBuffer> wy_o,
                           ffi::Result<ffi::AnyBuffer> p_prev_o, ffi::Result<ffi::AnyBuffer> src_acc_o,
                           ffi::Result<ffi::AnyBuffer> rec_o, ffi::Result<ffi::AnyBuffer> ph_re_o,
                           ffi::Result<ffi::AnyBuffer> ph_im_o, ffi::Result<ffi::AnyBuffer> p_max_o,
                           ffi::Result<ffi::AnyBuffer> p_sq_o, ffi::Result<ffi::AnyBuffer> arrival_o,
-                          ffi::Result<ffi::AnyBuffer> c_r_o, ffi::Result<ffi::AnyBuffer> rq0_o,
-                          ffi::Result<ffi::AnyBuffer> rq1_o, int64_t n_steps,
+                          ffi::Result<ffi::AnyBuffer> c_r_o, Opt rq0, Opt rq1, Opt relax, OptRet rq0_o,
+                          OptRet rq1_o, int64_t n_steps,
                           int64_t threads, int64_t levels, int64_t stencil, double eta, double threshold) {
 #define DL_ARGS                                                                                                  \
   px, py, wx, wy, p_prev, K, bx, by, qs, keep, my_lo, my_hi, axc, bxc, axf, bxf, ayc, byc, ayf, byf, src_cells, src_hard,    \
       src_vals, src_acc, rec_cells, ph_cells, ph_cos, ph_sin, ph_re, ph_im, p_max, p_sq, arrival, n0, c_r,        \
-      rad_decay, rad_drive, rq0, rq1, relax, px_o, py_o, wx_o, wy_o, p_prev_o, src_acc_o, rec_o, ph_re_o, ph_im_o,  \
-      p_max_o, p_sq_o, arrival_o, c_r_o, rq0_o, rq1_o, n_steps, threads, levels, stencil, eta, threshold
+      rad_decay, rad_drive, px_o, py_o, wx_o, wy_o, p_prev_o, src_acc_o, rec_o, ph_re_o, ph_im_o, p_max_o, p_sq_o, \
+      arrival_o, c_r_o, rq0, rq1, relax, rq0_o, rq1_o, n_steps, threads, levels, stencil, eta, threshold
   switch (px.element_type()) {
     case ffi::DataType::F32:
       return staggered_typed<float>(DL_ARGS);
@@ -2096,15 +2111,21 @@ ffi::Error adjoint_chunk_impl(ffi::AnyBuffer p_end, ffi::AnyBuffer pp_end, ffi::
 #define DL_RETS_4 .Ret<ffi::AnyBuffer>().Ret<ffi::AnyBuffer>().Ret<ffi::AnyBuffer>().Ret<ffi::AnyBuffer>()
 
 // args: p pp K bx by qs keep sponge | my_lo my_hi src_cells src_hard src_vals rec_cells zero_cells
-//       ph_cells | ph_cos ph_sin ph_re ph_im p_max p_sq arrival n0 | rq0 rq1 relax (air absorption:
-//       the memory fields Q_O, Q_N and their 7 coefficients; empty: lossless)
-// rets: p pp rec ph_re ph_im p_max p_sq arrival rq0 rq1
+//       ph_cells | ph_cos ph_sin ph_re ph_im p_max p_sq arrival n0 | optional: rq0 rq1 relax (air
+//       absorption: the memory fields Q_O, Q_N and their 7 coefficients; absent: lossless)
+// rets: p pp rec ph_re ph_im p_max p_sq arrival | optional: rq0 rq1
+#define DL_RELAX                                                                                             \
+  .OptionalArg<ffi::AnyBuffer>().OptionalArg<ffi::AnyBuffer>().OptionalArg<ffi::AnyBuffer>().OptionalRet<ffi::AnyBuffer>() \
+      .OptionalRet<ffi::AnyBuffer>()
 XLA_FFI_DEFINE_HANDLER_SYMBOL(DifflatticeLeapfrog, leapfrog_impl,
-                              ffi::Ffi::Bind() DL_BUFS_8 DL_BUFS_8 DL_BUFS_8.Arg<ffi::AnyBuffer>()
+                              ffi::Ffi::Bind() DL_BUFS_8 DL_BUFS_8.Arg<ffi::AnyBuffer>()
                                   .Arg<ffi::AnyBuffer>()
-                                  .Arg<ffi::AnyBuffer>() DL_RETS_4 DL_RETS_4.Ret<ffi::AnyBuffer>()
-                                  .Ret<ffi::AnyBuffer>()
-                                  .Attr<int64_t>("n_steps")
+                                  .Arg<ffi::AnyBuffer>()
+                                  .Arg<ffi::AnyBuffer>()
+                                  .Arg<ffi::AnyBuffer>()
+                                  .Arg<ffi::AnyBuffer>()
+                                  .Arg<ffi::AnyBuffer>()
+                                  .Arg<ffi::AnyBuffer>() DL_RETS_4 DL_RETS_4 DL_RELAX.Attr<int64_t>("n_steps")
                                   .Attr<int64_t>("threads")
                                   .Attr<int64_t>("levels")
                                   .Attr<int64_t>("bands")
@@ -2115,13 +2136,14 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(DifflatticeLeapfrog, leapfrog_impl,
 
 // args: px py wx wy p_prev K bx by | qs keep my_lo my_hi axc bxc axf bxf | ayc byc ayf byf src_cells
 //       src_hard src_vals src_acc | rec_cells ph_cells ph_cos ph_sin ph_re ph_im p_max p_sq | arrival n0
-//       c_r rad_decay rad_drive rq0 rq1 relax (air absorption, as the leapfrog's; needs p_prev)
-// rets: px py wx wy p_prev src_acc rec ph_re ph_im p_max p_sq arrival c_r rq0 rq1
+//       c_r rad_decay rad_drive | optional: rq0 rq1 relax (air absorption, as the leapfrog's; needs p_prev)
+// rets: px py wx wy p_prev src_acc rec ph_re ph_im p_max p_sq arrival c_r | optional: rq0 rq1
 XLA_FFI_DEFINE_HANDLER_SYMBOL(DifflatticeStaggered, staggered_impl,
-                              ffi::Ffi::Bind() DL_BUFS_8 DL_BUFS_8 DL_BUFS_8 DL_BUFS_8 DL_BUFS_8
-                                  DL_RETS_4 DL_RETS_4 DL_RETS_4.Ret<ffi::AnyBuffer>()
-                                  .Ret<ffi::AnyBuffer>()
-                                  .Ret<ffi::AnyBuffer>()
+                              ffi::Ffi::Bind() DL_BUFS_8 DL_BUFS_8 DL_BUFS_8 DL_BUFS_8.Arg<ffi::AnyBuffer>()
+                                  .Arg<ffi::AnyBuffer>()
+                                  .Arg<ffi::AnyBuffer>()
+                                  .Arg<ffi::AnyBuffer>()
+                                  .Arg<ffi::AnyBuffer>() DL_RETS_4 DL_RETS_4 DL_RETS_4.Ret<ffi::AnyBuffer>() DL_RELAX
                                   .Attr<int64_t>("n_steps")
                                   .Attr<int64_t>("threads")
                                   .Attr<int64_t>("levels")

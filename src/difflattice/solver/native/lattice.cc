@@ -10,6 +10,11 @@
 // Both run the standard 5-point stencil, and the isotropic 9-point one (attribute `stencil` = 1)
 // on uniform faces (air: the window's 0/1 masks and the rz metric; `row_iso`, `face_x_iso`).
 //
+// Both carry humid air's absorption (lattice.coefficients.AirRelaxation) when given its optional
+// arguments: the operand adds eta (P - P(n-1)) + eps_O Q_O + eps_N Q_N, and after the sources
+// Q_i = a_i Q_i + g_i (P(n+1) - P(n)) row by row, in place (a compile-time flag: the lossless
+// instantiations have none of it).
+//
 // Both apply the sources, record probes, phasors and whole-field statistics inside the loop, in
 // the order of the JAX stepper. Coefficient arrays are inputs of any layout that broadcasts to
 // the grid (a scalar, one value per row, one vector for all rows, or a full array), so a lattice

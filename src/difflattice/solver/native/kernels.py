@@ -220,15 +220,16 @@ def _threads(nx: int, levels: int) -> int:
     return max(1, min(cpus, nx // (4 * (levels + 2))))
 
 
-def _levels(ny: int, itemsize: int, staggered: bool) -> int:
+def _levels(ny: int, itemsize: int, staggered: bool, extra_fields: int = 0) -> int:
     """Steps each thread advances per sweep over the rows (temporal blocking): as many as keep a
     sweep's rows (about `levels + 2` rows of each field) in L1, else in L2. Measured on a Xeon
     (Sapphire Rapids class, 2 cores; benchmarks/native_tuning.py): rows of 630 cells ran fastest
-    with 8 steps per sweep (L1), rows of 2048 with 32 (L2)."""
+    with 8 steps per sweep (L1), rows of 2048 with 32 (L2). `extra_fields`: more fields a step
+    reads and writes per row (air absorption: the two memory fields, and P(n-1) with a PML)."""
     env = os.environ.get("DIFFLATTICE_NATIVE_LEVELS")
     if env:
         return max(1, int(env))
-    row = ny * itemsize * (6 if staggered else 2)  # bytes of one row of every field a step touches
+    row = ny * itemsize * ((6 if staggered else 2) + extra_fields)  # bytes of one row of every field a step touches
     in_l1 = L1_BYTES // row
     if in_l1 >= 6:
         return min(in_l1, 16)
@@ -607,7 +608,8 @@ def _loop_jvp(primals, tangents, *, n_steps, chunk, checkpoint, unroll, threads,
 def schedule(stepper: Stepper) -> tuple[int, int, bool]:
     """(threads, levels, bands) of the kernels for this stepper's grid."""
     nx, ny = stepper.grid.shape
-    levels = _levels(ny, jnp.dtype(stepper.grid.jnp_dtype).itemsize, stepper.staggered)
+    extra = 0 if stepper.lattice.relax is None else (3 if stepper.staggered else 2)  # Q_O, Q_N (+ P(n-1))
+    levels = _levels(ny, jnp.dtype(stepper.grid.jnp_dtype).itemsize, stepper.staggered, extra)
     bands = _bands(stepper)
     return _threads(nx, 0 if bands else levels), levels, bands
 

@@ -48,11 +48,28 @@ KNOWN_LATTICE_FIELDS = frozenset(
         "mur",
         "stencil",  # both run natively (attribute `stencil` of the FFI calls)
         "uniform_faces",  # a stability-limit fact, no term
+        "relax",  # air absorption: memory fields Q_O, Q_N (both kernels; `_relax_unsupported`)
     }
 )
 # likewise the carried state, the sensors' options and the sources' injection modes
 KNOWN_STATE_FIELDS = frozenset(
-    {"n", "p", "p_prev", "px", "py", "wx", "wy", "src_acc", "c_r", "phasor_re", "phasor_im", "p_max", "p_sq", "arrival"}
+    {
+        "n",
+        "p",
+        "p_prev",
+        "px",
+        "py",
+        "wx",
+        "wy",
+        "src_acc",
+        "c_r",
+        "phasor_re",
+        "phasor_im",
+        "p_max",
+        "p_sq",
+        "arrival",
+        "relax_q",
+    }
 )
 KNOWN_SENSOR_FIELDS = frozenset(
     {
@@ -110,6 +127,9 @@ def unsupported(stepper: Stepper, state: State | None, sharding) -> str | None:
         return f"carried state the kernels do not update ({', '.join(new_state)})"
     if any(lat.mur):
         return "Mur edges"
+    why = _relax_unsupported(stepper)
+    if why:
+        return why
     if lat.stencil != "standard":
         m = getattr(lat, "metric", None)
         if m is not None and not all(jnp.shape(v)[:-1] in ((), (1,)) for v in (m.lo, m.hi)):
@@ -140,6 +160,25 @@ def unsupported(stepper: Stepper, state: State | None, sharding) -> str | None:
     if state is not None and stepper.staggered != isinstance(state, StaggeredState):
         return "a start state of the other stepper"
     return None
+
+
+def _relax_unsupported(stepper: Stepper) -> str | None:
+    """Why the kernels cannot run this scene's air absorption (None: no absorption, or one they run)."""
+    r = stepper.lattice.relax
+    if r is None:
+        return None
+    if len(r.eps) != 2 or len(r.a) != 2 or len(r.g) != 2:
+        return f"air absorption with {len(r.eps)} relaxation processes (the kernels carry two: O2, N2)"
+    if any(jnp.size(v) != 1 for v in (r.eta, *r.eps, *r.a, *r.g)):
+        return "air absorption whose coefficients vary in space (the kernels take one value each)"
+    return None
+
+
+def _relax_coefficients(lat: Lattice, dt):
+    """The leapfrog kernel's 7 air-absorption coefficients (eta, eps_O, eps_N, a_O, a_N, g_O, g_N)."""
+    r = lat.relax
+    assert r is not None
+    return jnp.stack([jnp.asarray(v, dt).reshape(()) for v in (r.eta, *r.eps, *r.a, *r.g)])
 
 
 def _bands(stepper: Stepper) -> bool:
@@ -182,15 +221,16 @@ def _threads(nx: int, levels: int) -> int:
     return max(1, min(cpus, nx // (4 * (levels + 2))))
 
 
-def _levels(ny: int, itemsize: int, staggered: bool) -> int:
+def _levels(ny: int, itemsize: int, staggered: bool, extra_fields: int = 0) -> int:
     """Steps each thread advances per sweep over the rows (temporal blocking): as many as keep a
     sweep's rows (about `levels + 2` rows of each field) in L1, else in L2. Measured on a Xeon
     (Sapphire Rapids class, 2 cores; benchmarks/native_tuning.py): rows of 630 cells ran fastest
-    with 8 steps per sweep (L1), rows of 2048 with 32 (L2)."""
+    with 8 steps per sweep (L1), rows of 2048 with 32 (L2). `extra_fields`: more fields a step
+    reads and writes per row (air absorption: the two memory fields, and P(n-1) with a PML)."""
     env = os.environ.get("DIFFLATTICE_NATIVE_LEVELS")
     if env:
         return max(1, int(env))
-    row = ny * itemsize * (6 if staggered else 2)  # bytes of one row of every field a step touches
+    row = ny * itemsize * ((6 if staggered else 2) + extra_fields)  # bytes of one row of every field a step touches
     in_l1 = L1_BYTES // row
     if in_l1 >= 6:
         return min(in_l1, 16)
@@ -230,6 +270,7 @@ class _Chunk:
         metric = getattr(lat, "metric", None)  # rz grids: per-ring factors of the radial faces
         self.metric = [as_dt(None if metric is None else metric.lo), as_dt(None if metric is None else metric.hi)]
         self.sponge = as_dt(lat.sponge)
+        self.relax = _absent(dt) if lat.relax is None else _relax_coefficients(lat, dt)
         if stepper.staggered:
             pml = lat.pml
             self.pml = [
@@ -294,6 +335,9 @@ class _Chunk:
         rec_shape = jax.ShapeDtypeStruct((length, self.n_probes), self.dt)
         stat_shapes = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in stats]
         if isinstance(st, LeapfrogState):
+            # air absorption: the memory fields and coefficients, optional arguments after the others
+            # (a lossless call passes none: the kernels' lossless path)
+            rq = [] if st.relax_q is None else [*st.relax_q, self.relax]
             args = [
                 st.p,
                 st.p_prev,
@@ -310,12 +354,14 @@ class _Chunk:
                 sin,
                 *stats,
                 n0,
+                *rq,
             ]
             field = jax.ShapeDtypeStruct(self.shape, self.dt)
+            rq_shapes = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in rq[:2]]
             out = jax.ffi.ffi_call(
                 "difflattice_leapfrog",
-                [field, field, rec_shape, *stat_shapes],
-                input_output_aliases={0: 0, 1: 1, 18: 3, 19: 4, 20: 5, 21: 6, 22: 7},
+                [field, field, rec_shape, *stat_shapes, *rq_shapes],
+                input_output_aliases={0: 0, 1: 1, 18: 3, 19: 4, 20: 5, 21: 6, 22: 7, **({24: 8, 25: 9} if rq else {})},
                 vmap_method="sequential",
             )(
                 *args,
@@ -325,13 +371,18 @@ class _Chunk:
                 bands=self.bands,
                 **self.attrs,
             )
-            p, p_prev, rec, *stats_out = out
+            p, p_prev, rec, *stats_out = out[:8]
             st = eqx.tree_at(lambda s: (s.p, s.p_prev), st, (p, p_prev))
+            if rq:
+                st = eqx.tree_at(lambda s: s.relax_q, st, tuple(out[8:]))
         else:
             assert isinstance(st, StaggeredState)  # unsupported() refuses the other stepper's state
             acc = self._acc_in(st)
             p_prev = _absent(self.dt) if st.p_prev is None else st.p_prev
             c_r = _absent(self.dt) if st.c_r is None else st.c_r
+            # air absorption: the memory fields and coefficients, optional arguments after the others
+            # (a lossless call passes none: the kernels' lossless path)
+            rq = [] if st.relax_q is None else [*st.relax_q, self.relax]
             args = [
                 st.px,
                 st.py,
@@ -353,13 +404,23 @@ class _Chunk:
                 n0,
                 c_r,
                 *self.radial,
+                *rq,
             ]
             fields = (st.px, st.py, st.wx, st.wy, p_prev, acc)
             shapes = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in fields]
             out = jax.ffi.ffi_call(
                 "difflattice_staggered",
-                [*shapes, rec_shape, *stat_shapes, jax.ShapeDtypeStruct(c_r.shape, c_r.dtype)],
-                input_output_aliases={0: 0, 1: 1, 2: 2, 3: 3, 4: 4, 23: 5, 28: 7, 29: 8, 30: 9, 31: 10, 32: 11, 34: 12},
+                [
+                    *shapes,
+                    rec_shape,
+                    *stat_shapes,
+                    jax.ShapeDtypeStruct(c_r.shape, c_r.dtype),
+                    *(jax.ShapeDtypeStruct(a.shape, a.dtype) for a in rq[:2]),
+                ],
+                input_output_aliases={
+                    **{0: 0, 1: 1, 2: 2, 3: 3, 4: 4, 23: 5, 28: 7, 29: 8, 30: 9, 31: 10, 32: 11, 34: 12},
+                    **({37: 13, 38: 14} if rq else {}),
+                },
                 vmap_method="sequential",
             )(
                 *args,
@@ -367,7 +428,7 @@ class _Chunk:
                 stencil=np.int64(self.stepper.lattice.stencil == "isotropic"),
                 **self.attrs,
             )
-            px, py, wx, wy, p_prev, acc, rec, *stats_out, c_r = out
+            px, py, wx, wy, p_prev, acc, rec, *stats_out, c_r = out[:13]
             has_acc, has_prev, new_acc = bool(st.src_acc), st.p_prev is not None, self._acc_out(st, acc)
             if st.c_r is not None:
                 st = eqx.tree_at(lambda s: s.c_r, st, c_r)
@@ -376,6 +437,8 @@ class _Chunk:
                 st = eqx.tree_at(lambda s: s.src_acc, st, new_acc)
             if has_prev:
                 st = eqx.tree_at(lambda s: s.p_prev, st, p_prev)
+            if rq:
+                st = eqx.tree_at(lambda s: s.relax_q, st, tuple(out[13:]))
         names = ("phasor_re", "phasor_im", "p_max", "p_sq", "arrival")
         present = tuple(k for k in names if getattr(st, k) is not None)
         if present:
@@ -545,7 +608,8 @@ def _loop_jvp(primals, tangents, *, n_steps, chunk, checkpoint, unroll, threads,
 def schedule(stepper: Stepper) -> tuple[int, int, bool]:
     """(threads, levels, bands) of the kernels for this stepper's grid."""
     nx, ny = stepper.grid.shape
-    levels = _levels(ny, jnp.dtype(stepper.grid.jnp_dtype).itemsize, stepper.staggered)
+    extra = 0 if stepper.lattice.relax is None else (3 if stepper.staggered else 2)  # Q_O, Q_N (+ P(n-1))
+    levels = _levels(ny, jnp.dtype(stepper.grid.jnp_dtype).itemsize, stepper.staggered, extra)
     bands = _bands(stepper)
     return _threads(nx, 0 if bands else levels), levels, bands
 
@@ -566,6 +630,7 @@ def adjoint_supported(stepper: Stepper) -> bool:
         and lat.keep is None
         and lat.sponge is None
         and lat.eta == 0
+        and lat.relax is None
     )
 
 

@@ -10,6 +10,11 @@
 // Both run the standard 5-point stencil, and the isotropic 9-point one (attribute `stencil` = 1)
 // on uniform faces (air: the window's 0/1 masks and the rz metric; `row_iso`, `face_x_iso`).
 //
+// Both carry humid air's absorption (lattice.coefficients.AirRelaxation) when given its optional
+// arguments: the operand adds eta (P - P(n-1)) + eps_O Q_O + eps_N Q_N, and after the sources
+// Q_i = a_i Q_i + g_i (P(n+1) - P(n)) row by row, in place (a compile-time flag: the lossless
+// instantiations have none of it).
+//
 // Both apply the sources, record probes, phasors and whole-field statistics inside the loop, in
 // the order of the JAX stepper. Coefficient arrays are inputs of any layout that broadcasts to
 // the grid (a scalar, one value per row, one vector for all rows, or a full array), so a lattice
@@ -29,6 +34,8 @@
 #include <cstring>
 #include <limits>
 #include <mutex>
+#include <optional>
+#include <string>
 #include <thread>
 #include <type_traits>
 #include <vector>
@@ -740,6 +747,11 @@ struct LeapfrogArgs {
   Coef<T> K, bx, by, qs, keep, sponge;
   Coef<T> my_lo, my_hi;  // rz metric: factors of each cell's low and high y face (per column)
   double eta;  // viscous coefficient (0: none); q = qs ((1 + eta) p - eta pp)
+  // air absorption (lattice.coefficients.AirRelaxation; rq[0] == nullptr: lossless, none of it
+  // runs): the operand adds r_eta (p - pp) + eps_0 Q_0 + eps_1 Q_1 (before qs), and after the
+  // sources Q_i = a_i Q_i + g_i (P(t+1) - P(t)), in place, row by row
+  T* rq[2] = {nullptr, nullptr};
+  T r_eta = T(0), r_eps[2] = {T(0), T(0)}, r_a[2] = {T(0), T(0)}, r_g[2] = {T(0), T(0)};
   CellOps<T> cells;
 };
 
@@ -952,18 +964,20 @@ bool plan_rows(const LeapfrogArgs<T>& a, int cmb, RowPlan<T>& plan) {
   return true;
 }
 
-template <typename T>
-bool leapfrog(const LeapfrogArgs<T>& a) {
+// RELAX: air absorption (a compile-time flag: the lossless instantiation has none of its code)
+template <typename T, bool RELAX>
+bool leapfrog_steps(const LeapfrogArgs<T>& a) {
   const int64_t nx = a.nx, ny = a.ny;
   const int levels = std::max(1, a.levels);
   const CellPlan<T> cplan(a.cells, nx);
   const bool stats = a.cells.p_max || a.cells.p_sq || a.cells.arrival;
   const bool adj = a.combine == kAdj;
-  const bool extras = !adj && (a.qs.present() || a.keep.present() || a.sponge.present() || a.eta != 0.0);
+  constexpr bool relax = RELAX;
+  const bool extras = !adj && (a.qs.present() || a.keep.present() || a.sponge.present() || a.eta != 0.0 || relax);
   // the adjoint with a scalar K is the forward step: L(K a) = K L(a)
   const bool adj_scalar = adj && a.K.in_register();
   const int cmb = adj_scalar ? kFwd : (adj ? kAdj : (extras ? kD : kFwd));
-  const bool qbuf = (adj && !adj_scalar) || a.qs.present() || a.eta != 0.0;  // q rows computed
+  const bool qbuf = (adj && !adj_scalar) || a.qs.present() || a.eta != 0.0 || relax;  // q rows computed
   RowPlan<T> plan;
   if (!(a.iso ? plan_iso(a, cmb, plan) : plan_rows(a, cmb, plan))) return false;
   const T eta1 = T(1.0 + a.eta), eta = T(a.eta);
@@ -987,6 +1001,14 @@ bool leapfrog(const LeapfrogArgs<T>& a) {
       for (int64_t j = 0; j < ny; ++j) dst[j] = eta1 * pr[j] - eta * ppr[j];
     } else {
       for (int64_t j = 0; j < ny; ++j) dst[j] = pr[j];
+    }
+    if constexpr (relax) {  // stepper._relaxed_operand, in its order
+      const T* ppr = pp_ + i * ny;
+      const T* q0r = a.rq[0] + i * ny;
+      const T* q1r = a.rq[1] + i * ny;
+      const T re = a.r_eta, e0 = a.r_eps[0], e1 = a.r_eps[1];
+#pragma GCC ivdep
+      for (int64_t j = 0; j < ny; ++j) dst[j] = ((dst[j] + re * (pr[j] - ppr[j])) + e0 * q0r[j]) + e1 * q1r[j];
     }
     if (a.qs.present()) {
       if (a.qs.in_register()) {
@@ -1066,6 +1088,17 @@ bool leapfrog(const LeapfrogArgs<T>& a) {
         }
       }
       if (cplan.busy[i]) leapfrog_cells(a.cells, cplan, i, L - 1, pp);
+      if constexpr (relax) {  // stepper._relaxed_memory: step L - 1's q rows of row i are read (q ring)
+        T* q0r = a.rq[0] + i * ny;
+        T* q1r = a.rq[1] + i * ny;
+        const T a0 = a.r_a[0], a1 = a.r_a[1], g0 = a.r_g[0], g1 = a.r_g[1];
+#pragma GCC ivdep
+        for (int64_t j = 0; j < ny; ++j) {
+          const T dp = out[j] - p0[j];
+          q0r[j] = a0 * q0r[j] + g0 * dp;
+          q1r[j] = a1 * q1r[j] + g1 * dp;
+        }
+      }
       if (stats) row_stats(a.cells, i, L - 1, out);
     };
   };
@@ -1078,6 +1111,12 @@ bool leapfrog(const LeapfrogArgs<T>& a) {
   if (a.bands && !qbuf) bands(nx, a.n_steps, a.n_threads, make_worker, finish);
   else pipeline(nx, ny, a.n_steps, a.n_threads, levels, make_worker, finish);
   return true;
+}
+
+template <typename T>
+bool leapfrog(const LeapfrogArgs<T>& a) {
+  if (a.rq[0] != nullptr && a.combine != kAdj) return leapfrog_steps<T, true>(a);
+  return leapfrog_steps<T, false>(a);
 }
 
 // ----------------------------------------------------------------------------------------------
@@ -1124,17 +1163,21 @@ struct StaggeredArgs {
   int64_t w = 0;
   double eta;
   bool iso = false;  // the isotropic stencil (uniform faces: x masks per row, y masks per column)
+  // air absorption, as in LeapfrogArgs (rq[0] == nullptr: lossless); needs p_prev
+  T* rq[2] = {nullptr, nullptr};
+  T r_eta = T(0), r_eps[2] = {T(0), T(0)}, r_a[2] = {T(0), T(0)}, r_g[2] = {T(0), T(0)};
   CellOps<T> cells;
 };
 
-template <typename T>
-bool staggered(const StaggeredArgs<T>& a) {
+template <typename T, bool RELAX>  // RELAX: air absorption, as in leapfrog_steps
+bool staggered_steps(const StaggeredArgs<T>& a) {
   const int64_t nx = a.nx, ny = a.ny;
   const int levels = std::max(1, a.levels);
   const CellPlan<T> cplan(a.cells, nx);
   const bool stats = a.cells.p_max || a.cells.p_sq || a.cells.arrival;
   const T eta1 = T(1.0 + a.eta), eta = T(a.eta);
   const bool has_eta = a.eta != 0.0;
+  constexpr bool relax = RELAX;
   // the y-layer columns: PML factors differ from 1 outside [jl, jh) (cells) and [jl, jh] (faces)
   auto y_one = [&](int64_t j, bool face) {
     const Coef<T>& A = face ? a.ayf : a.ayc;
@@ -1171,6 +1214,15 @@ bool staggered(const StaggeredArgs<T>& a) {
       for (int64_t j = 0; j < ny; ++j) dst[j] = eta1 * (x[j] + y[j]) - eta * pr[j];
     } else {
       for (int64_t j = 0; j < ny; ++j) dst[j] = x[j] + y[j];
+    }
+    if constexpr (relax) {  // stepper._relaxed_operand, in its order
+      const T* __restrict pr = a.p_prev + i * ny;
+      const T* __restrict q0r = a.rq[0] + i * ny;
+      const T* __restrict q1r = a.rq[1] + i * ny;
+      const T re = a.r_eta, e0 = a.r_eps[0], e1 = a.r_eps[1];
+#pragma GCC ivdep
+      for (int64_t j = 0; j < ny; ++j)
+        dst[j] = ((dst[j] + re * ((x[j] + y[j]) - pr[j])) + e0 * q0r[j]) + e1 * q1r[j];
     }
     if (a.qs.present()) {
       const T* __restrict s_ = S.qs.get(a.qs, i, ny);
@@ -1436,7 +1488,7 @@ bool staggered(const StaggeredArgs<T>& a) {
       } else {
         faces_y(R, i, q0, S.old.data());
       }
-      if (has_eta) {  // P(n - 1) of this row for the next step, before px, py change
+      if (has_eta || relax) {  // P(n - 1) of this row for the next step, before px, py change
         T* pr = a.p_prev + i * ny;
         const T* x = a.px + i * ny;
         const T* y = a.py + i * ny;
@@ -1444,6 +1496,20 @@ bool staggered(const StaggeredArgs<T>& a) {
       }
       cells(R, i);
       if (cplan.busy[i]) staggered_cells(a.cells, cplan, i, L - 1, a.px, a.py);
+      if constexpr (relax) {  // stepper._relaxed_memory (p_prev's row holds P(n) now; q rows of row i are read)
+        const T* x = a.px + i * ny;
+        const T* y = a.py + i * ny;
+        const T* pr = a.p_prev + i * ny;
+        T* q0r = a.rq[0] + i * ny;
+        T* q1r = a.rq[1] + i * ny;
+        const T a0 = a.r_a[0], a1 = a.r_a[1], g0 = a.r_g[0], g1 = a.r_g[1];
+#pragma GCC ivdep
+        for (int64_t j = 0; j < ny; ++j) {
+          const T dp = (x[j] + y[j]) - pr[j];
+          q0r[j] = a0 * q0r[j] + g0 * dp;
+          q1r[j] = a1 * q1r[j] + g1 * dp;
+        }
+      }
       if (stats) {
         const T* x = a.px + i * ny;
         const T* y = a.py + i * ny;
@@ -1454,6 +1520,11 @@ bool staggered(const StaggeredArgs<T>& a) {
   };
   pipeline(nx, ny, a.n_steps, a.n_threads, levels, make_worker, [](int, int) {});
   return true;
+}
+
+template <typename T>
+bool staggered(const StaggeredArgs<T>& a) {
+  return a.rq[0] != nullptr ? staggered_steps<T, true>(a) : staggered_steps<T, false>(a);
 }
 
 // ----------------------------------------------------------------------------------------------
@@ -1705,6 +1776,38 @@ void bind_cells(dl::CellOps<T>& c, int64_t ny, const ffi::AnyBuffer& src_cells, 
   c.n0 = *reinterpret_cast<const int32_t*>(n0.untyped_data());
 }
 
+// air absorption's inputs (both kernels), optional arguments and results after the others (a
+// lossless call passes none of them: the call of old): the memory fields Q_O, Q_N and their 7
+// coefficients (eta, eps_O, eps_N, a_O, a_N, g_O, g_N); false: some given, not all, or
+// inconsistent sizes or types
+using Opt = std::optional<ffi::AnyBuffer>;
+using OptRet = std::optional<ffi::Result<ffi::AnyBuffer>>;
+
+template <typename T, typename Args>
+bool bind_relax(Args& a, int64_t n_cells, ffi::DataType type, const Opt& rq0_, const Opt& rq1_, const Opt& relax_,
+                OptRet& rq0_o, OptRet& rq1_o) {
+  if (!rq0_ && !rq1_ && !relax_ && !rq0_o && !rq1_o) return true;  // lossless: the call of old
+  if (!rq0_ || !rq1_ || !relax_ || !rq0_o || !rq1_o) return false;
+  const ffi::AnyBuffer &rq0 = *rq0_, &rq1 = *rq1_, &relax = *relax_;
+  if (int64_t(rq0.element_count()) != n_cells || int64_t(rq1.element_count()) != n_cells ||
+      relax.element_count() != 7 || relax.element_type() != type || rq0.element_type() != type ||
+      rq1.element_type() != type)
+    return false;
+  a.rq[0] = out_from<T>(*rq0_o, rq0);
+  a.rq[1] = out_from<T>(*rq1_o, rq1);
+  const T* r = reinterpret_cast<const T*>(relax.untyped_data());
+  a.r_eta = r[0];
+  a.r_eps[0] = r[1];
+  a.r_eps[1] = r[2];
+  a.r_a[0] = r[3];
+  a.r_a[1] = r[4];
+  a.r_g[0] = r[5];
+  a.r_g[1] = r[6];
+  return true;
+}
+
+const char* kRelax = "air absorption needs two memory fields of the grid's shape and 7 coefficients";
+
 template <typename T>
 ffi::Error leapfrog_typed(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K, ffi::AnyBuffer bx, ffi::AnyBuffer by,
                           ffi::AnyBuffer qs, ffi::AnyBuffer keep, ffi::AnyBuffer sponge, ffi::AnyBuffer my_lo,
@@ -1717,6 +1820,7 @@ ffi::Error leapfrog_typed(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K,
                           ffi::Result<ffi::AnyBuffer> rec_o, ffi::Result<ffi::AnyBuffer> ph_re_o,
                           ffi::Result<ffi::AnyBuffer> ph_im_o, ffi::Result<ffi::AnyBuffer> p_max_o,
                           ffi::Result<ffi::AnyBuffer> p_sq_o, ffi::Result<ffi::AnyBuffer> arrival_o,
+                          Opt rq0, Opt rq1, Opt relax, OptRet rq0_o, OptRet rq1_o,
                           int64_t n_steps, int64_t threads, int64_t levels, int64_t bands, int64_t combine,
                           int64_t stencil, double eta, double threshold) {
   auto dims = p.dimensions();
@@ -1754,6 +1858,10 @@ ffi::Error leapfrog_typed(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K,
                 out_from<T>(p_sq_o, p_sq), out_from<int32_t>(arrival_o, arrival), n0, threshold);
   a.cells.zero_cells = reinterpret_cast<const int32_t*>(zero_cells.untyped_data());
   a.cells.n_zero = int64_t(zero_cells.element_count() / 2);
+  if (!bind_relax<T>(a, nx * ny, p.element_type(), rq0, rq1, relax, rq0_o, rq1_o))
+    return ffi::Error::InvalidArgument(std::string("difflattice_leapfrog: ") + kRelax);
+  if (a.rq[0] && combine == dl::kAdj)
+    return ffi::Error::InvalidArgument("difflattice_leapfrog: the adjoint mode has no air absorption");
   if (!dl::leapfrog<T>(a)) return ffi::Error::InvalidArgument("difflattice_leapfrog: unsupported coefficient layout");
   return ffi::Error::Success();
 }
@@ -1769,12 +1877,12 @@ ffi::Error leapfrog_impl(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K, 
                          ffi::Result<ffi::AnyBuffer> rec_o, ffi::Result<ffi::AnyBuffer> ph_re_o,
                          ffi::Result<ffi::AnyBuffer> ph_im_o, ffi::Result<ffi::AnyBuffer> p_max_o,
                          ffi::Result<ffi::AnyBuffer> p_sq_o, ffi::Result<ffi::AnyBuffer> arrival_o,
-                         int64_t n_steps, int64_t threads, int64_t levels, int64_t bands, int64_t combine,
+                         Opt rq0, Opt rq1, Opt relax, OptRet rq0_o, OptRet rq1_o, int64_t n_steps, int64_t threads, int64_t levels, int64_t bands, int64_t combine,
                          int64_t stencil, double eta, double threshold) {
 #define DL_ARGS                                                                                                 \
   p, pp, K, bx, by, qs, keep, sponge, my_lo, my_hi, src_cells, src_hard, src_vals, rec_cells, zero_cells, ph_cells, ph_cos, \
-      ph_sin, ph_re, ph_im, p_max, p_sq, arrival, n0, p_o, pp_o, rec_o, ph_re_o, ph_im_o, p_max_o, p_sq_o,     \
-      arrival_o, n_steps, threads, levels, bands, combine, stencil, eta, threshold
+      ph_sin, ph_re, ph_im, p_max, p_sq, arrival, n0, p_o, pp_o, rec_o, ph_re_o, ph_im_o, p_max_o, p_sq_o,      \
+      arrival_o, rq0, rq1, relax, rq0_o, rq1_o, n_steps, threads, levels, bands, combine, stencil, eta, threshold
   switch (p.element_type()) {
     case ffi::DataType::F32:
       return leapfrog_typed<float>(DL_ARGS);
@@ -1804,6 +1912,7 @@ ffi::Error staggered_typed(ffi::AnyBuffer px, ffi::AnyBuffer py, ffi::AnyBuffer 
                            ffi::Result<ffi::AnyBuffer> ph_re_o, ffi::Result<ffi::AnyBuffer> ph_im_o,
                            ffi::Result<ffi::AnyBuffer> p_max_o, ffi::Result<ffi::AnyBuffer> p_sq_o,
                            ffi::Result<ffi::AnyBuffer> arrival_o, ffi::Result<ffi::AnyBuffer> c_r_o,
+                           Opt rq0, Opt rq1, Opt relax, OptRet rq0_o, OptRet rq1_o,
                            int64_t n_steps, int64_t threads, int64_t levels, int64_t stencil,
                            double eta, double threshold) {
   auto dims = px.dimensions();
@@ -1846,6 +1955,10 @@ ffi::Error staggered_typed(ffi::AnyBuffer px, ffi::AnyBuffer py, ffi::AnyBuffer 
   a.p_prev = out_from<T>(p_prev_o, p_prev);
   a.eta = eta;
   if (eta != 0.0 && !a.p_prev) return ffi::Error::InvalidArgument("difflattice_staggered: eta needs p_prev");
+  if (!bind_relax<T>(a, nx * ny, px.element_type(), rq0, rq1, relax, rq0_o, rq1_o))
+    return ffi::Error::InvalidArgument(std::string("difflattice_staggered: ") + kRelax);
+  if (a.rq[0] && int64_t(p_prev.element_count()) != nx * ny)
+    return ffi::Error::InvalidArgument("difflattice_staggered: air absorption needs p_prev");
   bind_cells<T>(a.cells, ny, src_cells, src_hard, src_vals, rec_cells, rec_o, ph_cells, ph_cos, ph_sin,
                 out_from<T>(ph_re_o, ph_re), out_from<T>(ph_im_o, ph_im), out_from<T>(p_max_o, p_max),
                 out_from<T>(p_sq_o, p_sq), out_from<int32_t>(arrival_o, arrival), n0, threshold);
@@ -1879,13 +1992,14 @@ ffi::Error staggered_impl(ffi::AnyBuffer px, ffi::AnyBuffer py, ffi::AnyBuffer w
                           ffi::Result<ffi::AnyBuffer> rec_o, ffi::Result<ffi::AnyBuffer> ph_re_o,
                           ffi::Result<ffi::AnyBuffer> ph_im_o, ffi::Result<ffi::AnyBuffer> p_max_o,
                           ffi::Result<ffi::AnyBuffer> p_sq_o, ffi::Result<ffi::AnyBuffer> arrival_o,
-                          ffi::Result<ffi::AnyBuffer> c_r_o, int64_t n_steps,
+                          ffi::Result<ffi::AnyBuffer> c_r_o, Opt rq0, Opt rq1, Opt relax, OptRet rq0_o,
+                          OptRet rq1_o, int64_t n_steps,
                           int64_t threads, int64_t levels, int64_t stencil, double eta, double threshold) {
 #define DL_ARGS                                                                                                  \
   px, py, wx, wy, p_prev, K, bx, by, qs, keep, my_lo, my_hi, axc, bxc, axf, bxf, ayc, byc, ayf, byf, src_cells, src_hard,    \
       src_vals, src_acc, rec_cells, ph_cells, ph_cos, ph_sin, ph_re, ph_im, p_max, p_sq, arrival, n0, c_r,        \
       rad_decay, rad_drive, px_o, py_o, wx_o, wy_o, p_prev_o, src_acc_o, rec_o, ph_re_o, ph_im_o, p_max_o, p_sq_o, \
-      arrival_o, c_r_o, n_steps, threads, levels, stencil, eta, threshold
+      arrival_o, c_r_o, rq0, rq1, relax, rq0_o, rq1_o, n_steps, threads, levels, stencil, eta, threshold
   switch (px.element_type()) {
     case ffi::DataType::F32:
       return staggered_typed<float>(DL_ARGS);
@@ -2002,8 +2116,12 @@ ffi::Error adjoint_chunk_impl(ffi::AnyBuffer p_end, ffi::AnyBuffer pp_end, ffi::
 #define DL_RETS_4 .Ret<ffi::AnyBuffer>().Ret<ffi::AnyBuffer>().Ret<ffi::AnyBuffer>().Ret<ffi::AnyBuffer>()
 
 // args: p pp K bx by qs keep sponge | my_lo my_hi src_cells src_hard src_vals rec_cells zero_cells
-//       ph_cells | ph_cos ph_sin ph_re ph_im p_max p_sq arrival n0
-// rets: p pp rec ph_re ph_im p_max p_sq arrival
+//       ph_cells | ph_cos ph_sin ph_re ph_im p_max p_sq arrival n0 | optional: rq0 rq1 relax (air
+//       absorption: the memory fields Q_O, Q_N and their 7 coefficients; absent: lossless)
+// rets: p pp rec ph_re ph_im p_max p_sq arrival | optional: rq0 rq1
+#define DL_RELAX                                                                                             \
+  .OptionalArg<ffi::AnyBuffer>().OptionalArg<ffi::AnyBuffer>().OptionalArg<ffi::AnyBuffer>().OptionalRet<ffi::AnyBuffer>() \
+      .OptionalRet<ffi::AnyBuffer>()
 XLA_FFI_DEFINE_HANDLER_SYMBOL(DifflatticeLeapfrog, leapfrog_impl,
                               ffi::Ffi::Bind() DL_BUFS_8 DL_BUFS_8.Arg<ffi::AnyBuffer>()
                                   .Arg<ffi::AnyBuffer>()
@@ -2012,7 +2130,7 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(DifflatticeLeapfrog, leapfrog_impl,
                                   .Arg<ffi::AnyBuffer>()
                                   .Arg<ffi::AnyBuffer>()
                                   .Arg<ffi::AnyBuffer>()
-                                  .Arg<ffi::AnyBuffer>() DL_RETS_4 DL_RETS_4.Attr<int64_t>("n_steps")
+                                  .Arg<ffi::AnyBuffer>() DL_RETS_4 DL_RETS_4 DL_RELAX.Attr<int64_t>("n_steps")
                                   .Attr<int64_t>("threads")
                                   .Attr<int64_t>("levels")
                                   .Attr<int64_t>("bands")
@@ -2023,14 +2141,14 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(DifflatticeLeapfrog, leapfrog_impl,
 
 // args: px py wx wy p_prev K bx by | qs keep my_lo my_hi axc bxc axf bxf | ayc byc ayf byf src_cells
 //       src_hard src_vals src_acc | rec_cells ph_cells ph_cos ph_sin ph_re ph_im p_max p_sq | arrival n0
-//       c_r rad_decay rad_drive
-// rets: px py wx wy p_prev src_acc rec ph_re ph_im p_max p_sq arrival c_r
+//       c_r rad_decay rad_drive | optional: rq0 rq1 relax (air absorption, as the leapfrog's; needs p_prev)
+// rets: px py wx wy p_prev src_acc rec ph_re ph_im p_max p_sq arrival c_r | optional: rq0 rq1
 XLA_FFI_DEFINE_HANDLER_SYMBOL(DifflatticeStaggered, staggered_impl,
                               ffi::Ffi::Bind() DL_BUFS_8 DL_BUFS_8 DL_BUFS_8 DL_BUFS_8.Arg<ffi::AnyBuffer>()
                                   .Arg<ffi::AnyBuffer>()
                                   .Arg<ffi::AnyBuffer>()
                                   .Arg<ffi::AnyBuffer>()
-                                  .Arg<ffi::AnyBuffer>() DL_RETS_4 DL_RETS_4 DL_RETS_4.Ret<ffi::AnyBuffer>()
+                                  .Arg<ffi::AnyBuffer>() DL_RETS_4 DL_RETS_4 DL_RETS_4.Ret<ffi::AnyBuffer>() DL_RELAX
                                   .Attr<int64_t>("n_steps")
                                   .Attr<int64_t>("threads")
                                   .Attr<int64_t>("levels")

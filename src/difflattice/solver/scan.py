@@ -45,6 +45,28 @@ class Result(eqx.Module):
     def snapshot_steps(self) -> tuple[int, ...]:
         return self.chunk_steps
 
+    @classmethod
+    def of_final(cls, final: State, probes, peaks, snapshots, n_steps: int, chunk_steps) -> Result:
+        """The result of a run that ended in `final` (its phasors, peak and RMS fields, arrival),
+        with the probe series, per-chunk peaks and snapshots the loop collected: the one place a
+        forward run's `Result` is assembled (JAX scan and native kernels alike)."""
+        phasors = None
+        if final.phasor_re is not None and final.phasor_im is not None:
+            phasors = jax.lax.complex(final.phasor_re, final.phasor_im)
+        p_rms = None if final.p_sq is None else jnp.sqrt(final.p_sq / n_steps)
+        return cls(
+            final=final,
+            probes=probes,
+            phasors=phasors,
+            p_max=final.p_max,
+            p_rms=p_rms,
+            arrival=final.arrival,
+            snapshots=snapshots,
+            peak_history=peaks,
+            n_steps=n_steps,
+            chunk_steps=tuple(chunk_steps),
+        )
+
 
 # ------------------------------------------------------------------------------------------
 # the time loop
@@ -117,22 +139,7 @@ def run_jax(
             last = sens.snapshot_of(final.pressure)
             snaps = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b[None]], axis=0), snaps, last)
 
-    phasors = None
-    if final.phasor_re is not None and final.phasor_im is not None:
-        phasors = jax.lax.complex(final.phasor_re, final.phasor_im)
-    p_rms = None if final.p_sq is None else jnp.sqrt(final.p_sq / n_steps)
-    return Result(
-        final=final,
-        probes=ys,
-        phasors=phasors,
-        p_max=final.p_max,
-        p_rms=p_rms,
-        arrival=final.arrival,
-        snapshots=snaps,
-        peak_history=peaks,
-        n_steps=n_steps,
-        chunk_steps=tuple(steps),
-    )
+    return Result.of_final(final, ys, peaks, snaps, n_steps, steps)
 
 
 def _constrainer(shape, sharding):

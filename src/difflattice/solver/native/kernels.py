@@ -652,17 +652,4 @@ def run_native(stepper: Stepper, n_steps: int, *, state: State | None, checkpoin
     )
     n_chunks, rem = divmod(n_steps, chunk)
     steps = [chunk * (i + 1) for i in range(n_chunks)] + ([n_steps] if rem else [])
-    phasors = None if final.phasor_re is None else jax.lax.complex(final.phasor_re, final.phasor_im)
-    p_rms = None if final.p_sq is None else jnp.sqrt(final.p_sq / n_steps)
-    return Result(
-        final=final,
-        probes=ys,
-        phasors=phasors,
-        p_max=final.p_max,
-        p_rms=p_rms,
-        arrival=final.arrival,
-        snapshots=snaps,
-        peak_history=peaks,
-        n_steps=n_steps,
-        chunk_steps=tuple(steps),
-    )
+    return Result.of_final(final, ys, peaks, snaps, n_steps, steps)

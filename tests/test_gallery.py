@@ -195,3 +195,19 @@ def test_plane_wave_image_has_expected_bands(tmp_path, wavelength_cells):
     assert rising == round(width_mm / wavelength_mm)
     # white = positive pressure: the middle of the first band (half a wavelength in) is white
     assert row[wavelength_cells // 2] > 0.9 and row[0] < 0.1
+
+
+def test_a_scene_at_another_resolution_keeps_metres_and_scales_cells():
+    """`Scene.at_resolution`: twice the cells per wavelength doubles the cell counts (grid, line,
+    edges, steps) and keeps every size in metres (the window, the line's length)."""
+    from pathlib import Path
+
+    scene = load_scene(Path(__file__).resolve().parents[1] / "data" / "scenes" / "fig02_polaroid.toml")
+    fine = scene.at_resolution(2 * scene.grid["cells_per_wavelength"])
+    assert fine.grid["cells_per_wavelength"] == 2 * scene.grid["cells_per_wavelength"]
+    assert fine.grid["shape"] == [2 * n for n in scene.grid["shape"]]
+    assert fine.transducers[0]["n_cells"] == 2 * scene.transducers[0]["n_cells"]
+    assert fine.edges["thickness_cells"] == 2 * scene.edges["thickness_cells"]
+    assert fine.run["n_steps"] == 2 * scene.run["n_steps"]
+    assert fine.transducers[0]["centre_m"] == scene.transducers[0]["centre_m"]
+    assert scene.at_resolution(scene.grid["cells_per_wavelength"]).grid == scene.grid

@@ -507,37 +507,10 @@ def _is_volume(kind) -> bool:
     return isinstance(kind, str) and kind in KINDS and KINDS[kind].ndim == 3
 
 
-def scaled_scene_data(data: dict, cells_per_wavelength: float) -> dict:
-    """Scene tables at another resolution (`apps.gallery.scale_scene_data`: cell and step counts
-    scale, metres and seconds stay), keeping a 3-D disc's per-ring weights and lags (its rings
-    are in metres, not cells)."""
-    from .gallery import scale_scene_data
-
-    cpw0 = float((data.get("grid") or {}).get("cells_per_wavelength", 20.0))
-    if not cells_per_wavelength > 0:
-        raise SceneError(f"cells_per_wavelength = {cells_per_wavelength}: give a resolution > 0")
-    out = scale_scene_data(data, cells_per_wavelength / cpw0)
-    out["grid"]["cells_per_wavelength"] = float(cells_per_wavelength)
-    if _is_volume((data.get("grid") or {}).get("kind")):
-        for t_new, t_old in zip(out.get("transducers", []), data.get("transducers", [])):
-            for key in ("weights", "lags_s"):
-                if key in t_old:
-                    t_new[key] = copy.deepcopy(t_old[key])
-    return out
-
-
 def load_scene_at(path, cells_per_wavelength: float | None = None) -> Scene:
-    """Read a scene file (any kind), at `cells_per_wavelength` if given (`scaled_scene_data`)."""
-    if cells_per_wavelength is None:
-        return load_scene(path)
-    p = Path(path)
-    try:
-        data = tomllib.loads(p.read_text())
-    except OSError as e:
-        raise SceneError(f"{p}: cannot read the scene file ({e.strerror})") from None
-    except tomllib.TOMLDecodeError as e:
-        raise SceneError(f"{p}: not valid TOML: {e}") from None
-    return parse_scene(scaled_scene_data(data, cells_per_wavelength), str(p))
+    """Read a scene file (any kind), at `cells_per_wavelength` if given (`Scene.at_resolution`)."""
+    scene = load_scene(path)
+    return scene if cells_per_wavelength is None else scene.at_resolution(cells_per_wavelength)
 
 
 # ------------------------------------------------------------------------------------------

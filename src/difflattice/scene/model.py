@@ -151,6 +151,13 @@ class Scene:
         return line + ("" if a["absorption"] else " -- not simulated ([air] absorption = false)")
 
     # ---------------------------------------------------------------------------------------
+    def at_resolution(self, cells_per_wavelength: float) -> Scene:
+        """This scene at `cells_per_wavelength` (cell and step counts scale, metres and seconds
+        stay: `scene.resolution`), validated again."""
+        from .resolution import scene_data_at
+
+        return parse_scene(scene_data_at(self.raw, cells_per_wavelength), self.path)
+
     @property
     def kind(self) -> LatticeKind:
         """The scene's lattice kind (`[grid] kind`)."""

@@ -14,7 +14,7 @@ from jax.flatten_util import ravel_pytree
 
 from .estimates import coefficient_unit
 from .model import ModelSpec, device_array, physical_of
-from .solve import FitResult, _flat_jacobian
+from .result import FitResult, _flat_jacobian
 
 NUISANCE = ("gain_db", "phase0_deg")
 """Offsets whose meaning depends on the lattice's unit source cell (no resolution term)."""

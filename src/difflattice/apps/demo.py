@@ -385,7 +385,7 @@ def recovery(rep: dict, truth: dict, model: str = "line") -> dict:
 def _truth_aperture_figure(rep: dict, truth: dict, path: Path) -> None:
     """Redraw the report's aperture plot with the truth overlaid (known here: emulated data)."""
     from .. import plots
-    from ..fit.report import aperture_figure
+    from ..fit.figures import aperture_figure
 
     d = rep["fit"]["parameters"]["diameter_m"] * 1e3
     plots.save(

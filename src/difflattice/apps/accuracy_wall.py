@@ -180,30 +180,8 @@ def run_wall(
         jax.block_until_ready(res.phasors)
         times.append(time.perf_counter() - t0)
     R = 1.0 if wall == "rigid" else -1.0
-    omega = grid.omega
-    n = np.arange(1, n_steps + 1)
-    v = np.asarray(sig(n * grid.dt_s), dtype=float)
-    V = np.sum(v * np.exp(1j * omega * n))
-    ref = V * image_source_reference(omega, c, rd, ri, R)
-    sim = np.asarray(res.phasors, dtype=complex)
-    rel_l2 = float(np.linalg.norm(sim - ref) / np.linalg.norm(ref))
-    # the same reference with the lattice's own wavenumber along each path (dispersion relation):
-    # what is left is the error that dispersion does not explain
-    ref_k = (
-        V
-        * np.exp(-1j * omega)
-        / c**2
-        * (
-            _green_2d(_path_k(omega, c, line, lay["source"]), rd)
-            + R * _green_2d(_path_k(omega, c, line, lay["image"]), ri)
-        )
-    )
-    rel_l2_k = float(np.linalg.norm(sim - ref_k) / np.linalg.norm(ref))
-    predicted_l2 = float(np.linalg.norm(ref_k - ref) / np.linalg.norm(ref))
-    ref_db = 20 * np.log10(np.abs(ref) / np.abs(ref).max())
-    sim_db = 20 * np.log10(np.abs(sim) / np.abs(sim).max())
-    loud = ref_db > -20
-    level_db = 20 * np.log10(np.linalg.norm(sim) / np.linalg.norm(ref))
+    v = np.asarray(sig(np.arange(1, n_steps + 1) * grid.dt_s), dtype=float)
+    field = _field_errors(np.asarray(res.phasors, dtype=complex), v, grid, lay, R)
     # echo arrival at the probe: cross-correlation with the reference in a window round the echo
     pd, pi = _distances(probe, lay["source"], lay["image"])
     p_sim = np.asarray(res.probes, dtype=float)[:, 0]
@@ -225,11 +203,7 @@ def run_wall(
         "wall_time_s": float(np.min(times[1:] or times)),
         "compile_and_run_s": times[0],
         "echo_path_wavelengths": float(pi[0] / lam),
-        "field_rel_l2_error": rel_l2,
-        "field_rel_l2_error_predicted": predicted_l2,
-        "field_rel_l2_error_after_dispersion": rel_l2_k,
-        "pattern_db_max_error": float(np.abs(sim_db - ref_db)[loud].max()),
-        "level_db_error": float(level_db),
+        **field,
         "echo_arrival_error_steps": float(shift),
         "echo_arrival_error_periods": float(shift / spp),
         "echo_arrival_error_us": float(shift * grid.dt_s * 1e6),
@@ -237,8 +211,40 @@ def run_wall(
         "echo_amplitude_db_error": float(20 * np.log10(np.abs(p_sim[w0:w1]).max() / np.abs(p_ref[w0:w1]).max())),
         "predicted_echo_phase_error_periods": phase_error_rad(cells_per_wavelength, c, float(pi[0] / lam))
         / (2 * math.pi),
-        "predicted_echo_delay_periods": echo_delay_periods(omega, c, probe[0], lay["image"]),
-        "predicted_echo_group_delay_periods": echo_delay_periods(omega, c, probe[0], lay["image"], group=True),
+        "predicted_echo_delay_periods": echo_delay_periods(grid.omega, c, probe[0], lay["image"]),
+        "predicted_echo_group_delay_periods": echo_delay_periods(grid.omega, c, probe[0], lay["image"], group=True),
+    }
+
+
+def _field_errors(sim: np.ndarray, v: np.ndarray, grid, lay: dict, R: float) -> dict:
+    """The line's phasors (`sim`) against the image-source reference of the drive `v`: relative L2
+    error, the part the lattice's dispersion predicts, the pattern and level errors (dB)."""
+    c, omega, line = grid.courant, grid.omega, lay["line"]
+    n = np.arange(1, len(v) + 1)
+    V = np.sum(v * np.exp(1j * omega * n))
+    rd, ri = _distances(line, lay["source"], lay["image"])
+    ref = V * image_source_reference(omega, c, rd, ri, R)
+    rel_l2 = float(np.linalg.norm(sim - ref) / np.linalg.norm(ref))
+    # the same reference with the lattice's own wavenumber along each path (dispersion relation):
+    # what is left is the error that dispersion does not explain
+    ref_k = (
+        V
+        * np.exp(-1j * omega)
+        / c**2
+        * (
+            _green_2d(_path_k(omega, c, line, lay["source"]), rd)
+            + R * _green_2d(_path_k(omega, c, line, lay["image"]), ri)
+        )
+    )
+    ref_db = 20 * np.log10(np.abs(ref) / np.abs(ref).max())
+    sim_db = 20 * np.log10(np.abs(sim) / np.abs(sim).max())
+    loud = ref_db > -20
+    return {
+        "field_rel_l2_error": rel_l2,
+        "field_rel_l2_error_predicted": float(np.linalg.norm(ref_k - ref) / np.linalg.norm(ref)),
+        "field_rel_l2_error_after_dispersion": float(np.linalg.norm(sim - ref_k) / np.linalg.norm(ref)),
+        "pattern_db_max_error": float(np.abs(sim_db - ref_db)[loud].max()),
+        "level_db_error": float(20 * np.log10(np.linalg.norm(sim) / np.linalg.norm(ref))),
     }
 
 

@@ -280,7 +280,6 @@ def write_outputs(
     an animation (`animation`: "gif", "mp4" or "none"; `animate=False` is "none"). `frames` and
     `animation` default to the scene's `[output]` section. Field images render every
     `sr.render_every`-th cell."""
-    from .. import plots
     from ..scene.model import ANIMATION_KINDS
     from . import datafiles
 
@@ -296,10 +295,21 @@ def write_outputs(
         animation = "none"
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    files = _write_data(sr, out, data_format)
+    files |= _write_images(sr, out, frames=bool(frames), animation=animation)
+    sr.summary["files"] = files
+    (out / "summary.json").write_text(json.dumps(sr.summary, indent=2, default=_json_default))
+    files["summary"] = str(out / "summary.json")
+    return files
+
+
+def _write_data(sr: SceneRun, out: Path, data_format: str) -> dict[str, str | list[str]]:
+    """sensors.npz / sensors.nc and the CSV tables (probes, lobe)."""
+    from . import datafiles
+
     g = sr.grid
     res = sr.result
     st = sr.stepper
-    every = sr.render_every
     files: dict[str, str | list[str]] = {}
     arrays = {"peak_history_pa": np.asarray(res.peak_history), "final_field_pa": np.asarray(res.final.pressure)}
     if res.probes is not None:
@@ -328,6 +338,18 @@ def write_outputs(
             datafiles.write_csv(out / "lobe.csv", {"angle_deg": sr.lobe[0], "level_db": sr.lobe[1]})
         )
 
+    return files
+
+
+def _write_images(sr: SceneRun, out: Path, *, frames: bool, animation: str) -> dict[str, str | list[str]]:
+    """field.png, the moments, peak level, lobe and probe plots, frames and the animation."""
+    from .. import plots
+
+    g = sr.grid
+    res = sr.result
+    st = sr.stepper
+    every = sr.render_every
+    files: dict[str, str | list[str]] = {}
     obst = obstacle_map(st)
     src_cells = [s.cells_array for s in st.sources]
     mirrored = g.kind.mirrored_view  # rz: show the whole meridian section, r from -R to R
@@ -406,9 +428,6 @@ def write_outputs(
                     **look,
                 )
             )
-    sr.summary["files"] = files
-    (out / "summary.json").write_text(json.dumps(sr.summary, indent=2, default=_json_default))
-    files["summary"] = str(out / "summary.json")
     return files
 
 

@@ -64,3 +64,18 @@ def test_runs_test_against_its_distribution():
     assert abs(np.mean(ps < 0.05) - 0.05) < 3 * np.sqrt(0.05 * 0.95 / 400) + 0.01  # + continuity correction
     x = np.linspace(-1, 1, 181)
     assert runs_test(np.sin(3 * np.pi * x) + 0.1 * rng.normal(size=181))[2] < 1e-6
+
+
+def test_chi2_survival_and_normal_cdf_match_their_closed_forms():
+    """The fit's p-values come from scipy.special's incomplete gamma (not scipy.stats, for start-up
+    time): against the closed forms Q(chi2 >= x | 2 dof) = exp(-x/2), Q(.. | 1 dof) = erfc(sqrt(x/2))
+    and Phi(z) = erfc(-z / sqrt 2) / 2 to rounding."""
+    import math
+
+    from difflattice.fit.goodness import chi2_sf, normal_cdf
+
+    for x in (0.0, 0.3, 2.0, 17.5, 80.0):
+        assert math.isclose(chi2_sf(x, 2), math.exp(-x / 2), rel_tol=1e-12, abs_tol=1e-300)
+        assert math.isclose(chi2_sf(x, 1), math.erfc(math.sqrt(x / 2)), rel_tol=1e-10, abs_tol=1e-300)
+    assert normal_cdf(0.0) == 0.5
+    assert math.isclose(normal_cdf(1.0) - normal_cdf(-1.0), 0.6826894921370859, rel_tol=1e-12)

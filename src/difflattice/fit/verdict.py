@@ -86,9 +86,9 @@ def fit_outcome(result: FitResult, budget=None) -> dict:
             else:  # smaller than the stated sigmas: the model describes the data at the stated noise
                 notes.append(f"{runs}, below the stated noise (chi2_red {s['chi2_reduced']:.3g})")
     if result.loss != "l2" and chi and result.variance_factor > 1:
-        from scipy.stats import chi2 as chi2_dist
+        from .goodness import chi2_sf
 
-        p = float(chi2_dist.sf(result.variance_factor * chi["dof"], chi["dof"]))
+        p = chi2_sf(result.variance_factor * chi["dof"], chi["dof"])
         if p < GOODNESS_P_MIN:
             reasons.append(f"{result.loss} variance factor {result.variance_factor:.3g}, p = {p:.2g}")
             hints.append("a richer model: the residuals exceed the noise beyond the outliers the loss sets aside")

@@ -44,13 +44,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal
+from typing import ClassVar, Literal
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from ..transforms import logit
+from .family import ModelFamily
 
 DiscProfile = Literal["uniform", "free", "smooth", "rim_taper"]
 DISC_PROFILES = ("uniform", "free", "smooth", "rim_taper")
@@ -135,7 +136,7 @@ def smooth_step(t):
 
 
 @dataclass(frozen=True)
-class DiscSpec:
+class DiscSpec(ModelFamily):
     """Static description of a disc model: `n_cells` ring cells (rings 0 .. n_cells - 1 from the
     axis) of width `dx_m` (the lattice's cell size; the field names are `ModelSpec`'s, so code
     written for the line model, e.g. a refit at another resolution by `dataclasses.replace(spec,
@@ -161,7 +162,7 @@ class DiscSpec:
     rim: Literal["moments", "area"] = "moments"
     baffle: Literal["rigid", "none", "can"] = "rigid"
 
-    kind = "disc"  # model family, for reports (a class attribute, not a field)
+    kind: ClassVar[str] = "disc"  # the family's name (a class attribute, not a field)
     symmetric = True  # a disc is symmetric about its axis (ModelSpec's field, for reports)
 
     def __post_init__(self):

@@ -20,7 +20,7 @@ from .transfer import Transfer
 def model_family(spec) -> str:
     """The model family of a spec: "disc" (`fit.disc.DiscSpec`, rings on the axisymmetric
     lattice) or "line" (`fit.model.ModelSpec`, a line of cells on the 2-D lattice)."""
-    return str(getattr(spec, "kind", "line"))
+    return str(spec.kind)
 
 
 def aperture_figure(ap: dict, *, truth: dict | None = None, title: str = "fitted aperture"):

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Literal
+from typing import ClassVar, Literal
 
 import equinox as eqx
 import jax
@@ -28,6 +28,7 @@ import numpy as np
 from jaxtyping import Array
 
 from ..transforms import logit
+from .family import ModelFamily
 
 
 def device_array(x) -> Array:
@@ -43,8 +44,11 @@ PROFILES = ("uniform", "free", "symmetric", "smooth")
 
 
 @dataclass(frozen=True)
-class ModelSpec:
-    """Static description of a transducer model (what is fitted, how)."""
+class ModelSpec(ModelFamily):
+    """The line family: a line of `n_cells` source cells of pitch `dx_m` on the 2-D lattice (static
+    description: what is fitted, how)."""
+
+    kind: ClassVar[str] = "line"
 
     n_cells: int
     dx_m: float

@@ -269,7 +269,7 @@ def _field_image_args(fitted: FitResult, transfer: Transfer) -> tuple[tuple, dic
         from .transfer_disc import disc_field_image_args
 
         return disc_field_image_args(fitted, cast(Any, transfer))
-    import jax.numpy as jnp
+    import jax
 
     from ..lattice.grid import make_grid
     from ..lattice.medium import Medium
@@ -293,8 +293,8 @@ def _field_image_args(fitted: FitResult, transfer: Transfer) -> tuple[tuple, dic
         (30 * grid.dx_m, ny / 2 * grid.dx_m),
         n_cells=n,
         signal=ToneBurst(g0.frequency_hz, 8),
-        weights=jnp.asarray(ph["weights"], jnp.float32),
-        lags_s=jnp.asarray(ph["lags_s"], jnp.float32),
+        weights=jax.device_put(np.asarray(ph["weights"], np.float32)),  # a transfer, not a program
+        lags_s=jax.device_put(np.asarray(ph["lags_s"], np.float32)),
     )
     steps = int((nx - 60) / grid.courant)
     res = simulate(grid, Medium(g0.c_max_m_s, 1.2), src, Sensors(), n_steps=steps)

@@ -11,7 +11,6 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.flatten_util import ravel_pytree
 
 from .data import LobeData, WaveData
 from .goodness import (
@@ -208,9 +207,8 @@ def _result(
     """Assemble the `FitResult` of a solve from its stages (the last one's point is the solution)."""
     last = stages[-1][1]
     params = jax.block_until_ready(last.y)
-    y, _ = ravel_pytree(params)
     warnings = []
-    finite = bool(np.all(np.isfinite(np.asarray(y))))
+    finite = all(bool(np.all(np.isfinite(np.asarray(v)))) for v in jax.tree_util.tree_leaves(params))
     r = np.asarray(_residuals(problem, params))
     converged = last.converged
     if not finite or not np.all(np.isfinite(r)):

@@ -121,7 +121,11 @@ def _step(solver, y, state, args):
     done, result = solver.terminate(fn, y_new, args, _SOLVER_OPTIONS, state, frozenset())
     r, _ = _residual_aux(y_new, args)
     moved = jnp.any(ravel_pytree(y_new)[0] != ravel_pytree(y)[0])
-    return y_new, state, done, result, r, moved
+    # optimistix's verdict as an index into _RESULT_NAMES, computed here: compared outside, each
+    # `result == RESULTS.x` would be an eager program of its own in a fresh process
+    codes = [getattr(optx.RESULTS, n) for n in _RESULT_NAMES]
+    code = jnp.argmax(jnp.stack([result == c for c in codes] + [jnp.asarray(True)]))
+    return y_new, state, done, code, r, moved
 
 
 def _free(y: dict, hold: frozenset) -> dict:
@@ -166,7 +170,7 @@ def _run_stage(
     since = 0
     for k in range(1, options.max_steps + 1):
         t0 = time.perf_counter()
-        y, state, done, result, r, moved = _step(solver, y, state, args)
+        y, state, done, result_index, r, moved = _step(solver, y, state, args)
         r = np.asarray(r)
         times.append(time.perf_counter() - t0)
         cost = 0.5 * float(r @ r)
@@ -183,8 +187,8 @@ def _run_stage(
         if moved:
             hist.append((cost, r))
         if bool(done):
-            conv = bool(result == optx.RESULTS.successful)
-            code = _result_name(result)
+            code = _result_name(int(result_index))
+            conv = code == "successful"
             reason = "optimistix's rtol/atol test passed" if conv else f"optimistix stopped: {code}"
             break
         if len(hist) > w:
@@ -255,15 +259,18 @@ def _run_stage(
 def _relaxed(problem: Problem, lobe_sigma_db: float = 1.0, wave_sigma_rad: float = math.radians(5.0)) -> Problem:
     """The same problem with sigmas floored: a smoother cost for the first stage of the fit."""
     out = problem
+    # on the host (eager jnp.maximum would be a program of its own in every fresh process)
     if problem.lobe_sigma is not None:
-        out = eqx.tree_at(lambda q: q.lobe_sigma, out, jnp.maximum(problem.lobe_sigma, lobe_sigma_db))
+        floored = device_array(np.maximum(np.asarray(problem.lobe_sigma), lobe_sigma_db))
+        out = eqx.tree_at(lambda q: q.lobe_sigma, out, floored)
     if problem.wave_sigma is not None:
-        out = eqx.tree_at(lambda q: q.wave_sigma, out, jnp.maximum(problem.wave_sigma, wave_sigma_rad))
+        floored = device_array(np.maximum(np.asarray(problem.wave_sigma), wave_sigma_rad))
+        out = eqx.tree_at(lambda q: q.wave_sigma, out, floored)
     return out
 
 
 def _finite(tree) -> bool:
-    return bool(np.all(np.isfinite(np.asarray(ravel_pytree(tree)[0]))))
+    return all(bool(np.all(np.isfinite(np.asarray(v)))) for v in jax.tree_util.tree_leaves(tree))
 
 
 def fit(
@@ -333,8 +340,9 @@ def _fit_stages(
     return out
 
 
-def _result_name(result) -> str:
-    for name in (
+_RESULT_NAMES = tuple(
+    n
+    for n in (
         "successful",
         "max_steps_reached",
         "nonlinear_max_steps_reached",
@@ -342,8 +350,11 @@ def _result_name(result) -> str:
         "singular",
         "breakdown",
         "nonfinite",
-    ):
-        v = getattr(optx.RESULTS, name, None)
-        if v is not None and result == v:
-            return name
-    return str(result)
+    )
+    if getattr(optx.RESULTS, n, None) is not None
+)
+
+
+def _result_name(index: int) -> str:
+    """The name of optimistix's verdict from `_step`'s index ("other" for one not listed)."""
+    return _RESULT_NAMES[index] if index < len(_RESULT_NAMES) else "other"

@@ -183,21 +183,52 @@ def _accuracy(args) -> int:
     return 0
 
 
+def _design_constraints(args):
+    """The maker constraints of `difflattice design`: the preset's, overridden by the options (mm)."""
+    import dataclasses
+
+    from .design import presets
+
+    c = presets.HORN_CONSTRAINTS if args.what == "horn" else presets.REFLECTOR_CONSTRAINTS
+    mm = {
+        "max_length_m": args.max_length_mm,
+        "max_mouth_diameter_m": args.max_mouth_mm,
+        "min_wall_m": args.min_wall_mm,
+        "can_diameter_m": args.can_diameter_mm,
+        "can_clearance_m": args.can_clearance_mm,
+    }
+    upd = {k: v * 1e-3 for k, v in mm.items() if v is not None}
+    if args.max_overhang_deg is not None:
+        upd["max_overhang_deg"] = args.max_overhang_deg
+    return dataclasses.replace(c, **upd)
+
+
 def _design(args) -> int:
     from .design import presets
 
+    try:
+        constraints = _design_constraints(args)
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     kw = dict(
         cells_per_wavelength=args.cells_per_wavelength,
         wall=args.wall,
         steps=args.steps,
         check_gradients=not args.no_gradient_check,
         progress=not args.quiet,
+        constraints=constraints,
+        lattice=args.lattice,
     )
-    if args.what == "horn":
-        s = presets.design_horn(args.out, target_deg=args.target_deg, **kw)
-    else:
-        s = presets.design_reflector(args.out, **kw)
-    print(f"{presets.one_line(s)}; wrote {args.out}/report.md and the part {s['part']['stl']}")
+    try:
+        if args.what == "horn":
+            s = presets.design_horn(args.out, target_deg=args.target_deg, **kw)
+        else:
+            s = presets.design_reflector(args.out, **kw)
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    print(f"{presets.one_line(s)}\nwrote {args.out}/report.md and the part {s['part']['stl']}")
     return 0
 
 
@@ -383,6 +414,24 @@ def build_parser() -> argparse.ArgumentParser:
     z.add_argument("--wall", default="soft", help="soft (the paper's speed-zero walls), rigid or a fluid material")
     z.add_argument("--steps", type=int, default=15, help="BFGS steps")
     z.add_argument("--no-gradient-check", action="store_true", help="skip the finite-difference check of the gradient")
+    z.add_argument(
+        "--lattice", choices=["2d", "rz"], default="2d", help="2d (a slot, extruded) or rz (a body of revolution)"
+    )
+    z.add_argument("--max-length-mm", type=float, default=None, help="the part's largest extent along the axis, mm")
+    z.add_argument("--max-mouth-mm", type=float, default=None, help="the part's largest outer mouth diameter, mm")
+    z.add_argument("--min-wall-mm", type=float, default=None, help="the thinnest wall the printer makes, mm")
+    z.add_argument(
+        "--can-diameter-mm", type=float, default=None, help="horn: the transducer's can; fixes the throat, mm"
+    )
+    z.add_argument(
+        "--can-clearance-mm", type=float, default=None, help="horn: clearance around the can either side, mm"
+    )
+    z.add_argument(
+        "--max-overhang-deg",
+        type=float,
+        default=None,
+        help="steepest printable overhang from vertical (part z up), deg",
+    )
     z.set_defaults(func=_design)
 
     b = sub.add_parser(

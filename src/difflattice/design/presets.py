@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from .constraints import MakerConstraints, constraints_line, limits_for, project
 from .objectives import Goal
 from .problem import horn_design, reflector_design
 from .shapes import HornLimits, HornParams, ReflectorLimits, ReflectorParams
@@ -35,6 +36,18 @@ REFLECTOR_LIMITS = ReflectorLimits(
     focal_min_m=0.025, focal_max_m=0.080, aperture_min_m=0.100, aperture_max_m=0.220, wall_min_m=0.002, wall_max_m=0.004
 )
 
+HORN_CONSTRAINTS = MakerConstraints(
+    max_length_m=0.166, max_mouth_diameter_m=0.098, min_wall_m=0.002, max_overhang_deg=45.0
+)
+"""`difflattice design horn`'s default part limits: they reproduce HORN_LIMITS (length <= 160 mm
++ 1.5 walls, inner mouth <= 90 mm + 2 walls) and add the printing overhang."""
+
+REFLECTOR_CONSTRAINTS = MakerConstraints(
+    max_length_m=0.060, max_mouth_diameter_m=0.228, min_wall_m=0.002, max_overhang_deg=45.0
+)
+"""`difflattice design reflector`'s default part limits (aperture <= 220 mm + 2 walls, depth
+<= 60 mm)."""
+
 
 def design_horn(
     out: str | Path,
@@ -45,17 +58,28 @@ def design_horn(
     steps: int = 15,
     check_gradients: bool = True,
     progress: bool = True,
+    constraints: MakerConstraints | None = None,
+    lattice: str = "2d",
 ) -> dict:
-    """Horn for a target -6 dB width at 1 m from the Fig. 9 cone; free: mouth, length, flare."""
+    """Horn for a target -6 dB width at 1 m from the Fig. 9 cone; free: mouth, length, flare
+    (and the throat unless `constraints` fixes it at the transducer's can)."""
     from .study import run_study
 
+    c = HORN_CONSTRAINTS if constraints is None else constraints
+    limits = limits_for(c, HORN_LIMITS)
     pb = horn_design(
-        limits=HORN_LIMITS, face_m=PAPER_FACE_M, cells_per_wavelength=cells_per_wavelength, wall=wall, cycles=5.0
+        limits=limits,
+        face_m=PAPER_FACE_M,
+        cells_per_wavelength=cells_per_wavelength,
+        wall=wall,
+        cycles=5.0,
+        constraints=c,
+        lattice=lattice,
     )
     goal = Goal(width_target_deg=target_deg, width_weight=1.0, width_scale_deg=1.0)
     return run_study(
         pb,
-        FIG09_CONE,
+        project(limits, FIG09_CONE),
         goal,
         out,
         title=f"Horn for a {target_deg:g} deg beam (from the Fig. 9 cone, {wall} walls)",
@@ -74,16 +98,26 @@ def design_reflector(
     steps: int = 15,
     check_gradients: bool = True,
     progress: bool = True,
+    constraints: MakerConstraints | None = None,
+    lattice: str = "2d",
 ) -> dict:
     """Reflector for on-axis gain at 1 m from the Fig. 10 parabola; free: focal length, aperture."""
     from .study import run_study
 
+    c = REFLECTOR_CONSTRAINTS if constraints is None else constraints
+    limits = limits_for(c, REFLECTOR_LIMITS)
     pb = reflector_design(
-        limits=REFLECTOR_LIMITS, face_m=PAPER_FACE_M, cells_per_wavelength=cells_per_wavelength, wall=wall, cycles=10.0
+        limits=limits,
+        face_m=PAPER_FACE_M,
+        cells_per_wavelength=cells_per_wavelength,
+        wall=wall,
+        cycles=10.0,
+        constraints=c,
+        lattice=lattice,
     )
     return run_study(
         pb,
-        FIG10_PARABOLA,
+        project(limits, FIG10_PARABOLA),
         Goal(gain_weight=1.0),
         out,
         title=f"Reflector for on-axis gain (from the Fig. 10 parabola, {wall} walls)",
@@ -101,4 +135,5 @@ def one_line(summary: dict) -> str:
         f"-6 dB width {a['beam_width_deg']:.2f} -> {b['beam_width_deg']:.2f} deg; on-axis gain {a['on_axis_db']:+.2f} -> "
         f"{b['on_axis_db']:+.2f} dB; loss {o['loss_start']:.4g} -> {o['loss_best']:.4g}; {o['optimiser_steps']} steps, "
         f"{o['wall_s']:.0f} s; converged: {o['converged']}; {trust_line(summary['trust'])}"
+        + (f"\n{constraints_line(summary['part']['constraints'])}" if "part" in summary else "")
     )

@@ -37,6 +37,7 @@ from ..observe.farfield_rz import CylinderSurface, field_at_rz
 from ..solver.loop import simulate
 from ..solver.sensors import Sensors
 from ..solver.sources import PointSources, ToneBurst, line_transducer, ring_fractions
+from .constraints import MakerConstraints, penalty
 from .objectives import Goal, pattern_metrics
 from .shapes import HornLimits, ReflectorLimits
 
@@ -69,6 +70,8 @@ class DesignProblem(eqx.Module):
     ramp_cells: float = eqx.field(static=True, default=1.0)
     lattice: LatticeKind = eqx.field(static=True, default=PLANE, converter=as_kind)
     face_m: float = eqx.field(static=True, default=0.0)
+    constraints: MakerConstraints | None = eqx.field(static=True, default=None)
+    frequencies_hz: tuple[float, ...] = eqx.field(static=True, default=())
 
     # -- pieces --------------------------------------------------------------------------------
     def source(self):
@@ -173,7 +176,11 @@ class DesignProblem(eqx.Module):
         return self.metrics_of(self.pattern(params))
 
     def loss(self, params, goal: Goal):
-        return goal.loss(self.metrics(params))
+        """The goal's loss plus the maker constraints' penalties (`constraints.penalty`)."""
+        return goal.loss(self.metrics(params)) + self.penalty(params)
+
+    def penalty(self, params):
+        return penalty(self.constraints, params, ring_metric=self.lattice.ring_metric)
 
     def fields(self, params, snapshot_every: int):
         """A forward run for pictures: (snapshots, snapshot steps, p_max) as numpy arrays."""
@@ -233,6 +240,7 @@ def _finish(
     reference,
     lattice: LatticeKind = PLANE,
     face_m=0.0,
+    constraints: MakerConstraints | None = None,
 ) -> DesignProblem:
     n_a = int(round(360.0 / angle_step_deg))
     if abs(n_a * angle_step_deg - 360.0) > 1e-9 or n_a % 2:
@@ -264,6 +272,7 @@ def _finish(
         sector_deg=sector_deg,
         lattice=lattice,
         face_m=face_m,
+        constraints=constraints,
     )
     bare = DesignProblem(**args)
     if not reference:
@@ -359,6 +368,7 @@ def horn_design(
     reference: bool = True,
     lattice: LatticeKind | str = "2d",
     stencil: str = "standard",
+    constraints: MakerConstraints | None = None,
 ) -> DesignProblem:
     """A horn problem: a line transducer of diameter `face_m` facing +x at the throat of any horn
     within `limits` (``lattice="rz"``: a disc of diameter `face_m` facing +z in a horn of
@@ -404,6 +414,7 @@ def horn_design(
         reference,
         lattice,
         face_m,
+        constraints,
     )
 
 
@@ -426,6 +437,7 @@ def reflector_design(
     reference: bool = True,
     lattice: LatticeKind | str = "2d",
     stencil: str = "standard",
+    constraints: MakerConstraints | None = None,
 ) -> DesignProblem:
     """A reflector problem: a line transducer of diameter `face_m` at the focus of a parabolic
     mirror opening towards +x, facing the vertex (as the paper's Fig. 10); ``lattice="rz"``: a disc
@@ -473,6 +485,7 @@ def reflector_design(
         reference,
         lattice,
         face_m,
+        constraints,
     )
 
 

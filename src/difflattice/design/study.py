@@ -173,4 +173,28 @@ def markdown(s: dict, problem: DesignProblem) -> str:
             f"outlines `{Path(part['profile_csv']).name}`.",
             "",
         ]
+        lines += constraints_table(part.get("constraints", []))
     return "\n".join(lines)
+
+
+def constraints_table(rows: list[dict]) -> list[str]:
+    """Markdown rows: each maker constraint, its limit, the part's value, met / active."""
+    if not rows:
+        return []
+    out = [
+        "Constraints, measured on the exported part (active: the design sits on the optimiser's bound or penalty):",
+        "",
+        "| constraint | limit | part | met | active | enforced by |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        unit, s = ("deg", 1.0) if r["constraint"].endswith("_deg") else ("mm", 1e3)
+        if r["constraint"] == "no_self_intersection":
+            unit, s = ("mm^2", 1e6)
+        op = "<=" if r["kind"] == "max" else ">="
+        lim = "-" if r["limit"] is None else f"{op} {r['limit'] * s:.2f} {unit}"
+        out.append(
+            f"| {r['constraint']} | {lim} | {r['part'] * s:.2f} {unit} | {r['satisfied']} | {r['active']} | "
+            f"{r['enforced_by']} |"
+        )
+    return out + [""]

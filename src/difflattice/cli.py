@@ -205,6 +205,7 @@ def _design_constraints(args):
 
 def _design(args) -> int:
     from .design import presets
+    from .design.study import trust_line
 
     try:
         constraints = _design_constraints(args)
@@ -220,6 +221,28 @@ def _design(args) -> int:
         constraints=constraints,
         lattice=args.lattice,
     )
+    if args.resolution == "auto":
+        kw["cells_per_wavelength"] = "auto"
+        kw["max_cells_per_wavelength"] = args.max_cells_per_wavelength
+    band = None
+    if args.band is not None:
+        band = args.band if args.band == "burst" else [float(f) for f in args.band.split(",")]
+    if args.what == "compare":
+        from .design.band import compare_band
+
+        try:
+            s = compare_band(
+                args.out,
+                target_deg=args.target_deg,
+                band=band or "burst",
+                **{k: v for k, v in kw.items() if k != "check_gradients"},
+            )
+        except ValueError as e:
+            print(f"error: {e}", file=sys.stderr)
+            return 2
+        print(f"{s['verdict']}\n{trust_line(s['trust'])}\nwrote {args.out}/compare.md")
+        return 0
+    kw["band"] = band
     try:
         if args.what == "horn":
             s = presets.design_horn(args.out, target_deg=args.target_deg, **kw)
@@ -407,9 +430,30 @@ def build_parser() -> argparse.ArgumentParser:
     z = sub.add_parser(
         "design", help="optimise a horn (target beam width) or a reflector (on-axis gain) from the paper's shapes"
     )
-    z.add_argument("what", choices=["horn", "reflector"], help="what to design")
+    z.add_argument(
+        "what",
+        choices=["horn", "reflector", "compare"],
+        help="what to design; compare: a horn designed at the carrier beside one designed over the burst's band, "
+        "both re-simulated with the burst",
+    )
+    z.add_argument(
+        "--band",
+        default=None,
+        help="design over a band: 'burst' (the 5-cycle burst's -6 dB band, weighted by its spectrum) or "
+        "frequencies in Hz, comma-separated; default: the carrier alone",
+    )
     z.add_argument("--out", type=Path, required=True, help="report directory")
     z.add_argument("--cells-per-wavelength", type=float, default=8.0, help="lattice resolution of the design runs")
+    z.add_argument(
+        "--resolution",
+        choices=["fixed", "auto"],
+        default="fixed",
+        help="auto: the coarsest resolution whose expected phase error is under the trust threshold "
+        "(up to --max-cells-per-wavelength; the run says if even that is not enough)",
+    )
+    z.add_argument(
+        "--max-cells-per-wavelength", type=float, default=24.0, help="with --resolution auto: the finest it may choose"
+    )
     z.add_argument("--target-deg", type=float, default=8.0, help="horn: target -6 dB beam width at 1 m, deg")
     z.add_argument("--wall", default="soft", help="soft (the paper's speed-zero walls), rigid or a fluid material")
     z.add_argument("--steps", type=int, default=15, help="BFGS steps")

@@ -13,6 +13,7 @@ at every band frequency and of the energy pattern are tabled.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import jax
 import numpy as np
@@ -111,7 +112,7 @@ def compare_band(
     both re-simulated with the burst; writes `compare.json` and `compare.md` to `out`."""
     c = HORN_CONSTRAINTS if constraints is None else constraints
     limits = limits_for(c, HORN_LIMITS)
-    kw = dict(
+    kw: dict[str, Any] = dict(
         limits=limits,
         face_m=PAPER_FACE_M,
         cells_per_wavelength=cells_per_wavelength,

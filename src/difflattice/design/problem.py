@@ -187,6 +187,7 @@ class DesignProblem(eqx.Module):
         zc = self.anchor_m[0] / g.dx_m
         rc = rng / g.dx_m
         pts = np.stack([zc + rc * np.cos(th), rc * np.sin(th)], 1)
+        assert isinstance(self.contour, CylinderSurface)  # an rz problem's surface (`_layout`)
         return field_at_rz(phasors, self.contour, g, pts, dispersion="continuum", frequency_hz=frequency_hz)[inv]
 
     def metrics_of(self, pattern) -> dict:
@@ -338,13 +339,13 @@ def band_frequencies(
         fine = np.linspace(0.2 * frequency_hz, 1.8 * frequency_hz, 4001)
         e = spec(fine)
         inside = fine[e >= e.max() * 10 ** (-drop_db / 10)]
-        freqs = np.linspace(inside.min(), inside.max(), n)
-        w = spec(freqs)
-        return tuple(float(f) for f in freqs), tuple(float(v) for v in w / w.sum())
-    freqs = tuple(float(f) for f in band)
-    if not freqs or not all(math.isfinite(f) and f > 0 for f in freqs):
+        grid_f = np.linspace(inside.min(), inside.max(), n)
+        w = spec(grid_f)
+        return tuple(float(f) for f in grid_f), tuple(float(v) for v in w / w.sum())
+    listed = tuple(float(f) for f in band)
+    if not listed or not all(math.isfinite(f) and f > 0 for f in listed):
         raise ValueError(f"band = {band!r}: give 'burst' or a non-empty list of positive frequencies in Hz")
-    return freqs, tuple(1.0 / len(freqs) for _ in freqs)
+    return listed, tuple(1.0 / len(listed) for _ in listed)
 
 
 def _check_wall_resolved(wall_min_m: float, dx: float) -> None:

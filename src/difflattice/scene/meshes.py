@@ -23,6 +23,33 @@ _ROUND = 9
 triangle's segment meets the start of its neighbour's."""
 
 
+_WELD = 1e-6
+"""Section points closer than this fraction of the mesh's size are one point: a float32 STL
+(7 digits) puts the two ends of one triangle edge's section a few 1e-7 of the size apart."""
+
+
+def _weld(segments: np.ndarray, tol: float) -> np.ndarray:
+    """`segments` (n, 2, 2) with every endpoint replaced by the first of its cluster of endpoints
+    within `tol` (union-find over a k-d tree's close pairs), so neighbouring triangles' sections join."""
+    from scipy.spatial import cKDTree
+
+    pts = segments.reshape(-1, 2)
+    parent = np.arange(len(pts))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for i, j in cKDTree(pts).query_pairs(tol):
+        a, b = root(i), root(j)
+        if a != b:
+            parent[max(a, b)] = min(a, b)
+    reps = np.array([root(i) for i in range(len(pts))])
+    return pts[reps].reshape(segments.shape)
+
+
 def mesh_outlines(
     path: str | Path, *, axisymmetric: bool, unit: str = "mm"
 ) -> list[tuple[np.ndarray, list[np.ndarray]]]:
@@ -56,8 +83,8 @@ def mesh_outlines(
         uv = np.stack([segs[..., 2], segs[..., 0] * math.cos(phi) + segs[..., 1] * math.sin(phi)], axis=-1)
     else:
         uv = segs[..., :2]
-    uv = np.round(uv, _ROUND)
-    polys = list(polygonize([LineString(s) for s in uv if not np.allclose(s[0], s[1])]))
+    uv = _weld(np.round(uv, _ROUND), _WELD * float(np.ptp(np.asarray(mesh.vertices))))
+    polys = list(polygonize([LineString(s) for s in uv if not np.array_equal(s[0], s[1])]))
     shape = unary_union(polys)
     if axisymmetric:
         shape = shape.intersection(box(-1e12, 0.0, 1e12, 1e12))

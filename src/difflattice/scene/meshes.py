@@ -4,7 +4,8 @@ A plane (2-D) scene takes the mesh's section by the plane z = 0 (an extruded par
 `design.parts`, is its outline); an axisymmetric (rz) scene takes the section by a half-plane
 that contains the mesh's z axis (the axis of revolution), as (z, r) outlines: a body of
 revolution is its meridian profile. The outlines become polygon objects, rasterised with cut
-cells like the built-in shapes.
+cells like the built-in shapes. A 3-D scene takes the whole mesh (`load_closed_mesh`) as a
+`lattice.geometry3d.MeshSolid`.
 """
 
 from __future__ import annotations
@@ -48,6 +49,25 @@ def _weld(segments: np.ndarray, tol: float) -> np.ndarray:
             parent[max(a, b)] = min(a, b)
     reps = np.array([root(i) for i in range(len(pts))])
     return pts[reps].reshape(segments.shape)
+
+
+def load_closed_mesh(path: str | Path, unit: str = "mm") -> tuple[np.ndarray, np.ndarray]:
+    """(vertices in metres (n, 3), faces (m, 3)) of a watertight mesh file; ValueError naming the
+    problem (unknown unit, unreadable file, no triangles, open edges) otherwise."""
+    import trimesh
+
+    if unit not in UNITS_M:
+        raise ValueError(f"unit = {unit!r}; allowed: {', '.join(UNITS_M)}")
+    p = Path(path)
+    try:
+        mesh: Any = trimesh.load(p, force="mesh")
+    except (OSError, ValueError) as err:
+        raise ValueError(f"cannot read the mesh file {p}: {err}") from None
+    if len(mesh.faces) == 0:
+        raise ValueError(f"{p} holds no triangles")
+    if not mesh.is_watertight:
+        raise ValueError(f"{p} is not watertight (open edges): it has no inside; close the mesh")
+    return np.asarray(mesh.vertices, float) * UNITS_M[unit], np.asarray(mesh.faces, np.int64)
 
 
 def mesh_outlines(

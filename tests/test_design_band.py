@@ -47,3 +47,23 @@ def test_verdict_names_the_narrower_design_over_the_band():
     }
     v = verdict(t, "a", "b")
     assert "the b design is narrower" in v and "a narrower at 2 of 3" in v and "b at 1" in v
+
+
+def test_resolution_auto_is_the_coarsest_under_the_trust_threshold():
+    """`--resolution auto`: the chosen resolution's expected phase error is under the threshold
+    and one cell per wavelength coarser is not; a ceiling below it is used and said to be not
+    enough. (Problems are built without simulating: the estimate needs only the grid and run.)"""
+    from difflattice.design.study import TRUST_PHASE_ERROR_PERIODS, choose_resolution, trust_estimate
+
+    def build(n):
+        return horn_design(limits=HORN_LIMITS, face_m=PAPER_FACE_M, cells_per_wavelength=n, reference=False)
+
+    cpw, t, note = choose_resolution(build, 8.0, 40.0)
+    assert (
+        t["expected_phase_error_periods"]
+        <= TRUST_PHASE_ERROR_PERIODS
+        < trust_estimate(build(cpw - 1))["expected_phase_error_periods"]
+    )
+    assert "the coarsest under the trust threshold" in note
+    cpw, t, note = choose_resolution(build, 8.0, 10.0)
+    assert cpw == 10.0 and not t["trustworthy"] and "is above the trust threshold" in note

@@ -183,24 +183,6 @@ def _accuracy(args) -> int:
     return 0
 
 
-def _design(args) -> int:
-    from .design import presets
-
-    kw = dict(
-        cells_per_wavelength=args.cells_per_wavelength,
-        wall=args.wall,
-        steps=args.steps,
-        check_gradients=not args.no_gradient_check,
-        progress=not args.quiet,
-    )
-    if args.what == "horn":
-        s = presets.design_horn(args.out, target_deg=args.target_deg, **kw)
-    else:
-        s = presets.design_reflector(args.out, **kw)
-    print(f"{presets.one_line(s)}; wrote {args.out}/report.md and the part {s['part']['stl']}")
-    return 0
-
-
 def _bench(args) -> int:  # issue 15: forward speed, interleaved with the reference loops
     from .apps.bench import bench, markdown
 
@@ -373,17 +355,9 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--out", type=Path, default=Path("out/accuracy"), help="output directory")
     a.set_defaults(func=_accuracy)
 
-    z = sub.add_parser(
-        "design", help="optimise a horn (target beam width) or a reflector (on-axis gain) from the paper's shapes"
-    )
-    z.add_argument("what", choices=["horn", "reflector"], help="what to design")
-    z.add_argument("--out", type=Path, required=True, help="report directory")
-    z.add_argument("--cells-per-wavelength", type=float, default=8.0, help="lattice resolution of the design runs")
-    z.add_argument("--target-deg", type=float, default=8.0, help="horn: target -6 dB beam width at 1 m, deg")
-    z.add_argument("--wall", default="soft", help="soft (the paper's speed-zero walls), rigid or a fluid material")
-    z.add_argument("--steps", type=int, default=15, help="BFGS steps")
-    z.add_argument("--no-gradient-check", action="store_true", help="skip the finite-difference check of the gradient")
-    z.set_defaults(func=_design)
+    from .apps.design_job import add_parser as _add_design_parser
+
+    _add_design_parser(sub)
 
     b = sub.add_parser(
         "bench", help="forward speed (MLUPS) of the time loop: native, JAX and, with --reference, numba/NumPy"

@@ -70,7 +70,7 @@ def optimise(
     first_step: float = 0.5,
     progress: bool = True,
 ) -> DesignResult:
-    """Minimise `goal.loss(problem.metrics(design))` from `start` over the `free` parameters
+    """Minimise `goal.loss(problem.metrics(design))` (plus the constraints' penalties) from `start` over the `free` parameters
     (default: all) with BFGS; returns a `DesignResult` (best accepted design). The loss is scaled
     so that the first step moves u (the sigmoid/tanh arguments) by `first_step`. `history` lists
     the accepted iterates (a step whose trial point the line search rejects repeats the last one)."""
@@ -94,7 +94,7 @@ def optimise(
     def raw(v):
         params = unpack(v)
         m = problem.metrics(params)
-        return goal.loss(m), (m, params)
+        return goal.loss(m) + problem.penalty(params), (m, params)
 
     def fn(v, scale):
         loss, (m, params) = raw(v)

@@ -137,7 +137,8 @@ def check_watertight(mesh) -> dict:
 def write_parts(problem: DesignProblem, params, out_dir: str | Path, *, name: str | None = None, **kwargs) -> dict:
     """Write `<name>.stl` (millimetres) and `<name>_profile.csv` (the wall outlines, one row per
     vertex: wall index and coordinates in mm) into `out_dir`; returns their paths and the mesh
-    checks. Refuses (ValueError) a mesh that fails `check_watertight`."""
+    checks, and the maker constraints measured on the part (`constraints.part_report`). Refuses
+    (ValueError) a mesh that fails `check_watertight`."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     name = name or problem.kind
@@ -154,4 +155,17 @@ def write_parts(problem: DesignProblem, params, out_dir: str | Path, *, name: st
     csv = out / f"{name}_profile.csv"
     csv.write_text("\n".join(rows) + "\n")
     bounds = np.asarray(mesh.bounds, float)
-    return {"stl": str(stl), "profile_csv": str(csv), "bounds_mm": bounds.tolist(), **checks}
+    from .constraints import part_report
+
+    report = part_report(problem, params, mesh, wall_outlines(problem, params), problem.constraints)
+    return {"stl": str(stl), "profile_csv": str(csv), "bounds_mm": bounds.tolist(), **checks, "constraints": report}
+
+
+def read_profile(path: str | Path) -> list[np.ndarray]:
+    """The wall outlines of a `<name>_profile.csv`, in metres (as `wall_outlines` returns them)."""
+    lines = Path(path).read_text().splitlines()[1:]
+    walls: dict[int, list[tuple[float, float]]] = {}
+    for ln in lines:
+        i, a, b = ln.split(",")
+        walls.setdefault(int(i), []).append((float(a) / MM_PER_M, float(b) / MM_PER_M))
+    return [np.asarray(walls[k]) for k in sorted(walls)]

@@ -37,6 +37,7 @@ from ..observe.farfield_rz import CylinderSurface, field_at_rz
 from ..solver.loop import simulate
 from ..solver.sensors import Sensors
 from ..solver.sources import PointSources, ToneBurst, line_transducer, ring_fractions
+from .constraints import MakerConstraints, penalty
 from .objectives import Goal, pattern_metrics
 from .shapes import HornLimits, ReflectorLimits
 
@@ -69,6 +70,9 @@ class DesignProblem(eqx.Module):
     ramp_cells: float = eqx.field(static=True, default=1.0)
     lattice: LatticeKind = eqx.field(static=True, default=PLANE, converter=as_kind)
     face_m: float = eqx.field(static=True, default=0.0)
+    constraints: MakerConstraints | None = eqx.field(static=True, default=None)
+    frequencies_hz: tuple[float, ...] = eqx.field(static=True, default=())
+    band_weights: tuple[float, ...] = eqx.field(static=True, default=())
 
     # -- pieces --------------------------------------------------------------------------------
     def source(self):
@@ -115,49 +119,76 @@ class DesignProblem(eqx.Module):
         return self.limits.check(params)
 
     # -- the beam ------------------------------------------------------------------------------
-    def pattern(self, params, ranges_m: tuple[float, ...] | None = None):
-        """Complex pressure at `range_m` (or, given `ranges_m`, a tuple of patterns, one per range)
-        from the transducer centre on `angles_deg` (0 = +x, the beam axis); params None = bare
-        transducer. A range must clear the contour by about a wavelength (k R > 30)."""
+    def _phasors(self, params):
+        """Contour phasors of one run, (K, m): the carrier's running DFT (K = 1), or, for a band,
+        the DFT of the recorded contour pressures at each of `frequencies_hz` (the same sum,
+        sum_n p(n) exp(i omega n), taken after the run)."""
         g = self.grid
+        band = bool(self.frequencies_hz)
+        cells = self.contour.cells
         r = simulate(
             g,
             self.medium(params),
             self.source(),
-            Sensors(phasor_cells=self.contour.cells),
+            Sensors(probes=cells) if band else Sensors(phasor_cells=cells),
             n_steps=self.n_steps,
             edges=self.edges,
             checkpoint="sqrt",
         )
-        phasors, contour = r.phasors, self.contour
-        assert phasors is not None  # recorded: the sensors ask for them
+        if not band:
+            assert r.phasors is not None  # recorded: the sensors ask for them
+            return r.phasors[None]
+        n = np.arange(1, self.n_steps + 1)
+        w = np.array([g.hz_to_lattice_omega(f) for f in self.frequencies_hz])
+        ang = np.mod(w[:, None] * n[None, :], 2 * math.pi)
+        kernel = jnp.asarray(np.exp(1j * ang), dtype=jnp.result_type(r.probes.dtype, jnp.complex64))
+        return kernel @ r.probes
+
+    def band_patterns(self, params, ranges_m: tuple[float, ...] | None = None):
+        """Complex patterns per frequency, (K, angles) (or a tuple of them, one per range): the
+        carrier alone (K = 1) or each of `frequencies_hz`."""
+        phasors = self._phasors(params)
+        freqs = self.frequencies_hz or (self.grid.frequency_hz,)
+        rngs = (self.range_m,) if ranges_m is None else tuple(ranges_m)
+        out = tuple(jnp.stack([self._beam(phasors[k], f, rng) for k, f in enumerate(freqs)]) for rng in rngs)
+        return out[0] if ranges_m is None else out
+
+    def pattern(self, params, ranges_m: tuple[float, ...] | None = None):
+        """Pressure at `range_m` (or, given `ranges_m`, a tuple of patterns, one per range) from the
+        transducer centre on `angles_deg` (0 = +x, the beam axis); params None = bare transducer.
+        The carrier's complex pattern, or for a band the burst's energy pattern
+        sqrt(sum_k w_k |p_k|^2) (real, >= 0: the beam of the burst's energy over its spectrum). A
+        range must clear the contour by about a wavelength (k R > 30)."""
+        pats = self.band_patterns(params, ranges_m)
+        if not self.frequencies_hz:
+            return pats[0] if ranges_m is None else tuple(p[0] for p in pats)
+        w = jnp.asarray(self.band_weights)[:, None]
+        energy = lambda p: jnp.sqrt(jnp.sum(w * jnp.abs(p) ** 2, axis=0))
+        return energy(pats) if ranges_m is None else tuple(energy(p) for p in pats)
+
+    def _beam(self, phasors, frequency_hz: float, rng: float):
+        """One frequency's pattern at range `rng` from contour phasors."""
+        g = self.grid
         if self.lattice.ring_metric:
-            return self._pattern_rz(phasors, ranges_m)
+            return self._beam_rz(phasors, frequency_hz, rng)
+        contour = self.contour
         assert isinstance(contour, BoxContour)  # a 2-D problem's contour (`_layout`)
         centre = (self.anchor_m[0] / g.dx_m, self.anchor_m[1] / g.dx_m)
         angles = np.asarray(self.angles_deg)
-        ff = lambda rng: far_field(phasors, contour, g, angles, rng, centre, dispersion="continuum")
-        if ranges_m is None:
-            return ff(self.range_m)
-        return tuple(ff(rng) for rng in ranges_m)
+        return far_field(phasors, contour, g, angles, rng, centre, dispersion="continuum", frequency_hz=frequency_hz)
 
-    def _pattern_rz(self, phasors, ranges_m):
-        """The rz beam: pressure at `range_m` from the disc centre at polar angle |angle| from +z
+    def _beam_rz(self, phasors, frequency_hz: float, rng: float):
+        """The rz beam: pressure at `rng` from the disc centre at polar angle |angle| from +z
         (the pattern of a body of revolution is even in the angle, so the 2-D angle list is kept)."""
         g = self.grid
         ang = np.asarray(self.angles_deg)
         th_u, inv = np.unique(np.abs(ang), return_inverse=True)
         th = np.radians(th_u)
         zc = self.anchor_m[0] / g.dx_m
-
-        def at(rng):
-            rc = rng / g.dx_m
-            pts = np.stack([zc + rc * np.cos(th), rc * np.sin(th)], 1)
-            return field_at_rz(phasors, self.contour, g, pts, dispersion="continuum")[inv]
-
-        if ranges_m is None:
-            return at(self.range_m)
-        return tuple(at(rng) for rng in ranges_m)
+        rc = rng / g.dx_m
+        pts = np.stack([zc + rc * np.cos(th), rc * np.sin(th)], 1)
+        assert isinstance(self.contour, CylinderSurface)  # an rz problem's surface (`_layout`)
+        return field_at_rz(phasors, self.contour, g, pts, dispersion="continuum", frequency_hz=frequency_hz)[inv]
 
     def metrics_of(self, pattern) -> dict:
         return pattern_metrics(
@@ -173,7 +204,11 @@ class DesignProblem(eqx.Module):
         return self.metrics_of(self.pattern(params))
 
     def loss(self, params, goal: Goal):
-        return goal.loss(self.metrics(params))
+        """The goal's loss plus the maker constraints' penalties (`constraints.penalty`)."""
+        return goal.loss(self.metrics(params)) + self.penalty(params)
+
+    def penalty(self, params):
+        return penalty(self.constraints, params, ring_metric=self.lattice.ring_metric)
 
     def fields(self, params, snapshot_every: int):
         """A forward run for pictures: (snapshots, snapshot steps, p_max) as numpy arrays."""
@@ -233,6 +268,8 @@ def _finish(
     reference,
     lattice: LatticeKind = PLANE,
     face_m=0.0,
+    constraints: MakerConstraints | None = None,
+    band=None,
 ) -> DesignProblem:
     n_a = int(round(360.0 / angle_step_deg))
     if abs(n_a * angle_step_deg - 360.0) > 1e-9 or n_a % 2:
@@ -264,7 +301,11 @@ def _finish(
         sector_deg=sector_deg,
         lattice=lattice,
         face_m=face_m,
+        constraints=constraints,
     )
+    if band is not None:
+        freqs, weights = band_frequencies(band, grid.frequency_hz, cycles)
+        args.update(frequencies_hz=freqs, band_weights=weights)
     bare = DesignProblem(**args)
     if not reference:
         return bare
@@ -279,6 +320,32 @@ def _n_steps(grid: Grid, contour, cycles: float, traversals: float) -> int:
     else:
         diag = math.hypot(contour.ix1 - contour.ix0, contour.iy1 - contour.iy0)
     return int(math.ceil(traversals * diag / grid.courant + (cycles + 6) * grid.steps_per_period))
+
+
+def band_frequencies(
+    band, frequency_hz: float, cycles: float, *, n: int = 5, drop_db: float = 6.0
+) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """(frequencies, weights) of a design band. `band` = "burst": `n` frequencies evenly across
+    the -`drop_db` band of the drive's Hann burst spectrum (`cycles` cycles at `frequency_hz`),
+    weighted by its energy density |S(f)|^2 (normalised to sum 1); a sequence of frequencies
+    (Hz): those, weighted equally."""
+    if isinstance(band, str):
+        if band != "burst":
+            raise ValueError(f"band = {band!r}: give 'burst' or a list of frequencies in Hz")
+        sig = ToneBurst(frequency_hz, cycles)
+        t = np.linspace(0.0, sig.duration_s(), 4096)
+        x = np.asarray(sig(jnp.asarray(t)))
+        spec = lambda f: abs(np.trapezoid(x * np.exp(-2j * math.pi * np.asarray(f)[:, None] * t), t, axis=1)) ** 2
+        fine = np.linspace(0.2 * frequency_hz, 1.8 * frequency_hz, 4001)
+        e = spec(fine)
+        inside = fine[e >= e.max() * 10 ** (-drop_db / 10)]
+        grid_f = np.linspace(inside.min(), inside.max(), n)
+        w = spec(grid_f)
+        return tuple(float(f) for f in grid_f), tuple(float(v) for v in w / w.sum())
+    listed = tuple(float(f) for f in band)
+    if not listed or not all(math.isfinite(f) and f > 0 for f in listed):
+        raise ValueError(f"band = {band!r}: give 'burst' or a non-empty list of positive frequencies in Hz")
+    return listed, tuple(1.0 / len(listed) for _ in listed)
 
 
 def _check_wall_resolved(wall_min_m: float, dx: float) -> None:
@@ -359,6 +426,8 @@ def horn_design(
     reference: bool = True,
     lattice: LatticeKind | str = "2d",
     stencil: str = "standard",
+    constraints: MakerConstraints | None = None,
+    band=None,
 ) -> DesignProblem:
     """A horn problem: a line transducer of diameter `face_m` facing +x at the throat of any horn
     within `limits` (``lattice="rz"``: a disc of diameter `face_m` facing +z in a horn of
@@ -404,6 +473,8 @@ def horn_design(
         reference,
         lattice,
         face_m,
+        constraints,
+        band,
     )
 
 
@@ -426,6 +497,8 @@ def reflector_design(
     reference: bool = True,
     lattice: LatticeKind | str = "2d",
     stencil: str = "standard",
+    constraints: MakerConstraints | None = None,
+    band=None,
 ) -> DesignProblem:
     """A reflector problem: a line transducer of diameter `face_m` at the focus of a parabolic
     mirror opening towards +x, facing the vertex (as the paper's Fig. 10); ``lattice="rz"``: a disc
@@ -473,6 +546,8 @@ def reflector_design(
         reference,
         lattice,
         face_m,
+        constraints,
+        band,
     )
 
 

@@ -37,6 +37,7 @@ def run_study(
     max_steps: int = 20,
     check_gradients: bool = True,
     progress: bool = True,
+    resolution_choice: str | None = None,
 ) -> dict:
     """Optimise `start` for `goal` and write the report to `out`; returns the summary dict."""
     from .. import plots
@@ -60,6 +61,10 @@ def run_study(
         },
         "free": list(free or type(start).NAMES),
     }
+    if resolution_choice:
+        summary["resolution_choice"] = resolution_choice
+    if problem.frequencies_hz:
+        summary["band"] = {"frequencies_hz": list(problem.frequencies_hz), "weights": list(problem.band_weights)}
     if check_gradients:
         rows = gradient_check(problem, start, goal)
         summary["gradient_check"] = rows
@@ -103,12 +108,15 @@ says)."""
 
 def trust_estimate(problem: DesignProblem) -> dict:
     """The design runs' expected phase error from the lattice's dispersion relation (worst
-    direction, over the distance the waves travel in a run) against the trust threshold."""
+    direction, over the distance the waves travel in a run, at the highest design frequency)
+    against the trust threshold."""
     from ..observe.analytic import phase_error_rad
 
     g = problem.grid
-    dist_wl = min(g.courant * problem.n_steps, math.hypot(*g.shape)) / g.cells_per_wavelength
-    periods = phase_error_rad(g.cells_per_wavelength, g.courant, dist_wl, stencil=g.stencil) / (2 * math.pi)
+    f_top = max(problem.frequencies_hz or (g.frequency_hz,))
+    cpw = g.cells_per_wavelength * g.frequency_hz / f_top  # a band is resolved worst at its top
+    dist_wl = min(g.courant * problem.n_steps, math.hypot(*g.shape)) / cpw
+    periods = phase_error_rad(cpw, g.courant, dist_wl, stencil=g.stencil) / (2 * math.pi)
     return {
         "expected_phase_error_periods": periods,
         "threshold_periods": TRUST_PHASE_ERROR_PERIODS,
@@ -116,12 +124,33 @@ def trust_estimate(problem: DesignProblem) -> dict:
     }
 
 
+def choose_resolution(build, lo: float, hi: float, step: float = 1.0) -> tuple[float, dict, str]:
+    """The coarsest cells per wavelength in lo, lo + step, ..., hi whose problem (`build(cpw)`,
+    built without simulating) has its trust estimate under the threshold; else `hi`, and a note
+    that says so. Returns (cells per wavelength, trust estimate, note)."""
+    if not (0 < lo <= hi):
+        raise ValueError(f"resolution search needs 0 < {lo} <= {hi} cells per wavelength")
+    cpw = lo
+    while True:
+        t = trust_estimate(build(cpw))
+        if t["trustworthy"]:
+            return cpw, t, f"resolution auto: {cpw:g} cells per wavelength, the coarsest under the trust threshold"
+        if cpw >= hi:
+            return (
+                cpw,
+                t,
+                f"resolution auto: even {cpw:g} cells per wavelength (the maximum) is above the trust threshold; "
+                "raise --max-cells-per-wavelength",
+            )
+        cpw = min(cpw + step, hi)
+
+
 def markdown(s: dict, problem: DesignProblem) -> str:
     o = s["optimisation"]
     lines = [
         f"# {s['title']}",
         "",
-        f"Resolution: {s['resolution']}.",
+        f"Resolution: {s['resolution']}." + (f" {s['resolution_choice']}." if "resolution_choice" in s else ""),
         "",
         f"Goal: {o['goal']} (free: {', '.join(s['free'])}).",
         "",
@@ -173,4 +202,28 @@ def markdown(s: dict, problem: DesignProblem) -> str:
             f"outlines `{Path(part['profile_csv']).name}`.",
             "",
         ]
+        lines += constraints_table(part.get("constraints", []))
     return "\n".join(lines)
+
+
+def constraints_table(rows: list[dict]) -> list[str]:
+    """Markdown rows: each maker constraint, its limit, the part's value, met / active."""
+    if not rows:
+        return []
+    out = [
+        "Constraints, measured on the exported part (active: the design sits on the optimiser's bound or penalty):",
+        "",
+        "| constraint | limit | part | met | active | enforced by |",
+        "|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        unit, s = ("deg", 1.0) if r["constraint"].endswith("_deg") else ("mm", 1e3)
+        if r["constraint"] == "no_self_intersection":
+            unit, s = ("mm^2", 1e6)
+        op = "<=" if r["kind"] == "max" else ">="
+        lim = "-" if r["limit"] is None else f"{op} {r['limit'] * s:.2f} {unit}"
+        out.append(
+            f"| {r['constraint']} | {lim} | {r['part'] * s:.2f} {unit} | {r['satisfied']} | {r['active']} | "
+            f"{r['enforced_by']} |"
+        )
+    return out + [""]

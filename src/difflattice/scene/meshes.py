@@ -4,7 +4,8 @@ A plane (2-D) scene takes the mesh's section by the plane z = 0 (an extruded par
 `design.parts`, is its outline); an axisymmetric (rz) scene takes the section by a half-plane
 that contains the mesh's z axis (the axis of revolution), as (z, r) outlines: a body of
 revolution is its meridian profile. The outlines become polygon objects, rasterised with cut
-cells like the built-in shapes.
+cells like the built-in shapes. A 3-D scene takes the whole mesh (`load_closed_mesh`) as a
+`lattice.geometry3d.MeshSolid`.
 """
 
 from __future__ import annotations
@@ -21,6 +22,52 @@ UNITS_M = {"mm": 1e-3, "m": 1.0, "um": 1e-6, "cm": 1e-2, "in": 0.0254}
 _ROUND = 9
 """Decimals (of the file's unit) to which section points are rounded, so that the end of one
 triangle's segment meets the start of its neighbour's."""
+
+
+_WELD = 1e-6
+"""Section points closer than this fraction of the mesh's size are one point: a float32 STL
+(7 digits) puts the two ends of one triangle edge's section a few 1e-7 of the size apart."""
+
+
+def _weld(segments: np.ndarray, tol: float) -> np.ndarray:
+    """`segments` (n, 2, 2) with every endpoint replaced by the first of its cluster of endpoints
+    within `tol` (union-find over a k-d tree's close pairs), so neighbouring triangles' sections join."""
+    from scipy.spatial import cKDTree
+
+    pts = segments.reshape(-1, 2)
+    parent = np.arange(len(pts))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            parent[i] = parent[parent[i]]
+            i = parent[i]
+        return i
+
+    for i, j in cKDTree(pts).query_pairs(tol):
+        a, b = root(i), root(j)
+        if a != b:
+            parent[max(a, b)] = min(a, b)
+    reps = np.array([root(i) for i in range(len(pts))])
+    return pts[reps].reshape(segments.shape)
+
+
+def load_closed_mesh(path: str | Path, unit: str = "mm") -> tuple[np.ndarray, np.ndarray]:
+    """(vertices in metres (n, 3), faces (m, 3)) of a watertight mesh file; ValueError naming the
+    problem (unknown unit, unreadable file, no triangles, open edges) otherwise."""
+    import trimesh
+
+    if unit not in UNITS_M:
+        raise ValueError(f"unit = {unit!r}; allowed: {', '.join(UNITS_M)}")
+    p = Path(path)
+    try:
+        mesh: Any = trimesh.load(p, force="mesh")
+    except (OSError, ValueError) as err:
+        raise ValueError(f"cannot read the mesh file {p}: {err}") from None
+    if len(mesh.faces) == 0:
+        raise ValueError(f"{p} holds no triangles")
+    if not mesh.is_watertight:
+        raise ValueError(f"{p} is not watertight (open edges): it has no inside; close the mesh")
+    return np.asarray(mesh.vertices, float) * UNITS_M[unit], np.asarray(mesh.faces, np.int64)
 
 
 def mesh_outlines(
@@ -56,8 +103,8 @@ def mesh_outlines(
         uv = np.stack([segs[..., 2], segs[..., 0] * math.cos(phi) + segs[..., 1] * math.sin(phi)], axis=-1)
     else:
         uv = segs[..., :2]
-    uv = np.round(uv, _ROUND)
-    polys = list(polygonize([LineString(s) for s in uv if not np.allclose(s[0], s[1])]))
+    uv = _weld(np.round(uv, _ROUND), _WELD * float(np.ptp(np.asarray(mesh.vertices))))
+    polys = list(polygonize([LineString(s) for s in uv if not np.array_equal(s[0], s[1])]))
     shape = unary_union(polys)
     if axisymmetric:
         shape = shape.intersection(box(-1e12, 0.0, 1e12, 1e12))

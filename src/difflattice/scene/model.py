@@ -265,7 +265,13 @@ class Scene:
         p, rz = self.path, grid.kind.ring_metric
         housings = []
         for i, t in enumerate(self.transducers):
-            if t["type"] == "disc" and rz and t["baffle"] != "rigid" and t["diameter_m"] is not None:
+            if (
+                t["type"] == "disc"
+                and rz
+                and t["baffle"] != "rigid"
+                and t["diameter_m"] is not None
+                and not _soft_disc(self.raw, i, t)
+            ):
                 try:
                     housings.append(
                         np.asarray(
@@ -352,6 +358,15 @@ class Scene:
                         _fail(
                             p, f"{where}.centre_m", f"= {list(t['centre_m'])}: a disc sits on the axis, give [z_m, 0]"
                         )
+                    if _soft_disc(self.raw, i, t):
+                        if t["baffle"] != "none":
+                            _fail(
+                                p,
+                                f"{where}.injection",
+                                '= "soft" is a transparent ring disc (no housing): give baffle = "none"',
+                            )
+                        sources.append(_soft_ring_disc(grid, t["diameter_m"] / 2, t["centre_m"][0], sig))
+                        continue
                     sources.append(
                         disc_transducer(
                             grid,
@@ -654,3 +669,24 @@ def load_scene(path: str | Path) -> Scene:
 def schema_markdown() -> str:
     """The scene-file reference as Markdown tables (used to write docs/scene-files.md)."""
     return _schema_markdown()
+
+
+def _soft_disc(raw: dict, i: int, t: dict) -> bool:
+    """An rz disc given `injection = "soft"` explicitly: a transparent disc of soft ring sources
+    (the design problems' source model) instead of the default velocity piston."""
+    return "injection" in _raw_item(raw, "transducers", i) and t["injection"] == "soft"
+
+
+def _soft_ring_disc(grid: Grid, radius_m: float, z_m: float, signal) -> PointSources:
+    """Soft (pressure-adding) ring sources in the row whose cell centre is nearest `z_m`, one per
+    ring the radius touches, each weighted by the ring's covered face fraction (`ring_fractions`):
+    transparent, radiating both ways, as the design problems' rz disc (`design.problem`)."""
+    import jax.numpy as jnp
+
+    from ..solver.sources import PointSources, ring_fractions
+
+    row = int(round(z_m / grid.dx_m - 0.5))
+    n = max(1, math.ceil(radius_m / grid.dx_m - 1e-9))
+    cells = np.stack([np.full(n, row), np.arange(n)], 1)
+    w = ring_fractions(jnp.asarray(radius_m / grid.dx_m, grid.jnp_dtype), n).astype(grid.jnp_dtype)
+    return PointSources(cells=cells, signal=signal, weights=w, lags_s=jnp.zeros(n, grid.jnp_dtype), injection="soft")

@@ -85,6 +85,7 @@ _SHAPES_3D = {
     "slab": ("point_m", "normal", "thickness_m"),
     "union": ("parts",),
     "intersection": ("parts",),
+    "mesh": ("file",),
 }
 
 
@@ -94,7 +95,8 @@ _VECTORS_3D = ("centre_m", "size_m", "angles_deg", "axis", "point_m", "normal", 
 def shape3d(path, where: str, o: dict):
     """The `lattice.geometry3d` solid of a validated `[[objects]]` table on a 3-D grid (box by
     lo_m/hi_m or centre_m/size_m/angles_deg, sphere, cylinder, halfspace, slab, union and
-    intersection of `parts`, each with an optional `cut`); parameters as float arrays."""
+    intersection of `parts`, a closed mesh file, each with an optional `cut`); parameters as float
+    arrays."""
     import jax.numpy as jnp
 
     from ..lattice import geometry3d as g3
@@ -137,6 +139,16 @@ def shape3d(path, where: str, o: dict):
         s = g3.HalfSpace(a("point_m"), a("normal"))
     elif kind == "slab":
         s = g3.Slab(a("point_m"), a("normal"), a("thickness_m"))
+    elif kind == "mesh":  # the whole closed mesh, in the file's unit, in grid coordinates
+        from .meshes import load_closed_mesh
+
+        f = Path(o["file"])
+        f = f if f.is_absolute() else Path(str(path)).parent / f
+        try:
+            verts, faces = load_closed_mesh(f, unit=o["unit"])
+        except ValueError as err:
+            _fail(path, f"{where}.file", str(err))
+        s = g3.MeshSolid(verts, faces)
     else:
         parts = o["parts"]
         if not isinstance(parts, (list, tuple)) or not parts:

@@ -168,7 +168,12 @@ class TransducerSection(Section):
     window: str = setting("hann", kind="str", doc="burst window: hann or rect")
     ramp_cycles: float = setting(3.0, kind="number", ge=0, unit="cycles", doc="cw switch-on ramp")
     amplitude_pa: float = setting(1.0, kind="number", unit="Pa", doc="source amplitude")
-    injection: str = setting("soft", kind="str", doc="soft (add to P) or hard (set P)")
+    injection: str = setting(
+        "soft",
+        kind="str",
+        doc="soft (add to P) or hard (set P); an rz disc given injection = soft (with baffle = none) is a "
+        "transparent disc of soft ring sources (the design problems' source) instead of the velocity piston",
+    )
     weights: tuple | None = setting(
         None,
         kind="list",
@@ -215,13 +220,14 @@ class ObjectSection(Section):
     shape: str = setting(
         kind="str",
         doc="2d/rz: segment, box, circle, polygon, polyline or mesh; 3d: box, sphere, cylinder, halfspace, slab, "
-        "union or intersection",
+        "union, intersection or mesh",
     )
     file: str | None = setting(
         None,
         kind="str",
-        doc="mesh: a mesh file (STL, OBJ, ...) relative to the scene file; 2d takes its section at z = 0, rz "
-        "its section through the z axis (a body of revolution's profile)",
+        doc="mesh: a closed mesh file (STL, OBJ, ...) relative to the scene file; 2d takes its section at z = 0, "
+        "rz its section through the z axis (a body of revolution's profile), 3d the whole solid in grid "
+        "coordinates (inside by ray parity, exact distance near the surface)",
     )
     unit: str = setting("mm", kind="str", choices=("mm", "m", "um", "cm", "in"), doc="mesh: the file's length unit")
     material: str = setting("rigid", kind="str", doc="material name (rigid, soft, pine, ...)")

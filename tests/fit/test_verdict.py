@@ -72,7 +72,7 @@ def test_chi2_survival_and_normal_cdf_match_their_closed_forms():
     and Phi(z) = erfc(-z / sqrt 2) / 2 to rounding."""
     import math
 
-    from difflattice.fit.goodness import chi2_sf, normal_cdf
+    from difflattice.fit.stats import chi2_sf, normal_cdf
 
     for x in (0.0, 0.3, 2.0, 17.5, 80.0):
         assert math.isclose(chi2_sf(x, 2), math.exp(-x / 2), rel_tol=1e-12, abs_tol=1e-300)

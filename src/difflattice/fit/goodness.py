@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .stats import chi2_sf, normal_cdf
 from .verdict import GOODNESS_P_MIN
 
 if TYPE_CHECKING:
@@ -47,20 +48,6 @@ def outlier_diagnostics(data_residuals: dict) -> dict:
             "suspect": bool(k >= max(2, math.ceil(0.01 * n)) and (k / n >= 0.01 or ratio > 2.0)),
         }
     return out
-
-
-def chi2_sf(x: float, dof: float) -> float:
-    """P(chi2 >= x) for `dof` degrees of freedom: the regularised upper incomplete gamma function
-    Q(dof / 2, x / 2) (scipy.special, not scipy.stats: the fit's start-up pays ~0.1 s for it, not
-    ~1 s for scipy.stats' distribution machinery)."""
-    from scipy.special import gammaincc
-
-    return float(gammaincc(0.5 * dof, 0.5 * max(x, 0.0)))
-
-
-def normal_cdf(z: float) -> float:
-    """The standard normal distribution function."""
-    return 0.5 * math.erfc(-z / math.sqrt(2.0))
 
 
 def runs_test(r) -> tuple[int, float, float]:

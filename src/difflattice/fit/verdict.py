@@ -86,7 +86,7 @@ def fit_outcome(result: FitResult, budget=None) -> dict:
             else:  # smaller than the stated sigmas: the model describes the data at the stated noise
                 notes.append(f"{runs}, below the stated noise (chi2_red {s['chi2_reduced']:.3g})")
     if result.loss != "l2" and chi and result.variance_factor > 1:
-        from .goodness import chi2_sf
+        from .stats import chi2_sf
 
         p = chi2_sf(result.variance_factor * chi["dof"], chi["dof"])
         if p < GOODNESS_P_MIN:

@@ -213,6 +213,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--version", action="version", version=f"difflattice {__version__}")
     sub = p.add_subparsers(dest="command", required=True)
 
+    _add_simulate(sub)
+    _add_gallery_and_demo(sub)
+    _add_fit(sub)
+    _add_accuracy(sub)
+    _add_design_and_bench(sub)
+
+    from .capture.cli import register  # capture is part of the package (and imports no JAX)
+
+    register(sub)
+    for leaf in _leaf_parsers(p):
+        _add_common(leaf)
+    return p
+
+
+def _add_simulate(sub) -> None:
+    """The `simulate` job: a scene file run and written out."""
     s = sub.add_parser("simulate", help="simulate a scene file and write sensor data, images and a summary")
     s.add_argument("scene", type=Path, help="scene file (TOML, see docs/scene-files.md)")
     s.add_argument("--out", type=Path, required=True, help="output directory (new, or empty, or --overwrite)")
@@ -264,6 +280,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s.set_defaults(func=_simulate)
 
+
+def _add_gallery_and_demo(sub) -> None:
+    """The `gallery` (the paper's figures) and `demo` (the main job) jobs."""
     g = sub.add_parser("gallery", help="render the paper's figures (data/scenes/*.toml)")
     g.add_argument("--out", type=Path, default=Path("out/gallery"), help="output directory")
     g.add_argument("--scale", type=float, default=1.0, help="grid scale (e.g. 0.5 for a quick look)")
@@ -292,6 +311,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     d.set_defaults(func=_demo)
 
+
+def _add_fit(sub) -> None:
+    """The `fit` job: a fit config run, with its keys and exit codes in the help."""
     from .config import keys_help
     from .fit.config import SECTIONS as FIT_SECTIONS
     from .fit.verdict import EXIT_CODES_HELP as FIT_EXIT_CODES
@@ -311,6 +333,9 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--quick", action="store_true", help="coarse settings (for tests)")
     f.set_defaults(func=_fit)
 
+
+def _add_accuracy(sub) -> None:
+    """The `accuracy` job: error against run time over a resolution sweep."""
     a = sub.add_parser(
         "accuracy", help="error against run time over a resolution sweep (built-in cases, analytic references)"
     )
@@ -355,6 +380,9 @@ def build_parser() -> argparse.ArgumentParser:
     a.add_argument("--out", type=Path, default=Path("out/accuracy"), help="output directory")
     a.set_defaults(func=_accuracy)
 
+
+def _add_design_and_bench(sub) -> None:
+    """The `design` job (its parser lives with it in `apps.design_job`) and `bench`."""
     from .apps.design_job import add_parser as _add_design_parser
 
     _add_design_parser(sub)
@@ -377,13 +405,6 @@ def build_parser() -> argparse.ArgumentParser:
     )
     b.add_argument("--quick", action="store_true", help="a tenth of the steps (checks that it runs; not a measurement)")
     b.set_defaults(func=_bench)
-
-    from .capture.cli import register  # capture is part of the package (and imports no JAX)
-
-    register(sub)
-    for leaf in _leaf_parsers(p):
-        _add_common(leaf)
-    return p
 
 
 # the jobs whose --out is a directory this run fills (capture's OUT is a file it may continue)

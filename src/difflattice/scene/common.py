@@ -4,17 +4,59 @@ fix), the side names, and small readers of keys (points, vectors, materials, sig
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING, NoReturn
+from typing import TYPE_CHECKING, NamedTuple, NoReturn
 
 import numpy as np
 
 from .schema import ConfigError, fail, validate_section
 
 if TYPE_CHECKING:
+    from ..lattice.coefficients import Edges
     from ..lattice.grid import Grid
-    from ..lattice.medium import Material
-    from ..solver.sources import Signal
+    from ..lattice.medium import Material, Medium
+    from ..observe.farfield import BoxContour
+    from ..observe.farfield_rz import CylinderSurface
+    from ..solver.sensors import Sensors
+    from ..solver.sources import PointSources, Signal
     from .model import Scene
+
+
+class Receiver(NamedTuple):
+    """A transducer that also receives (`receive = true`): its A-scan is
+    `solver.sensors.received_signal` of the probe columns `start:stop` (its cells) with its
+    weights and lags. `gate_start_step`: the echo window's first step (0: none given)."""
+
+    name: str
+    source: int
+    start: int
+    stop: int
+    gate_start_step: int
+
+
+class BuiltScene(NamedTuple):
+    """What `Scene.build()` gives: the solver's objects plus what the scene asks to observe.
+
+    - `grid`, `medium`, `sources`, `sensors`, `edges`, `n_steps`: the arguments of `simulate`;
+    - `contour`: the far-field contour (None when the scene has no `[farfield]`; always on 3d);
+    - `farfield_source`: index of the transducer whose lobe is computed;
+    - `show_steps`: steps at which field images are wanted; `render_every`: render stride, cells;
+    - `receivers` (3d): the transducers whose received signal (A-scan) is recorded;
+    - `estimate_bytes` (3d): the run's memory estimate, checked against the available memory
+      before the medium maps were built (None on 2d and rz grids).
+    """
+
+    grid: Grid
+    medium: Medium
+    sources: tuple[PointSources, ...]
+    sensors: Sensors
+    edges: Edges
+    n_steps: int
+    contour: BoxContour | CylinderSurface | None
+    farfield_source: int
+    show_steps: list[int]
+    render_every: int
+    receivers: tuple[Receiver, ...] = ()
+    estimate_bytes: int | None = None
 
 
 class SceneError(ConfigError):

@@ -14,7 +14,7 @@ import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -22,17 +22,15 @@ if TYPE_CHECKING:
     from ..lattice.coefficients import Edges
     from ..lattice.grid import Grid
     from ..lattice.kinds import LatticeKind
-    from ..lattice.medium import Medium
     from ..observe.farfield import BoxContour
     from ..observe.farfield_rz import CylinderSurface
-    from ..solver.sensors import Sensors
     from ..solver.sources import PointSources
 
 from .common import (
     _NO_CELLS,
     _SIDES_2D,
-    _SIDES_3D,
     _TRANSDUCER_KEYS_3D,
+    BuiltScene,
     SceneError,
     SceneTooLargeError,
     _fail,
@@ -41,10 +39,11 @@ from .common import (
     _raw_item,
     _signal,
     _validate_table,
-    _vector,
 )
+from .common import Receiver as Receiver  # re-exported: callers import it from here
 from .media import _make_grid, _materials, _medium
-from .objects import _rings_3d, _shape, _slice_planes, _union3d, shape3d
+from .objects import _shape
+from .objects import shape3d as shape3d  # re-exported: callers import it from here
 from .schema import ARRAY_SECTIONS, SCHEMA
 from .schema import schema_markdown as _schema_markdown
 
@@ -70,44 +69,6 @@ def render_stride(cells_per_wavelength: float, override: int | None = None) -> i
     if not cells_per_wavelength > 0:
         raise ValueError(f"cells_per_wavelength = {cells_per_wavelength} must be > 0")
     return max(1, int(cells_per_wavelength / MIN_PIXELS_PER_WAVELENGTH + 1e-9))
-
-
-class Receiver(NamedTuple):
-    """A transducer that also receives (`receive = true`): its A-scan is
-    `solver.sensors.received_signal` of the probe columns `start:stop` (its cells) with its
-    weights and lags. `gate_start_step`: the echo window's first step (0: none given)."""
-
-    name: str
-    source: int
-    start: int
-    stop: int
-    gate_start_step: int
-
-
-class BuiltScene(NamedTuple):
-    """What `Scene.build()` gives: the solver's objects plus what the scene asks to observe.
-
-    - `grid`, `medium`, `sources`, `sensors`, `edges`, `n_steps`: the arguments of `simulate`;
-    - `contour`: the far-field contour (None when the scene has no `[farfield]`; always on 3d);
-    - `farfield_source`: index of the transducer whose lobe is computed;
-    - `show_steps`: steps at which field images are wanted; `render_every`: render stride, cells;
-    - `receivers` (3d): the transducers whose received signal (A-scan) is recorded;
-    - `estimate_bytes` (3d): the run's memory estimate, checked against the available memory
-      before the medium maps were built (None on 2d and rz grids).
-    """
-
-    grid: Grid
-    medium: Medium
-    sources: tuple[PointSources, ...]
-    sensors: Sensors
-    edges: Edges
-    n_steps: int
-    contour: BoxContour | CylinderSurface | None
-    farfield_source: int
-    show_steps: list[int]
-    render_every: int
-    receivers: tuple[Receiver, ...] = ()
-    estimate_bytes: int | None = None
 
 
 @dataclass
@@ -172,7 +133,9 @@ class Scene:
         grid-sized array exists. Each lattice kind imports only its own pieces (a 2-D scene builds
         nothing 3-D, and vice versa)."""
         if self.kind.ndim == 3:
-            return self._build_3d(available_bytes)
+            from .volume import build_volume
+
+            return build_volume(self, available_bytes)
         return self._build_plane(available_bytes)
 
     def _check_fits(self, grid: Grid, n_steps: int, available_bytes: int | None, **features) -> int:
@@ -446,145 +409,6 @@ class Scene:
         return contour, phasor_cells, ff_index
 
     # ---------------------------------------------------------------------------------------
-    def _build_3d(self, available_bytes: int | None) -> BuiltScene:
-        """The 3-D lattice: grid, edges, sources and sensors first, then the memory estimate
-        (refused before any grid-sized array exists), then the medium maps."""
-        from ..lattice import geometry3d as g3
-        from ..lattice.coefficients import Edges
-        from ..solver.sensors import Sensors, probe_cells
-        from ..solver.sources import disc_transducer_3d
-
-        p = self.path
-        med = self.medium
-        bg, mats = _materials(self)
-        grid = _make_grid(self, mats)
-        if self.farfield is not None:
-            _fail(
-                p,
-                "farfield",
-                "is for 2d and rz scenes; on a 3d grid record probes (or use observe.farfield3d from Python)",
-            )
-        o = self.output
-        if o["show_steps"] or o["show_times_s"]:
-            _fail(
-                p,
-                "output.show_steps",
-                "field moments are for 2d and rz scenes; on a 3d grid use [sensors] snapshot_every_steps "
-                "(slices every that many steps)",
-            )
-
-        ed = self.edges
-        if ed["r_hi"] is not None:
-            _fail(p, "edges.r_hi", "is for rz grids; a 3d grid has x_lo, x_hi, y_lo, y_hi, z_lo, z_hi")
-        try:
-            edges = Edges(
-                **{s: (ed[s] or ed["kind"]) for s in _SIDES_3D}, thickness_cells=ed["thickness_cells"]
-            ).for_rank(3)
-            edges.check_kind(grid.kind)
-        except ValueError as err:
-            _fail(p, "edges", str(err))
-        n_steps = _n_steps(self, grid)
-
-        # sources (small: the disc's cells) and sensors before anything grid-sized
-        if not self.transducers:
-            _fail(p, "transducers", "a scene needs at least one [[transducers]] entry")
-        sources = []
-        for i, t in enumerate(self.transducers):
-            where = f"transducers[{i}]"
-            if t["type"] != "disc":
-                _fail(p, f"{where}.type", f'= {t["type"]!r} is a 2d transducer: a 3d grid takes type = "disc"')
-            raw = _raw_item(self.raw, "transducers", i)
-            if "baffle" in raw and t["baffle"] != "none":
-                _fail(
-                    p,
-                    f"{where}.baffle",
-                    f"= {t['baffle']!r}: a 3d disc is a bare source; give a baffle as an object (e.g. a box "
-                    'behind the face) and baffle = "none"',
-                )
-            if t["injection"] not in ("soft", "hard"):
-                _fail(p, f"{where}.injection", f"= {t['injection']!r}; allowed: soft, hard")
-            centre = _vector(p, f"{where}.centre_m", t["centre_m"])
-            axis = _vector(p, f"{where}.axis", t["axis"] if t["axis"] is not None else [1.0, 0.0, 0.0])
-            rings, diameter = _rings_3d(self, where, t)
-            sig = _signal(p, where, t, grid)
-            try:
-                sources.append(
-                    disc_transducer_3d(
-                        grid, centre, axis, diameter_m=diameter, rings=rings, signal=sig, injection=t["injection"]
-                    )
-                )
-            except (ValueError, TypeError) as err:
-                _fail(p, where, str(err))
-
-        s = self.sensors
-        columns = [probe_cells(grid, _points(p, "sensors.probes_m", s["probes_m"], 3))] if s["probes_m"] else []
-        n_cols = sum(len(c) for c in columns)
-        receivers = []
-        for i, (t, src) in enumerate(zip(self.transducers, sources)):
-            if not t["receive"]:
-                if t["gate_start_s"] is not None:
-                    _fail(p, f"transducers[{i}].gate_start_s", "needs receive = true (the A-scan it gates)")
-                continue
-            cells = np.asarray(src.cells_array)
-            gate = 0 if t["gate_start_s"] is None else int(round(grid.s_to_steps(t["gate_start_s"])))
-            receivers.append(Receiver(t["name"], i, n_cols, n_cols + len(cells), gate))
-            columns.append(cells)
-            n_cols += len(cells)
-        planes = _slice_planes(self, grid, sources)
-        try:
-            sensors = Sensors(
-                probes=np.concatenate(columns) if columns else _NO_CELLS,
-                p_max=s["p_max"],
-                p_rms=s["p_rms"],
-                arrival_threshold_pa=s["arrival_threshold_pa"],
-                snapshot_every=s["snapshot_every_steps"],
-                snapshot_slices=planes,
-            )
-            sensors.check_inside(grid)
-        except ValueError as err:
-            _fail(p, "sensors", str(err))
-
-        # the estimate, before the medium maps (the largest arrays a build makes) exist
-        shape = tuple(grid.shape)
-        n_snap = 0 if s["snapshot_every_steps"] is None else -(-n_steps // min(s["snapshot_every_steps"], n_steps))
-        nbytes = self._check_fits(
-            grid,
-            n_steps,
-            available_bytes,
-            pml=edges.uses_pml,
-            heterogeneous=bool(self.objects),
-            soft=any(m.kind == "soft" for m in mats[1:]) or med["boundary_model"] == "speed_zero",
-            absorption=med["absorption_db_per_m"] > 0,
-            air_absorption=self.air_conditions() is not None,
-            n_probes=n_cols,
-            snapshot_cells=sum(math.prod(shape) // shape[a] for a, _ in planes),
-            n_snapshots=n_snap,
-            field_stats=int(s["p_max"]) + int(s["p_rms"]) + int(s["arrival_threshold_pa"] is not None),
-        )
-
-        occupancies = []
-        for i, ob in enumerate(self.objects):
-            solid = shape3d(p, f"objects[{i}]", ob)
-            try:
-                occupancies.append(g3.rasterise3d(solid, grid, med["rasterise"]))
-            except ValueError as e:
-                _fail(p, "medium.rasterise", str(e))
-        medium = _medium(self, grid, bg, mats, occupancies, [], _union3d)
-        return BuiltScene(
-            grid,
-            medium,
-            tuple(sources),
-            sensors,
-            edges,
-            n_steps,
-            None,
-            0,
-            [],
-            self.render_every(grid),
-            tuple(receivers),
-            int(nbytes),
-        )
-
     # ---------------------------------------------------------------------------------------
     def show_steps(self, grid, n_steps: int) -> list[int]:
         """The steps of `[output] show_steps` and `show_times_s` (nearest step), sorted, unique;

@@ -1,13 +1,12 @@
 """Differentiability on the rz lattice: forward mode = reverse mode and Taylor remainders of slope
 2 for a disc transducer's ring weights, ring lags and radius (PML edges: the staggered step with
 the cylindrical layer); the adjoint wave equation (`adjoint="lattice"`) = JAX's reverse mode;
-checkpointed = plain; a grid split across two devices = one device."""
+checkpointed = plain (a grid split across two devices: `test_sharding.py`, every kind)."""
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-from two_devices import assert_two_devices_match
 
 from difflattice.lattice import Edges
 from difflattice.lattice.grid import make_grid
@@ -132,27 +131,3 @@ def test_point_source_gradient_on_the_axis():
     g = jax.grad(f)(jnp.ones(1))
     _, jv = jax.jvp(f, (jnp.ones(1),), (jnp.ones(1),))
     assert np.isfinite(float(g[0])) and abs(float(jv - g[0])) <= 1e-9 * abs(float(g[0]))
-
-
-SHARDING_SCENE = """
-from difflattice.lattice import Edges
-from difflattice.lattice.grid import make_grid
-from difflattice.lattice.medium import Medium
-from difflattice.solver import simulate, grid_sharding
-from difflattice.solver.sensors import Sensors
-from difflattice.solver.sources import ToneBurst, disc_transducer
-
-def cases():
-    g = make_grid(frequency_hz=50e3, cells_per_wavelength=10, c_max_m_s=343.0, shape=(64, 40), dtype="float64", kind="rz")
-    src = disc_transducer(g, radius_m=6.4 * g.dx_m, signal=ToneBurst(50e3, 3))
-    sens = Sensors(probes=[(40, 0), (30, 20)], p_max=True, phasor_cells=[(35, 5), (20, 25)])
-    for edges in (Edges.axisymmetric("rigid", "pml", "pml", thickness_cells=8), Edges.axisymmetric("rigid", "rigid", "rigid")):
-        yield (
-            simulate(g, Medium(343.0, 1.2), src, sens, n_steps=140, edges=edges),
-            simulate(g, Medium(343.0, 1.2), src, sens, n_steps=140, edges=edges, sharding=grid_sharding()),
-        )
-"""
-
-
-def test_two_device_sharding_matches_one_device():
-    assert_two_devices_match(SHARDING_SCENE)

@@ -47,20 +47,38 @@ def add_parser(sub) -> argparse.ArgumentParser:
     z.add_argument(
         "--lattice", choices=["2d", "rz"], default="2d", help="2d (a slot, extruded) or rz (a body of revolution)"
     )
-    z.add_argument("--max-length-mm", type=float, default=None, help="the part's largest extent along the axis, mm")
-    z.add_argument("--max-mouth-mm", type=float, default=None, help="the part's largest outer mouth diameter, mm")
-    z.add_argument("--min-wall-mm", type=float, default=None, help="the thinnest wall the printer makes, mm")
     z.add_argument(
-        "--can-diameter-mm", type=float, default=None, help="horn: the transducer's can; fixes the throat, mm"
+        "--max-length-mm",
+        type=float,
+        default=None,
+        help="the part's largest extent along the axis, mm (default: horn 166, reflector 60)",
     )
     z.add_argument(
-        "--can-clearance-mm", type=float, default=None, help="horn: clearance around the can either side, mm"
+        "--max-mouth-mm",
+        type=float,
+        default=None,
+        help="the part's largest outer mouth diameter, mm (default: horn 98, reflector 228)",
+    )
+    z.add_argument(
+        "--min-wall-mm", type=float, default=None, help="the thinnest wall the printer makes, mm (default: 2)"
+    )
+    z.add_argument(
+        "--can-diameter-mm",
+        type=float,
+        default=None,
+        help="horn: the transducer's can; fixes the throat, mm (default: none, the throat is free)",
+    )
+    z.add_argument(
+        "--can-clearance-mm",
+        type=float,
+        default=None,
+        help="horn: clearance around the can either side, mm (default: 0)",
     )
     z.add_argument(
         "--max-overhang-deg",
         type=float,
         default=None,
-        help="steepest printable overhang from vertical (part z up), deg",
+        help="steepest printable overhang from vertical (part z up), deg (default: 45)",
     )
     z.set_defaults(func=run)
     return z

@@ -293,13 +293,16 @@ class HousedSpec:
             "lags_s": lag,
         }
 
-    def truth_params(self, *, diaphragm_m: float, recess_m: float = 0.0, opening_m: float | None = None) -> dict:
-        """Raw parameters of a given geometry (for synthetic data and warm starts)."""
+    def truth_params(
+        self, *, diaphragm_m: float, recess_m: float | None = None, opening_m: float | None = None
+    ) -> dict:
+        """Raw parameters of a given geometry (for synthetic data and warm starts); a recess or
+        opening not given keeps its initial value (`init_params`)."""
         rb = self.housing.bore_radius_m
         p = self.init_params()
         if "diam" in p:
             p["diam"] = jnp.asarray(logit(_inside(0.5 * diaphragm_m / rb)))
-        if "recess" in p:
+        if "recess" in p and recess_m is not None:
             lo, hi = self.recess_min_m, self.recess_max_m
             p["recess"] = jnp.asarray(logit(_inside((recess_m - lo) / (hi - lo))))
         if "opening" in p and opening_m is not None:

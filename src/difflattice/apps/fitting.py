@@ -386,7 +386,13 @@ def _chi2_text(f: dict) -> str:
 def run_fit_config(path: str | Path, *, out=None, quick: bool = False) -> int:
     """`difflattice fit`: load, run, report; exit code 0 (converged and consistent with the data),
     3 (did not converge) or 4 (converged, but the model does not describe the data): see
-    `fit.verdict`."""
+    `fit.verdict`. A housed-transducer config (`[model] model = "housed"`) runs `fitting_housed`."""
+    from ..fit.housed_config import is_housed_config
+
+    if is_housed_config(path):
+        from .fitting_housed import run_housed_config
+
+        return run_housed_config(path, out=out, quick=quick)
     cfg = load_config(path)
     rep = run_fit(cfg, out=out, quick=quick)
     return int(rep["fit"]["outcome"]["exit_code"])

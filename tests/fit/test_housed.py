@@ -119,3 +119,21 @@ def test_choose_family_prefers_simpler_and_rejects_ill_conditioned():
     assert "ill-conditioning" in reason
     fits["recessed"] = F(20.0, 3, 10.0)
     assert choose_family(fits)[0] == "recessed"
+
+
+def test_open_back_radiates_antisymmetrically():
+    """An open-back can whose diaphragm plate sits mid-tube is antisymmetric under z -> -z about
+    the plate (the rear face moves the air the other way): the far field has an exact null at
+    90 deg and the same level at 180 deg as on axis, to round-off. A closed back has neither."""
+    dx = 343.2 / (F_HZ * 12.0)
+    d = 3e-3
+    levels = {}
+    for back in ("open", "closed"):
+        h = Housing(outer_diameter_m=16e-3, length_m=2 * d + dx, back=back)
+        spec = HousedSpec(housing=h, frequency_hz=F_HZ, cells_per_wavelength=12.0, family="recessed")
+        fw = HousedForward(spec, np.array([0.0, 90.0, 180.0]))
+        f = np.abs(np.asarray(jax.jit(fw.far_field)(spec.truth_params(diaphragm_m=9e-3, recess_m=d))))
+        levels[back] = f / f[0]
+    assert levels["open"][1] < 1e-9
+    assert levels["open"][2] == pytest.approx(1.0, rel=1e-9)
+    assert levels["closed"][1] > 1e-2 and levels["closed"][2] < 0.5

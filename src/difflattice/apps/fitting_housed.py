@@ -9,6 +9,7 @@ import json
 import math
 import time
 from pathlib import Path
+from typing import Any, cast
 
 from ..fit.housed_config import HousedConfig, load_housed_config
 
@@ -44,7 +45,11 @@ def run_housed(cfg: HousedConfig, *, out: str | Path | None = None, quick: bool 
     lobe = sheet.lobe()
     h, m = cfg.housing, cfg.model
     housing = Housing(
-        outer_diameter_m=h.outer_diameter_m, length_m=h.length_m, wall_m=h.wall_m, plate_m=h.plate_m, back="closed"
+        outer_diameter_m=h.outer_diameter_m,
+        length_m=h.length_m,
+        wall_m=h.wall_m,
+        plate_m=h.plate_m,
+        back=cast(Any, h.back),
     )
     cpw = 12.0 if quick else m.cells_per_wavelength
     res_cpw = None if quick else m.resolution_cells_per_wavelength

@@ -4,8 +4,11 @@ front face, behind a front plate with an opening, fitted by gradient through the
 A housed transducer is modelled as it is built (all lengths in metres, the can's axis on the
 lattice axis, its front facing +z):
 
-- the can: a closed rigid body of revolution of outer radius `R` (`Housing.outer_diameter_m / 2`)
-  and length `L` (`Housing.length_m`, from its back to its front face);
+- the can: a rigid body of revolution of outer radius `R` (`Housing.outer_diameter_m / 2`) and
+  length `L` (`Housing.length_m`, from its back to its front face), closed behind the diaphragm
+  (`back = "closed"`: solid from the diaphragm to the back) or open (`back = "open"`: a tube, the
+  diaphragm a rigid plate one cell thick across the bore whose rear face radiates in antiphase,
+  a velocity source of the opposite sign into the cell behind it);
 - the bore: the air-filled cylinder of radius `R_in = R - wall` in front of the diaphragm, `d`
   deep (the recess: the diaphragm lies `d` behind the front face; `d = 0`: flush, the "can"
   baffle of `fit.disc`);
@@ -63,14 +66,14 @@ FAMILY_PARAMS = {
 class Housing:
     """Outline dimensions of a can (a datasheet's outline drawing), metres: `outer_diameter_m`,
     `length_m` (back to front face), the wall `wall_m` (the bore is the outer diameter less two
-    walls) and the front plate's thickness `plate_m` (used by the "opening" family). Only a
-    closed back is modelled (`back = "closed"`)."""
+    walls), the front plate's thickness `plate_m` (used by the "opening" family) and the `back`:
+    "closed" (solid behind the diaphragm) or "open" (a tube; the diaphragm's rear radiates)."""
 
     outer_diameter_m: float
     length_m: float
     wall_m: float = 0.5e-3
     plate_m: float = 1.0e-3
-    back: Literal["closed"] = "closed"
+    back: Literal["closed", "open"] = "closed"
 
     def __post_init__(self):
         for name in ("outer_diameter_m", "length_m"):
@@ -84,8 +87,8 @@ class Housing:
             )
         if not 0 < self.plate_m < self.length_m:
             raise ValueError(f"housing plate_m = {self.plate_m} m must be in (0, length_m = {self.length_m}) m")
-        if self.back != "closed":
-            raise ValueError(f"housing back = {self.back!r}: only a closed back ('closed') is modelled")
+        if self.back not in ("closed", "open"):
+            raise ValueError(f"housing back = {self.back!r}; allowed: 'closed', 'open' (the diaphragm's rear radiates)")
 
     @property
     def outer_radius_m(self) -> float:
@@ -330,11 +333,15 @@ class HousedSpec:
         zd = float(lay.diaphragm_row)
         zf = zd + phys["recess_m"] / dx
         zb = zf - h.length_m / dx
-        body = row_fractions(zb, zd, nz, dtype)[:, None] * ring_volume_fractions(0.0, R, nr, dtype)[None, :]
         # a wall thinner than the lattice resolves would leak (two part-filled cut cells pass sound):
         # the bore's face is a cut cell at R_in, then at least one whole rigid ring (see `sealed_outer_cells`)
-        R = max(R, sealed_outer_cells(Rb))
-        wall = row_fractions(zd, zf, nz, dtype)[:, None] * ring_volume_fractions(Rb, R, nr, dtype)[None, :]
+        Rw = max(R, sealed_outer_cells(Rb))
+        if h.back == "closed":  # solid from the back to the diaphragm, the bore's wall in front
+            body = row_fractions(zb, zd, nz, dtype)[:, None] * ring_volume_fractions(0.0, R, nr, dtype)[None, :]
+            wall = row_fractions(zd, zf, nz, dtype)[:, None] * ring_volume_fractions(Rb, Rw, nr, dtype)[None, :]
+        else:  # a tube, and the diaphragm's plate (one row, across the bore) at the diaphragm's row - 1
+            body = row_fractions(zd - 1, zd, nz, dtype)[:, None] * ring_volume_fractions(0.0, Rb, nr, dtype)[None, :]
+            wall = row_fractions(zb, zf, nz, dtype)[:, None] * ring_volume_fractions(Rb, Rw, nr, dtype)[None, :]
         occ = body + wall
         if phys["opening_m"] is not None:
             zp = zf - h.plate_m / dx
@@ -393,7 +400,7 @@ class HousedForward:
         from ..lattice.medium import Medium
         from ..solver.loop import simulate
         from ..solver.sensors import Sensors
-        from ..solver.sources import ToneBurst, disc_transducer
+        from ..solver.sources import PointSources, ToneBurst, disc_transducer
 
         spec, grid = self.spec, self.grid
         dt = grid.jnp_dtype
@@ -409,11 +416,20 @@ class HousedForward:
             signal=ToneBurst(spec.frequency_hz, spec.cycles),
             baffle="can",
         )
+        sources = [src]
+        if spec.housing.back == "open":  # the rear face: the same flux out of the cell behind the plate
+            rear = np.asarray(src.cells_array).copy()
+            rear[:, 0] -= 2
+            sources.append(
+                PointSources(
+                    cells=rear, signal=src.signal, weights=-src.weights, lags_s=src.lags_s, injection="velocity"
+                )
+            )
         medium = Medium(spec.c_m_s, density_kg_m3(20.0), rigid=occ)
         r = simulate(
             grid,
             medium,
-            src,
+            sources,
             Sensors(phasor_cells=self.cells),
             n_steps=self.n_steps,
             edges=self.edges,

@@ -117,7 +117,12 @@ class HousingSection(Section):
         unit="m",
         doc="front plate thickness (family opening; >= 2 lattice cells)",
     )
-    back: str = setting("closed", kind="str", choices=("closed",), doc="the can's back (only closed is modelled)")
+    back: str = setting(
+        "closed",
+        kind="str",
+        choices=("closed", "open"),
+        doc="the can's back: closed (solid behind the diaphragm) or open (a tube: the diaphragm's rear radiates)",
+    )
 
 
 @dataclass(frozen=True)

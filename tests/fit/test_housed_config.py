@@ -65,3 +65,14 @@ def test_difflattice_fit_routes_a_housed_config_and_refuses_a_record_without_a_t
     )
     with pytest.raises(ValueError, match="digitise"):
         run_fit_config(cfg, out=tmp_path / "out")
+
+
+def test_synthetic_record_is_reproduced_by_its_script(tmp_path):
+    """data/emulated/housed_recessed/record.toml is what fitting/housed_recessed_reference.py writes."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("ref", ROOT / "fitting" / "housed_recessed_reference.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    out = mod.run(out=tmp_path / "record.toml")
+    assert out.read_text() == (ROOT / "data" / "emulated" / "housed_recessed" / "record.toml").read_text()

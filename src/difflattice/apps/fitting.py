@@ -7,59 +7,15 @@ code (`run_fit`, `run_fit_config`; `difflattice fit` calls them). The library it
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import platform
-import subprocess
-import sys
 import time
 import warnings
 from pathlib import Path
 from typing import Any, cast
 
-import numpy as np
-
 from ..config import ConfigWarning, message, show, specs
 from ..fit.config import FitConfig, SolverSection, load_config
 from ..fit.loading import fit_air, load_fit_data
-
-
-def _sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-def provenance(config_path: Path | None, data_paths: list[Path] | tuple[Path, ...]) -> dict:
-    """Package versions, git commit, machine, device and SHA-256 of the config and data files."""
-    import equinox
-    import jax
-    import optimistix
-
-    from .. import __version__
-
-    try:
-        commit = (
-            subprocess.run(
-                ["git", "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5, cwd=Path(__file__).parent
-            ).stdout.strip()
-            or None
-        )
-    except (OSError, subprocess.SubprocessError):
-        commit = None
-    return {
-        "difflattice": __version__,
-        "versions": {
-            "python": sys.version.split()[0],
-            "jax": jax.__version__,
-            "equinox": equinox.__version__,
-            "optimistix": optimistix.__version__,
-            "numpy": np.__version__,
-        },
-        "git_commit": commit,
-        "machine": platform.machine(),
-        "device": str(jax.devices()[0]),
-        "config_sha256": _sha256(config_path) if config_path else None,
-        "data_sha256": {str(p): _sha256(p) for p in data_paths},
-        "time_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-    }
+from .provenance import provenance
 
 
 def fit_options(cfg: FitConfig):

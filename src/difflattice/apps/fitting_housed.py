@@ -39,10 +39,11 @@ def run_housed(cfg: HousedConfig, *, out: str | Path | None = None, quick: bool 
     from ..fit.housed import HousedSpec, Housing
     from ..fit.ladder import Ladder, choose_family, family_ladder, fit_housed
     from ..fit.verdict import EXIT_CONSISTENT, EXIT_INADEQUATE, EXIT_NOT_CONVERGED, GOODNESS_P_MIN
-    from .fitting import provenance
+    from .provenance import provenance
 
     sheet = load_datasheet(cfg.datasheet_path)
-    lobe = sheet.lobe()
+    lobe = sheet.lobe()  # refuses a record without a table, naming the fix
+    table = sheet.table or {}
     h, m = cfg.housing, cfg.model
     housing = Housing(
         outer_diameter_m=h.outer_diameter_m,
@@ -85,7 +86,7 @@ def run_housed(cfg: HousedConfig, *, out: str | Path | None = None, quick: bool 
     out_dir.mkdir(parents=True, exist_ok=True)
     rep = {
         "device": sheet.part,
-        "datasheet": {"path": str(sheet.path), "source": sheet.source, "table_method": sheet.table["method"]},
+        "datasheet": {"path": str(sheet.path), "source": sheet.source, "table_method": table["method"]},
         "housing_outline_mm": {
             "outer_diameter": 1e3 * h.outer_diameter_m,
             "length": 1e3 * h.length_m,
@@ -106,7 +107,7 @@ def run_housed(cfg: HousedConfig, *, out: str | Path | None = None, quick: bool 
     o = rep["housing_outline_mm"]
     md = (
         f"# Housed fit: {sheet.part}\n\nData: {sheet.source['document']}, {sheet.source['revision']}, "
-        f"{sheet.source['location']} (digitised: {sheet.table['method']}, sigma {sheet.table['sigma_db']} dB).\n\n"
+        f"{sheet.source['location']} (digitised: {table['method']}, sigma {table['sigma_db']} dB).\n\n"
         f"Outline: can {o['outer_diameter']:.2f} mm across, {o['length']:.2f} mm long, bore {o['bore']:.2f} mm.\n\n"
         + ladder.markdown()
         + f"\nExit code {code} ({cpw:g} cells per wavelength).\n"

@@ -437,6 +437,7 @@ class HousedForward:
             preflight="off",
             throw=False,
         )
+        assert r.phasors is not None  # recorded: the sensors ask for them
         return r.phasors @ self.operator
 
     def lobe_db(self, params: dict):

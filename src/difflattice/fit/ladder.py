@@ -40,6 +40,9 @@ is fixed only to 1e-4 of its marginal spread, the precision of "6.864 +- 0.000 m
 BIC_TIE = 2.0
 """A richer family must lower the BIC by more than this to be chosen over a simpler one."""
 
+AT_BOUND = 6.0
+"""|logit| beyond which a geometry parameter is reported at a bound of its range (within 0.25 %)."""
+
 FLOOR_BELOW_DB = 30.0
 """The model's soft floor lies this far below the lowest datum (it lifts the lowest datum's model level by
 0.004 dB; a table does not resolve nulls deeper than that)."""
@@ -80,6 +83,18 @@ class HousedFit:
     def ill_conditioned(self) -> bool:
         return not self.condition <= COND_MAX
 
+    @property
+    def at_bound(self) -> list[str]:
+        """Geometry parameters within `AT_BOUND` of a bound of their range (the logistic map's
+        slope is < 0.25 % there): a diaphragm or opening the size of the bore, a recess of 0 or
+        the can's length. Such a value is the model saying the data want more (or less) than the
+        can allows; its error is not a spread."""
+        out = []
+        for key, label in (("diam", "diaphragm"), ("recess", "recess"), ("opening", "opening")):
+            if key in self.params and abs(float(self.params[key])) > AT_BOUND:
+                out.append(label)
+        return out
+
     def summary(self) -> dict:
         """Plain values for reports and files (mm, dB)."""
         out = {
@@ -94,6 +109,7 @@ class HousedFit:
             "rms_db": self.rms_db,
             "condition": self.condition,
             "ill_conditioned": self.ill_conditioned,
+            "at_bound": self.at_bound,
             "converged": self.converged,
             "iterations": self.iterations,
         }
@@ -366,6 +382,7 @@ class Ladder:
         for name, f in self.fits.items():
             s = f.summary()
             mark = " (chosen)" if name == self.chosen else (" (ill-conditioned)" if f.ill_conditioned else "")
+            mark += "".join(f" ({b} at bound)" for b in f.at_bound)
             rows.append(
                 f"| {name}{mark} | {s['k']} | {s['chi2']:.1f} | {s['chi2_reduced']:.2f} | {s['p']:.2g} | "
                 f"{s['aic']:.1f} | {s['bic']:.1f} | {s['rms_db']:.2f} | {s['condition']:.2g} | "

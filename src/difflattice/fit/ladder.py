@@ -422,6 +422,41 @@ def choose_family(fits: dict) -> tuple[str, str]:
     return chosen, reason
 
 
+NESTED_IN = {"recessed": "flat", "opening": "recessed", "profile": "flat"}
+"""The family each one reduces to (recess 0; no plate, i.e. an opening as wide as the bore; a
+uniform profile): its fit seeds the richer family's, and the richer family's chi-square should
+not exceed it."""
+
+
+def _warm_starts(s: HousedSpec, parent: HousedFit) -> list[dict]:
+    """Raw starts of family `s.family` from its parent's fit: the parent's geometry with the new
+    parameter (i) at its default and (ii) next to the value that reduces it to the parent (a
+    recess of half a cell, an opening of 0.97 of the bore: at the bound itself the logit has no
+    gradient)."""
+    ph = parent.physical
+    diam = ph["diaphragm_mm"] * 1e-3
+    rec = ph.get("recess_mm")
+    lo = s.recess_min_m
+    near_rec = lo + 0.5 * s.dx_m
+    rb = s.housing.bore_radius_m
+    opening = ph.get("opening_mm")
+    cases = [(None if rec is None else max(rec * 1e-3, lo + 0.05 * (s.recess_max_m - lo)), None)]
+    if s.family == "recessed":
+        cases.append((near_rec, None))
+    if s.family == "opening":
+        cases.append((max(rec * 1e-3, lo + 0.5 * s.dx_m) if rec is not None else near_rec, 2 * 0.97 * rb))
+    out = []
+    for recess_m, opening_m in cases:
+        q = s.truth_params(
+            diaphragm_m=diam,
+            recess_m=recess_m,
+            opening_m=opening_m if opening_m is not None else (None if opening is None else opening * 1e-3),
+        )
+        q["gain_db"] = jnp.asarray(ph["gain_db"])
+        out.append(q)
+    return out
+
+
 def family_ladder(
     spec: HousedSpec,
     lobe: LobeData,
@@ -432,33 +467,27 @@ def family_ladder(
     resolution_cpw: float | None = None,
 ) -> Ladder:
     """Fit each of `families` (a `HousedSpec` like `spec` with its family replaced) to `lobe`,
-    warm-starting each family from the previous one's geometry, and choose (`choose_family`);
-    with `resolution_cpw`, the chosen fit's errors get the resolution term (`add_resolution_term`)."""
+    from the fit of the family it reduces to (`NESTED_IN`, `_warm_starts`) and, with `starts` > 1,
+    from its own starts, keeping the best; then choose (`choose_family`). With `resolution_cpw`,
+    the chosen fit's errors get the resolution term (`add_resolution_term`). A richer family whose
+    chi-square stays above its parent's (a local minimum the starts did not escape) is named in
+    the reason."""
     fits: dict = {}
-    prev = None
+    stuck = []
     for fam in families:
         s = dataclasses.replace(spec, family=fam)
-        init = None
-        if prev is not None:
-            ph = prev.physical
-            # a parameter the simpler family lacks starts at its default, not at the value that
-            # family implies (a recess of 0 is the bound, where the logit has no gradient)
-            rec = ph.get("recess_mm")
-            init = s.truth_params(
-                diaphragm_m=ph["diaphragm_mm"] * 1e-3,
-                recess_m=None
-                if rec is None
-                else max(rec * 1e-3, s.recess_min_m + 0.05 * (s.recess_max_m - s.recess_min_m)),
-                opening_m=None if ph.get("opening_mm") is None else ph["opening_mm"] * 1e-3,
-            )
-            init["gain_db"] = jnp.asarray(ph["gain_db"])
-        f = fit_housed(s, lobe, init=init, max_iter=max_iter, starts=starts)
-        if init is not None and starts > 1:  # also from the family's own starts: keep the better
-            g = fit_housed(s, lobe, max_iter=max_iter, starts=starts)
-            f = g if g.chi2 < f.chi2 else f
+        parent = fits.get(NESTED_IN.get(fam, ""))
+        inits: list = [] if parent is None else _warm_starts(s, parent)
+        cands = [fit_housed(s, lobe, init=q, max_iter=max_iter) for q in inits]
+        if not inits or starts > 1:
+            cands.append(fit_housed(s, lobe, max_iter=max_iter, starts=starts))
+        f = min(cands, key=lambda c: c.chi2)
+        if parent is not None and f.chi2 > parent.chi2 + 1.0:
+            stuck.append(f"{fam} (chi2 {f.chi2:.1f} above {NESTED_IN[fam]}'s {parent.chi2:.1f})")
         fits[fam] = f
-        prev = f
     chosen, reason = choose_family(fits)
+    if stuck:
+        reason += " Local minima: " + ", ".join(stuck) + "; their comparison is not conclusive."
     if resolution_cpw is not None:
         add_resolution_term(fits[chosen], lobe, resolution_cpw, max_iter=max_iter)
         reason += f" Its errors include the shift of a refit at {resolution_cpw:g} cells per wavelength."

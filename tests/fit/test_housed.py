@@ -137,3 +137,17 @@ def test_open_back_radiates_antisymmetrically():
     assert levels["open"][1] < 1e-9
     assert levels["open"][2] == pytest.approx(1.0, rel=1e-9)
     assert levels["closed"][1] > 1e-2 and levels["closed"][2] < 0.5
+
+
+def test_fixed_geometry_is_held_and_reported():
+    h = Housing(outer_diameter_m=16e-3, length_m=10e-3, plate_m=1.5e-3)
+    spec = HousedSpec(
+        housing=h, frequency_hz=F_HZ, cells_per_wavelength=12, family="opening", opening_m=8e-3, fixed=("opening",)
+    )
+    p = spec.init_params()
+    assert "opening" not in p and {"diam", "recess", "gain_db"} <= set(p)
+    assert float(spec.physical(p)["opening_m"]) == pytest.approx(8e-3)
+    with pytest.raises(ValueError, match="needs its value"):
+        HousedSpec(housing=h, frequency_hz=F_HZ, cells_per_wavelength=12, family="opening", fixed=("opening",))
+    with pytest.raises(ValueError, match="not a geometry parameter"):
+        HousedSpec(housing=h, frequency_hz=F_HZ, cells_per_wavelength=12, fixed=("gain",))

@@ -63,6 +63,7 @@ def run_housed(cfg: HousedConfig, *, out: str | Path | None = None, quick: bool 
         diaphragm_m=m.diaphragm_m,
         recess_m=m.recess_m,
         opening_m=m.opening_m,
+        fixed=tuple(m.fixed),
     )
     t0 = time.perf_counter()
     if m.family == "ladder":

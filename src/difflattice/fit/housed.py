@@ -62,6 +62,11 @@ FAMILY_PARAMS = {
 }
 
 
+FIXABLE = {"diam": "diaphragm", "recess": "recess", "opening": "opening"}
+"""Raw geometry parameters and the names under which `HousedSpec.fixed` holds them at the spec's
+value (`diaphragm_m`, `recess_m`, `opening_m`), e.g. an opening read off the outline drawing."""
+
+
 @dataclass(frozen=True)
 class Housing:
     """Outline dimensions of a can (a datasheet's outline drawing), metres: `outer_diameter_m`,
@@ -151,8 +156,9 @@ class HousedSpec:
     """Static description of a housed model: the can (`housing`), drive `frequency_hz`, speed of
     sound `c_m_s`, lattice resolution `cells_per_wavelength`, the `family` (`FAMILIES`), initial
     (or fixed) geometry (`diaphragm_m`, `recess_m`, `opening_m`: diameters and depth in metres;
-    defaults: 0.8 x the bore, 1 mm, 0.8 x the bore), `dtype`, the absorbing layer `pml_cells`
-    and the surface's gap `surface_gap` (cells)."""
+    defaults: 0.8 x the bore, 1 mm, 0.8 x the bore), `dtype`, the absorbing layer `pml_cells`,
+    the surface's gap `surface_gap` (cells), the lattice `stencil` and the geometry held `fixed`
+    at the given values (names in `FIXABLE`: "diaphragm", "recess", "opening")."""
 
     housing: Housing
     frequency_hz: float
@@ -167,6 +173,7 @@ class HousedSpec:
     surface_gap: int = 2
     cycles: float = 4.0
     stencil: Literal["standard", "isotropic"] = "standard"
+    fixed: tuple[str, ...] = ()
 
     def __post_init__(self):
         if self.family not in FAMILIES:
@@ -196,6 +203,13 @@ class HousedSpec:
                 f"{self.dx_m * 1e3:.3g} mm; a cut-cell plate needs >= 2 cells to be sealed: raise "
                 f"cells_per_wavelength to >= {need:.1f}, or model a thicker plate (housing plate_m)"
             )
+        for name in self.fixed:
+            if name not in FIXABLE.values():
+                raise ValueError(
+                    f"fixed = {self.fixed!r}: {name!r} is not a geometry parameter; allowed: diaphragm, recess, opening"
+                )
+            if getattr(self, f"{name}_m") is None:
+                raise ValueError(f"fixed {name!r} needs its value: give {name}_m (e.g. from the outline drawing)")
         if self.n_rings < 2:
             raise ValueError(
                 f"the bore ({2 * h.bore_radius_m * 1e3:.3g} mm) is {self.n_rings} rings of {self.dx_m * 1e3:.3g} mm: "
@@ -245,7 +259,8 @@ class HousedSpec:
 
     # -- parameters ------------------------------------------------------------------------
     def param_names(self) -> tuple[str, ...]:
-        return FAMILY_PARAMS[self.family]
+        """The family's raw parameters, less those held `fixed` at the spec's values."""
+        return tuple(k for k in FAMILY_PARAMS[self.family] if FIXABLE.get(k) not in self.fixed)
 
     def init_params(self) -> dict:
         """Initial raw parameters of the family (defaults from the housing)."""
@@ -279,7 +294,12 @@ class HousedSpec:
             d = lo + (hi - lo) * s(params["recess"])
         else:
             d = jnp.asarray(self.recess_m or 0.0)
-        b = rb * s(params["opening"]) if "opening" in params else None
+        if "opening" in params:
+            b = rb * s(params["opening"])
+        elif self.family == "opening" and self.opening_m is not None:  # held fixed
+            b = jnp.asarray(0.5 * self.opening_m)
+        else:
+            b = None
         n = self.n_rings
         w = jnp.ones(n)
         lag = jnp.zeros(n)

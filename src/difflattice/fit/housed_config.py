@@ -88,6 +88,14 @@ class HousedModelSection(Section):
     opening_m: float | None = setting(
         None, kind="number", gt=0, unit="m", doc="initial diameter of the front plate's opening"
     )
+    fixed: tuple = setting(
+        [],
+        kind="list",
+        items="str",
+        choices=("diaphragm", "recess", "opening"),
+        doc="geometry held at its given value (diaphragm_m, recess_m, opening_m), e.g. an opening from the outline",
+        fix='give e.g. ["opening"] with opening_m',
+    )
 
 
 @dataclass(frozen=True)

@@ -131,7 +131,8 @@ def _physical_vector(spec: HousedSpec, params: dict):
         ("gain_db", 1.0, "gain_db"),
     ):
         v = ph[key]
-        if v is None or (key == "recess_m" and "recess" not in params):
+        raw = {"diaphragm_m": "diam", "recess_m": "recess", "opening_m": "opening"}.get(key)
+        if v is None or (raw is not None and raw not in params):  # absent, or held fixed
             continue
         names.append(label)
         vals.append(jnp.asarray(v) * scale)
@@ -335,6 +336,8 @@ def _finish(spec, fw, lobe, unravel, u, res_j, jac_j, floor, converged, it) -> H
     cov_phys = G @ cov_scaled @ G.T
     errors = {nm: float(math.sqrt(max(cov_phys[i, i], 0.0))) for i, nm in enumerate(names)}
     values = {nm: float(v) for nm, v in zip(names, np.asarray(vec), strict=True)}
+    for name in spec.fixed:  # held at the given value: reported, without an error
+        values[f"{name}_mm"] = 1e3 * float(getattr(spec, f"{name}_m"))
     model = np.asarray(soft_floor_db(fw.lobe_db(params), floor))
     res_db = model - np.asarray(lobe.level_db)
     goodness = goodness_of_fit({"lobe": r}, J, cov, k)
@@ -394,7 +397,9 @@ class Ladder:
 def _pm(s: dict, key: str) -> str:
     if key not in s:
         return "-"
-    return f"{s[key]:.2f} +- {s.get(key + '_err', float('nan')):.2f}"
+    if key + "_err" not in s:
+        return f"{s[key]:.2f} (fixed)"
+    return f"{s[key]:.2f} +- {s[key + '_err']:.2f}"
 
 
 def choose_family(fits: dict) -> tuple[str, str]:

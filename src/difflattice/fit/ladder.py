@@ -445,7 +445,9 @@ def _warm_starts(s: HousedSpec, parent: HousedFit) -> list[dict]:
     near_rec = lo + 0.5 * s.dx_m
     rb = s.housing.bore_radius_m
     opening = ph.get("opening_mm")
-    cases = [(None if rec is None else max(rec * 1e-3, lo + 0.05 * (s.recess_max_m - lo)), None)]
+    cases: list[tuple[float | None, float | None]] = [
+        (None if rec is None else max(rec * 1e-3, lo + 0.05 * (s.recess_max_m - lo)), None)
+    ]
     if s.family == "recessed":
         cases.append((near_rec, None))
     if s.family == "opening":

@@ -151,3 +151,22 @@ def test_fixed_geometry_is_held_and_reported():
         HousedSpec(housing=h, frequency_hz=F_HZ, cells_per_wavelength=12, family="opening", fixed=("opening",))
     with pytest.raises(ValueError, match="not a geometry parameter"):
         HousedSpec(housing=h, frequency_hz=F_HZ, cells_per_wavelength=12, fixed=("gain",))
+
+
+def test_near_field_tends_to_the_far_field():
+    """The scan-line prediction (`near_field`) at range R on the axis is F(0) exp(ikR) / R up to
+    O(L / R) (L ~ 30 mm, the sources' extent about the origin): at R = 100 m, |p| R / |F| = 1
+    within 1e-3. Checks the point placement in front of the (recessed) front face and the
+    kernels' composition; too near the can is refused with the distance needed."""
+    h = Housing(outer_diameter_m=16e-3, length_m=12e-3)
+    spec = HousedSpec(housing=h, frequency_hz=F_HZ, cells_per_wavelength=10, family="recessed", recess_m=3e-3)
+    z = 100.0
+    fw = HousedForward(spec, np.array([0.0]), wave_x_m=np.array([0.0]), wave_z_m=z)
+    p = spec.truth_params(diaphragm_m=9e-3, recess_m=3e-3)
+    r_m = fw.layout.diaphragm_row * fw.layout.dx_m + 3e-3 + z  # from the lattice origin, the far field's
+    near = complex(np.asarray(jax.jit(fw.near_field)(p))[0])
+    far = complex(np.asarray(jax.jit(fw.far_field)(p))[0])
+    r_cells = r_m / fw.layout.dx_m  # `far_field_rz` is R p in Pa x cells
+    assert abs(near) * r_cells / abs(far) == pytest.approx(1.0, abs=1e-3)
+    with pytest.raises(ValueError, match="give wave_z_m >"):
+        HousedForward(spec, np.array([0.0]), wave_x_m=np.array([0.0]), wave_z_m=1e-3)

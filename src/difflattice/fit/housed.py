@@ -386,7 +386,7 @@ class HousedForward:
     """The housed model's lobe on its lattice: `lobe_db(params)` (jnp, differentiable in every
     raw parameter, the geometry included) at the far-field angles `angle_deg` (from the axis)."""
 
-    def __init__(self, spec: HousedSpec, angle_deg):
+    def __init__(self, spec: HousedSpec, angle_deg, *, wave_x_m=None, wave_z_m: float | None = None):
         from ..lattice.coefficients import Edges
         from ..lattice.grid import make_grid
         from ..observe.farfield_rz import CylinderSurface, far_field_rz
@@ -413,9 +413,49 @@ class HousedForward:
         kern = np.asarray(far_field_rz(np.eye(pairs.shape[1]), self.surface, grid, self.angle_deg))  # (2M, A)
         self.operator = jnp.asarray(pairs @ kern)  # (4M, A): recorded phasors -> far field
         self.edges = Edges.axisymmetric("pml", "pml", "pml", thickness_cells=spec.pml_cells)
+        self.wave_operator = None
+        if wave_x_m is not None:
+            self.wave_operator = jnp.asarray(pairs @ self._wave_kernel(wave_x_m, wave_z_m))
+
+    def _wave_kernel(self, wave_x_m, wave_z_m):
+        """(2M, J) Kirchhoff-Helmholtz kernel to the scan line `wave_z_m` in front of the front face
+        (at the spec's recess: the points are static) at lateral positions `wave_x_m` (p(x) = p(|x|))."""
+        from ..observe.farfield_rz import field_at_rz
+
+        lay, dx = self.layout, self.layout.dx_m
+        if wave_z_m is None or not wave_z_m > 0:
+            raise ValueError(
+                f"wave_z_m = {wave_z_m} must be > 0 m (the scan line's distance in front of the front face)"
+            )
+        z_cells = lay.diaphragm_row + (self.spec.recess_m or 0.0) / dx + wave_z_m / dx
+        if z_cells <= lay.iz1 + 2:
+            need = (lay.iz1 + 2 - lay.diaphragm_row) * dx - (self.spec.recess_m or 0.0)
+            raise ValueError(
+                f"wave_z_m = {wave_z_m} m puts the scan line inside the surface round the can (which clears the "
+                f"deepest recess); give wave_z_m > {need:.4g} m"
+            )
+        x = np.abs(np.asarray(wave_x_m, float).reshape(-1))
+        pts = np.stack([np.full_like(x, z_cells), x / dx], 1)
+        k = 2 * math.pi / self.spec.cells_per_wavelength
+        r_src = lay.jr + 1.0
+        d_min = max(z_cells - lay.iz1 - 1, 1.0)
+        n_phi = 2 * int(math.ceil(k * r_src + 12 * r_src / d_min + 32))  # as `transfer_disc` for near points
+        m = self.operator.shape[0] // 2
+        return np.asarray(field_at_rz(np.eye(m), self.surface, self.grid, pts, dispersion="continuum", n_phi=n_phi))
+
+    def near_field(self, params: dict):
+        """Complex pressure on the scan line given at construction (same units as `far_field`);
+        the observer's carrier phase in the rig's convention is -arg of it."""
+        if self.wave_operator is None:
+            raise ValueError("no scan line: construct HousedForward(..., wave_x_m=..., wave_z_m=...)")
+        return self.phasors(params) @ self.wave_operator
 
     def far_field(self, params: dict):
         """Complex far field F at `angle_deg` (arbitrary units: the drive's spectrum is not divided out)."""
+        return self.phasors(params) @ self.operator
+
+    def phasors(self, params: dict):
+        """The lattice run: phasors at the drive frequency of the surface's recorded cells."""
         from ..air import density_kg_m3
         from ..lattice.medium import Medium
         from ..solver.loop import simulate
@@ -458,7 +498,7 @@ class HousedForward:
             throw=False,
         )
         assert r.phasors is not None  # recorded: the sensors ask for them
-        return r.phasors @ self.operator
+        return r.phasors
 
     def lobe_db(self, params: dict):
         """Model levels, dB: 20 log10 |F| plus the fitted gain."""

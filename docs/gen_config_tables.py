@@ -28,9 +28,11 @@ def _parts() -> dict[Path, dict[str, str]]:
     from difflattice.capture.files import Measurement, ScanHeader
     from difflattice.config import markdown_table
     from difflattice.fit.config import config_markdown
+    from difflattice.fit.housed_config import housed_config_markdown
 
     return {
         HERE / "fitting.md": {"fit-config": config_markdown()},
+        HERE / "housed.md": {"housed-config": housed_config_markdown()},
         HERE / "capture.md": {
             "capture-header": markdown_table(ScanHeader, heading="Written by the capture", level=4)
             + "\n"

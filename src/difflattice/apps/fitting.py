@@ -7,59 +7,15 @@ code (`run_fit`, `run_fit_config`; `difflattice fit` calls them). The library it
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import platform
-import subprocess
-import sys
 import time
 import warnings
 from pathlib import Path
 from typing import Any, cast
 
-import numpy as np
-
 from ..config import ConfigWarning, message, show, specs
 from ..fit.config import FitConfig, SolverSection, load_config
 from ..fit.loading import fit_air, load_fit_data
-
-
-def _sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-def provenance(config_path: Path | None, data_paths: list[Path] | tuple[Path, ...]) -> dict:
-    """Package versions, git commit, machine, device and SHA-256 of the config and data files."""
-    import equinox
-    import jax
-    import optimistix
-
-    from .. import __version__
-
-    try:
-        commit = (
-            subprocess.run(
-                ["git", "rev-parse", "HEAD"], capture_output=True, text=True, timeout=5, cwd=Path(__file__).parent
-            ).stdout.strip()
-            or None
-        )
-    except (OSError, subprocess.SubprocessError):
-        commit = None
-    return {
-        "difflattice": __version__,
-        "versions": {
-            "python": sys.version.split()[0],
-            "jax": jax.__version__,
-            "equinox": equinox.__version__,
-            "optimistix": optimistix.__version__,
-            "numpy": np.__version__,
-        },
-        "git_commit": commit,
-        "machine": platform.machine(),
-        "device": str(jax.devices()[0]),
-        "config_sha256": _sha256(config_path) if config_path else None,
-        "data_sha256": {str(p): _sha256(p) for p in data_paths},
-        "time_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-    }
+from .provenance import provenance
 
 
 def fit_options(cfg: FitConfig):
@@ -386,7 +342,13 @@ def _chi2_text(f: dict) -> str:
 def run_fit_config(path: str | Path, *, out=None, quick: bool = False) -> int:
     """`difflattice fit`: load, run, report; exit code 0 (converged and consistent with the data),
     3 (did not converge) or 4 (converged, but the model does not describe the data): see
-    `fit.verdict`."""
+    `fit.verdict`. A housed-transducer config (`[model] model = "housed"`) runs `fitting_housed`."""
+    from ..fit.housed_config import is_housed_config
+
+    if is_housed_config(path):
+        from .fitting_housed import run_housed_config
+
+        return run_housed_config(path, out=out, quick=quick)
     cfg = load_config(path)
     rep = run_fit(cfg, out=out, quick=quick)
     return int(rep["fit"]["outcome"]["exit_code"])

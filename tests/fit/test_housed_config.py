@@ -23,6 +23,17 @@ def test_shipped_config_loads_and_points_at_a_record_with_a_table():
     assert not is_housed_config(ROOT / "fitting" / "piston_disc.toml")
 
 
+def test_the_real_device_config_reads_its_cited_table():
+    """The T4010A1 config: a real datasheet table (cited file and commit), inside the can's outline."""
+    from difflattice.fit.datasheet import load_datasheet
+
+    cfg = load_housed_config(ROOT / "fitting" / "housed_t4010a1.toml")
+    sheet = load_datasheet(cfg.datasheet_path)
+    assert sheet.part == "T4010A1" and "c031b5343ff862c2a03bbe7c5a3e53af44e4d971" in sheet.source["url"]
+    assert list(sheet.table["angle_deg"]) == list(range(0, 90, 10)) and sheet.table["sigma_db"] == 0.5
+    assert cfg.housing.outer_diameter_m == sheet.outline["outer_diameter_m"] == 0.010
+
+
 @pytest.mark.parametrize(
     ("raw", "match"),
     [

@@ -161,6 +161,7 @@ def _tables(
     return {
         "grid": {
             "kind": "3d",
+            "stencil": "standard",  # the 7-point validation scenes (references: analytic3d's 7-point relation)
             "frequency_hz": float(frequency_hz),
             "cells_per_wavelength": float(cells_per_wavelength),
             "size_m": _r([int(n) * dx for n in shape]),

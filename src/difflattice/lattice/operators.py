@@ -86,20 +86,32 @@ def face_gradient(lat: Lattice, q, axis: int):
 
 
 def _across_faces(lat: Lattice, g, b, axis: int):
-    """The isotropic stencil's face values ``M g`` for the differences g along `axis` (plane and
-    rz grids): ``M = diag(b) + A^(-1) T / 12``, T the second difference across the faces (along
-    the other axis) with edge weights ``min(b_j, b_k) A_jk``, so M is symmetric in the face-area
-    inner product, 2/3 b <= M <= b (hence never less stable than the standard stencil on the same
-    coefficients), and a closed face (b = 0) carries nothing. A is 1 on a plane grid
+    """The isotropic stencil's face values ``M g`` for the differences g along `axis`:
+    ``M = diag(b) + sum_t A^(-1) T_t / 12``, T_t the second difference across the faces along
+    each other axis t with edge weights ``min(b_j, b_k) A_jk``, so M is symmetric in the
+    face-area inner product, ``(1 - (ndim - 1) / 3) b <= M <= b`` (2/3 b on a plane, 1/3 b in a
+    volume: positive, hence never less stable than the standard stencil on the same
+    coefficients), and a closed face (b = 0) carries nothing. A is 1 on plane and volume grids
     and on the radial faces of an rz grid; for the axial faces of an rz grid A_j = j + 1/2 (the
     ring's face area) and A_jk = j + 1 (the ring boundary between them): the finite-volume radial
-    Laplacian. The ends of the window (and the axis) add no edge: a mirror there. ``L5 + T_x T_y
-    / 6`` is the 9-point Mehrstellen Laplacian (`grid.STENCILS`)."""
-    t = 1 - axis
-    n_t = g.shape[t]
+    Laplacian. The ends of the window (and the axis) add no edge: a mirror there. On a plane,
+    ``L5 + T_x T_y / 6`` is the 9-point Mehrstellen Laplacian; in a volume, ``L7 + (T_x T_y +
+    T_y T_z + T_z T_x) / 6`` is the 19-point compact isotropic one (Kowalczyk & van Walstijn
+    2011's IISO, a = 1/6, b = 0; `grid.stability_limit`)."""
     flux = g if b is None else b * g
-    if n_t < 2:
-        return flux
+    out = flux
+    for t in range(g.ndim):
+        if t != axis and g.shape[t] >= 2:
+            out = out + _transverse(lat, g, b, axis, t) / 12.0
+    return out
+
+
+def _transverse(lat: Lattice, g, b, axis: int, t: int):
+    """``A^(-1) T_t g`` across the faces along `t` (see `_across_faces`). In a volume a soft
+    (zero-ghost) window side adds the edge to the ghost layer's faces, whose values are zero: the
+    operator is then the whole-space one on the odd extension, so its spectrum stays inside the
+    whole-space bound (without that edge rho(-L) = 5.77 > 16/3 was measured with soft sides)."""
+    n_t = g.shape[t]
     d = _along(g, t, slice(1, None)) - _along(g, t, slice(None, -1))
     if b is not None:
         if b.shape[t] > 1:
@@ -109,11 +121,17 @@ def _across_faces(lat: Lattice, g, b, axis: int):
     ring = lat.metric is not None and axis == 0
     if ring:  # edge weights: the ring boundaries' areas j + 1 between rings j and j + 1
         d = d * jnp.asarray(np.arange(1, n_t, dtype=float).reshape(1, -1), g.dtype)
-    zero = jnp.zeros_like(_along(d, t, slice(0, 1)))
-    corr = jnp.concatenate([d, zero], axis=t) - jnp.concatenate([zero, d], axis=t)
+    lo = hi = jnp.zeros_like(_along(d, t, slice(0, 1)))
+    if g.ndim == 3:  # a soft window side: the edge to the zero ghost faces (odd mirror), see below
+        flux = g if b is None else b * g
+        if lat.ghosts[2 * t] == "dirichlet":
+            lo = _along(flux, t, slice(0, 1))
+        if lat.ghosts[2 * t + 1] == "dirichlet":
+            hi = -_along(flux, t, slice(-1, None))
+    corr = jnp.concatenate([d, hi], axis=t) - jnp.concatenate([lo, d], axis=t)
     if ring:
         corr = corr / jnp.asarray((np.arange(n_t, dtype=float) + 0.5).reshape(1, -1), g.dtype)
-    return flux + corr / 12.0
+    return corr
 
 
 def divergence(lat: Lattice, g, axis: int):
@@ -150,7 +168,7 @@ def stencil(lat: Lattice, q):
     form (face values, `_across_faces`, then their divergence)."""
     if lat.stencil == "isotropic":
         terms = [divergence(lat, face_gradient(lat, q, axis), axis) for axis in range(q.ndim)]
-        return terms[0] + terms[1]
+        return sum(terms[1:], terms[0])
     if q.ndim == 3:
         neighbours = [_shifted(q, axis) for axis in range(3)]
     else:
@@ -187,3 +205,20 @@ def adjoint_operator(lat: Lattice, lam):
         return v * stencil(lat, lat.K * lam / v)
     y = stencil(lat, lat.K * lam)
     return y if lat.q_scale is None else lat.q_scale * y
+
+
+def spectral_radius(lat: Lattice, shape: tuple[int, ...], iters: int = 100, seed: int = 0) -> float:
+    """Estimate of rho(-D), D the scene's operator (`operator`, lattice units), by power iteration
+    from a random start: a lower bound that converges to rho, fast where a mode localised at an
+    obstacle stands clear of the bulk (ratio of the top two eigenvalues), which is the case it
+    exists for (`coefficients.build_lattice`: the 3-D isotropic stencil with obstacles). The
+    leapfrog is stable iff rho(-D) <= 4."""
+    v0 = np.random.default_rng(seed).standard_normal(shape)
+    dtype = lat.K.dtype if hasattr(lat.K, "dtype") else jnp.float32
+
+    def body(_, v):
+        w = -operator(lat, v)
+        return w / jnp.sqrt(jnp.sum(w * w))
+
+    v = jax.jit(lambda v: jax.lax.fori_loop(0, iters, body, v))(jnp.asarray(v0 / np.linalg.norm(v0), dtype))
+    return float(jnp.sqrt(jnp.sum(operator(lat, v) ** 2)))

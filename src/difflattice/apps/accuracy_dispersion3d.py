@@ -18,9 +18,9 @@ import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from ..lattice.kinds import StencilKind
-
 import numpy as np
+
+from ..lattice.kinds import StencilKind
 
 DIRECTIONS = {"axis": (1, 0, 0), "face_diagonal": (1, 1, 0), "body_diagonal": (1, 1, 1)}
 SCHEMES = {"isotropic": 0.86, "standard": 0.577}  # stencil -> its default courant (kinds.Volume)

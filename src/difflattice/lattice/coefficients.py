@@ -323,7 +323,7 @@ class Lattice(eqx.Module):
     bz: Float[Array, "nx ny nz1"] | None = None  # 3-D grids only
     stencil: StencilKind = eqx.field(static=True, default="standard")  # `Grid.stencil`: "standard" | "isotropic"
     uniform_faces: bool = eqx.field(static=True, default=True)  # the stencil's own limit holds: one density, no
-    # obstacles, or (3-D isotropic) rigid obstacles whose measured spectrum allows it (`speed_limit`)
+    # obstacles, or (3-D isotropic) rigid obstacles, whose spectrum `spectrum.check_spectrum` measures (`speed_limit`)
     relax: AirRelaxation | None = None  # air's absorption (None: lossless, no fields, no work)
 
     def conductance(self, axis: int):
@@ -490,7 +490,8 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
     # the isotropic stencil's sqrt(3)/2 holds for uniform face conductances (one density, no
     # obstacles); otherwise its bound is the standard stencil's (`speed_limit`)
     uniform_faces = medium.rigid is None and medium.soft is None and _uniform(medium.density_kg_m3)
-    # in a volume, rigid obstacles in one density: the actual operator's spectrum is measured below
+    # in a volume, rigid obstacles in one density: the actual operator's spectrum is measured when
+    # a stepper is built (`spectrum.check_spectrum`)
     measure = (
         ndim == 3 and medium.soft is None and _uniform(medium.density_kg_m3) and not isinstance(c, jax.core.Tracer)
     )
@@ -519,30 +520,7 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
         relax=relax,
         **a,
     )
-    if grid.stencil == "isotropic" and not uniform_faces and measure:
-        _check_measured_spectrum(lat, shape)
     return lat
-
-
-def _check_measured_spectrum(lat: Lattice, shape) -> None:
-    """The 3-D isotropic stencil next to rigid obstacles: refuse the scene if the measured
-    spectral radius of its operator breaks the leapfrog's bound rho(-D) <= 4 (thin features, one
-    cell wide, were measured up to 6.4 / (16/3) of the whole-space bound; posts, boxes, walls and
-    steps stay within it). The estimate is a lower bound: a 1 % margin."""
-    from .operators import spectral_radius
-
-    rho = spectral_radius(lat, shape)
-    if rho > 4.0 / 1.01:
-        raise ValueError(
-            f"the 3-D isotropic stencil next to these obstacles is unstable at this courant: the operator's "
-            f"measured spectral radius is {rho:.4f} > 4 / 1.01 (features one cell thin lose the stencil's "
-            "reduction of the checkerboard): lower the grid courant (to about "
-            f"{math.sqrt(4.0 / 1.01 / rho) * _max_speed(lat):.3f} cells/step), thicken the obstacles, or use stencil='standard'"
-        )
-
-
-def _max_speed(lat: Lattice) -> float:
-    return float(jnp.max(lat.c))
 
 
 def absorbing_courant(

@@ -205,20 +205,3 @@ def adjoint_operator(lat: Lattice, lam):
         return v * stencil(lat, lat.K * lam / v)
     y = stencil(lat, lat.K * lam)
     return y if lat.q_scale is None else lat.q_scale * y
-
-
-def spectral_radius(lat: Lattice, shape: tuple[int, ...], iters: int = 100, seed: int = 0) -> float:
-    """Estimate of rho(-D), D the scene's operator (`operator`, lattice units), by power iteration
-    from a random start: a lower bound that converges to rho, fast where a mode localised at an
-    obstacle stands clear of the bulk (ratio of the top two eigenvalues), which is the case it
-    exists for (`coefficients.build_lattice`: the 3-D isotropic stencil with obstacles). The
-    leapfrog is stable iff rho(-D) <= 4."""
-    v0 = np.random.default_rng(seed).standard_normal(shape)
-    dtype = lat.K.dtype if hasattr(lat.K, "dtype") else jnp.float32
-
-    def body(_, v):
-        w = -operator(lat, v)
-        return w / jnp.sqrt(jnp.sum(w * w))
-
-    v = jax.jit(lambda v: jax.lax.fori_loop(0, iters, body, v))(jnp.asarray(v0 / np.linalg.norm(v0), dtype))
-    return float(jnp.sqrt(jnp.sum(operator(lat, v) ** 2)))

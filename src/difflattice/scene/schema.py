@@ -227,6 +227,7 @@ class ObjectSection(Section):
     )
     unit: str = setting("mm", kind="str", choices=("mm", "m", "um", "cm", "in"), doc="mesh: the file's length unit")
     material: str = setting("rigid", kind="str", doc="material name (rigid, soft, pine, ...)")
+    name: str | None = setting(None, kind="str", doc="label (3d pulse-echo runs: the echo table's surface name)")
     a_m: tuple | None = setting(None, kind="list", items="number", unit="m", doc="segment start [x, y]")
     b_m: tuple | None = setting(None, kind="list", items="number", unit="m", doc="segment end [x, y]")
     thickness_m: float | None = setting(

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -27,12 +28,16 @@ def spectral_radius(lat: Lattice, shape: tuple[int, ...], iters: int = 100, seed
     v0 = np.random.default_rng(seed).standard_normal(shape)
     dtype = jnp.result_type(lat.K)
 
-    def body(_, v):
+    def body(lat, v):
         w = -operator(lat, v)
         return w / jnp.sqrt(jnp.sum(w * w))
 
-    v = jax.jit(lambda v: jax.lax.fori_loop(0, iters, body, v))(jnp.asarray(v0 / np.linalg.norm(v0), dtype))
-    return float(jnp.sqrt(jnp.sum(operator(lat, v) ** 2)))
+    @eqx.filter_jit
+    def power(lat, v):  # the lattice is an argument: its arrays are not folded into the program
+        v = jax.lax.fori_loop(0, iters, lambda _, v: body(lat, v), v)
+        return jnp.sqrt(jnp.sum(operator(lat, v) ** 2))
+
+    return float(power(lat, jnp.asarray(v0 / np.linalg.norm(v0), dtype)))
 
 
 def needs_check(lat: Lattice, ndim: int) -> bool:

@@ -149,7 +149,14 @@ def _make_grid(scene: Scene, mats: list[Material]) -> Grid:
     for m in fluids:
         if m.name not in seen:
             seen.add(m.name)
-            warn_if_under_resolved(m.name, m.speed_m_s, grid.frequency_hz, grid.dx_m, fastest=fastest.name)
+            warn_if_under_resolved(
+                m.name,
+                m.speed_m_s,
+                grid.frequency_hz,
+                grid.dx_m,
+                fastest=fastest.name,
+                minimum=kind.resolved_cells_per_wavelength(stencil),
+            )
     return grid
 
 

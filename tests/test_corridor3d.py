@@ -48,8 +48,10 @@ def test_surfaces_of_the_short_corridor():
 
 
 def test_synthetic_echoes_are_labelled_to_a_fiftieth_of_a_period():
-    """Bursts placed at each surface's air delay (an independent placement: shifted copies of the
-    drive burst) come back with error_periods_air ~ 0, levels as placed, the floor dropped. On a
+    """Bursts placed at each surface's air delays, direct and via the floor's image (an
+    independent placement: shifted copies of the drive burst, image-source paths written out for
+    vertical surfaces), come back with error_periods_air ~ 0, levels as placed, the floor itself
+    dropped. On a
     fine grid (120 cells/wavelength, never allocated) where the lattice delays are the air's."""
     scene = load_scene(SCENES / "corridor3d_short.toml")
     grid = _grid(scene, cpw=120.0)
@@ -66,8 +68,14 @@ def test_synthetic_echoes_are_labelled_to_a_fiftieth_of_a_period():
         if 0.5 * cycles / f0 + delay < gate * dt + 0.5 * cycles / f0:
             continue
         amp = 10 ** (-(20 + 5 * i) / 20)
-        levels[s["surface"]] = 20 * math.log10(amp)
-        a += amp * np.asarray(burst(t - delay))
+        # the rigid floor h below the transducer: every surface here is vertical, so the image
+        # method gives the direct 2 d, twice 2 sqrt(d^2 + h^2) (one floor bounce) and once 2 d again
+        h = 0.0205 + 0.5 * grid.dx_m
+        d = s["distance_m"]
+        bounce = 2 * math.sqrt(d * d + h * h) / grid.c_max_m_s - dt
+        echo = 2 * np.asarray(burst(t - delay)) + 2 * np.asarray(burst(t - bounce))
+        levels[s["surface"]] = 20 * math.log10(amp * float(echoes3d.envelope(echo).max()))
+        a += amp * echo
     table = echoes3d.label_echoes(t, a, scene, grid, cycles=cycles, gate_start_step=gate)
     rows = {e["surface"]: e for e in table["echoes"]}
     assert "wall z_lo" not in rows and set(levels) <= set(rows)

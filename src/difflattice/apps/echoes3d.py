@@ -14,6 +14,7 @@ a burst of the lattice delay, compared in periods of the drive frequency. The le
 
 from __future__ import annotations
 
+import functools
 import math
 from typing import Any
 
@@ -45,13 +46,24 @@ def surfaces(scene, grid, centre_m=None) -> list[dict[str, Any]]:
         def f(p, shape=shape):
             return shape.sdf(p[0], p[1], p[2])
 
-        p = jnp.asarray(c)
-        d = float(f(p))
-        g = np.asarray(jax.grad(f)(p), float)
-        g = g / max(np.linalg.norm(g), 1e-30)
+        def nearest(x, f=f):  # the surface point nearest x (the SDF and its gradient)
+            p = jnp.asarray(np.asarray(x, float))
+            g = np.asarray(jax.grad(f)(p), float)
+            return np.asarray(x, float) - float(f(p)) * g / max(np.linalg.norm(g), 1e-30)
+
+        point = nearest(c)
+        d = float(np.linalg.norm(point - c))
         name = str(o.get("name") or f"{o['shape']} {i}")
         shapes.append(shape)
-        out.append({"surface": name, "distance_m": d, "point_m": (c - d * g).tolist(), "direction": (-g).tolist()})
+        out.append(
+            {
+                "surface": name,
+                "distance_m": d,
+                "point_m": point.tolist(),
+                "direction": ((point - c) / max(d, 1e-30)).tolist(),
+                "nearest": nearest,
+            }
+        )
     sides = {k for k in ("x_lo", "x_hi", "y_lo", "y_hi", "z_lo", "z_hi") if scene.edges.get(k) == "rigid"}
     lo = -0.5 * grid.dx_m
     for axis, n in enumerate(grid.shape):
@@ -70,9 +82,54 @@ def surfaces(scene, grid, centre_m=None) -> list[dict[str, Any]]:
             if any(float(sh.sdf(*(jnp.asarray(v) for v in point))) < 0 for sh in shapes):
                 continue  # its nearest point lies behind an object: no image-source echo
             out.append(
-                {"surface": f"wall {key}", "distance_m": float(d), "point_m": point.tolist(), "direction": u.tolist()}
+                {
+                    "surface": f"wall {key}",
+                    "distance_m": float(d),
+                    "point_m": point.tolist(),
+                    "direction": u.tolist(),
+                    "nearest": functools.partial(_on_plane, axis=axis, plane=plane),
+                }
             )
     return sorted(out, key=lambda s: s["distance_m"])
+
+
+def _on_plane(x, *, axis: int, plane: float) -> np.ndarray:
+    p = np.array(x, float)
+    p[axis] = plane
+    return p
+
+
+def _rigid_planes(scene, grid, centre_m=None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The transducer's images in the rigid window sides: (its centre mirrored, the side's axis)."""
+    t = scene.transducers[0]
+    c = np.asarray(t["centre_m"] if centre_m is None else centre_m, float)
+    out = []
+    for axis, n in enumerate(grid.shape):
+        for side, plane in (("lo", -0.5 * grid.dx_m), ("hi", (n - 0.5) * grid.dx_m)):
+            if scene.edges.get(f"{'xyz'[axis]}_{side}") == "rigid":
+                image = c.copy()
+                image[axis] = 2 * plane - c[axis]
+                out.append((image, c))
+    return out
+
+
+def _merged_paths(s: dict, mirrors, within_m: float) -> tuple[list[float], list[float]]:
+    """The round trips that make one echo with the direct one (2 d): out or back via the
+    transducer's image T' in a rigid window side (a floor under it), each path through its own
+    reflection point (the surface point nearest the midpoint of its ends: exact for planes and
+    posts parallel to the image's offset), kept when it adds less than `within_m` (half a burst):
+    T -> S -> T' twice, T' -> S -> T' once."""
+    nearest = s["nearest"]
+    d = s["distance_m"]
+    paths, weights = [2 * d], [1.0]
+    for image, c in mirrors:
+        pm = nearest(0.5 * (image + c))
+        cross = float(np.linalg.norm(pm - c) + np.linalg.norm(pm - image))
+        double = 2 * float(np.linalg.norm(nearest(image) - image))
+        if 1e-6 < cross - 2 * d < within_m:  # (the side the point lies on mirrors it onto itself)
+            paths += [cross, double]
+            weights += [2.0, 1.0]
+    return paths, weights
 
 
 def envelope(x: np.ndarray) -> np.ndarray:
@@ -89,12 +146,17 @@ def envelope(x: np.ndarray) -> np.ndarray:
     return np.abs(np.fft.ifft(spec * h))
 
 
-def propagated_envelope_peak_s(grid, path_m: float, direction, cycles: float, n: int, *, lattice: bool = True) -> float:
+def propagated_envelope_peak_s(
+    grid, path_m, direction, cycles: float, n: int, *, lattice: bool = True, weights=None
+) -> float:
     """When the envelope of the drive burst (hann, `cycles` cycles) peaks after travelling
     `path_m` along `direction`: every frequency of the burst delayed by its own phase delay, the
     lattice's (its dispersion relation along that direction, `analytic3d.lattice_wavenumber_3d`)
     or the air's (``path / c``); so the group delay and its spread over the band are both in it.
-    On `n` steps; a soft source's one-step lead included."""
+    `path_m` may be several paths (summed with `weights`: one echo over paths that merge, e.g.
+    via a floor's image). On `n` steps; a soft source's one-step lead included."""
+    paths = np.atleast_1d(np.asarray(path_m, float))
+    wts = np.ones_like(paths) if weights is None else np.asarray(weights, float)
     from ..observe.analytic3d import lattice_wavenumber_3d
     from ..solver.sources import ToneBurst
 
@@ -104,21 +166,21 @@ def propagated_envelope_peak_s(grid, path_m: float, direction, cycles: float, n:
     s = np.asarray(ToneBurst(grid.frequency_hz, cycles)(t))
     spec = np.fft.rfft(s)
     w = 2 * np.pi * np.fft.rfftfreq(n_fft)  # rad/step
-    path_cells = path_m / grid.dx_m
     keep = np.abs(spec) > 1e-6 * np.abs(spec).max()
     keep[0] = False
-    delay = np.zeros_like(w)  # steps
+    slowness = np.zeros_like(w)  # phase delay per cell, steps
     for j in np.flatnonzero(keep):
         if lattice:
             try:
                 k = float(lattice_wavenumber_3d(w[j], grid.courant, direction, stencil=grid.stencil))
             except ValueError:  # above the band edge
-                spec[j] = 0.0
+                keep[j] = False
                 continue
         else:
             k = w[j] / grid.courant
-        delay[j] = k * path_cells / w[j]
-    spec = np.where(keep, spec * np.exp(-1j * w * delay), 0.0)
+        slowness[j] = k / w[j]
+    phase = sum(wt * np.exp(-1j * w * slowness * p / grid.dx_m) for p, wt in zip(paths, wts))
+    spec = np.where(keep, spec * phase, 0.0)
     env = envelope(np.fft.irfft(spec, n_fft))
     k_pk, _, _ = _peak(env, 1, n_fft - 1)
     return k_pk * dt - dt
@@ -151,15 +213,17 @@ def label_echoes(t_s, a_scan, scene, grid, *, cycles: float, gate_start_step: in
     c_air = grid.c_max_m_s if grid.c_max_m_s > 0 else SPEED_OF_SOUND_20C_M_S
     env = envelope(np.where(np.arange(len(a)) >= gate_start_step, a, 0.0))
     transmit = float(np.abs(a[: max(1, gate_start_step)]).max()) or 1.0
-    centre_s = 0.5 * cycles / f0 - dt  # the burst's envelope centre; a soft source leads by one step
     half = 0.5 * cycles / f0
     rows = []
-    for s in surfaces(scene, grid, centre_m):
+    found = surfaces(scene, grid, centre_m)
+    mirrors = _rigid_planes(scene, grid, centre_m)
+    for s in found:
         path = 2 * s["distance_m"]
         vg = float(group_velocity_3d(grid.omega, grid.courant, s["direction"], stencil=grid.stencil))
         v_lat = vg * grid.dx_m / dt  # m/s
-        t_air = centre_s + path / c_air
-        t_lat = propagated_envelope_peak_s(grid, path, s["direction"], cycles, len(a))
+        paths, weights = _merged_paths(s, mirrors, half * c_air)
+        t_air = propagated_envelope_peak_s(grid, paths, s["direction"], cycles, len(a), lattice=False, weights=weights)
+        t_lat = propagated_envelope_peak_s(grid, paths, s["direction"], cycles, len(a), weights=weights)
         if t_lat - half < gate_start_step * dt:
             continue  # inside the transmit: no echo of its own (e.g. a floor beside the transducer)
         lo = int(round((t_lat - half) / dt))
@@ -168,9 +232,10 @@ def label_echoes(t_s, a_scan, scene, grid, *, cycles: float, gate_start_step: in
         t_meas = t[0] + k * dt if np.isfinite(k) else float("nan")
         level_db = 20 * math.log10(max(level, 1e-300) / transmit)
         rows.append(
-            s
+            {k: v for k, v in s.items() if k != "nearest"}
             | {
                 "path_m": path,
+                "merged_paths_m": [float(p) for p in paths],
                 "delay_air_s": t_air,
                 "delay_lattice_s": t_lat,
                 "group_velocity_m_s": v_lat,

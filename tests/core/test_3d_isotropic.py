@@ -100,8 +100,8 @@ def test_spectral_radius_within_the_bound(side):
     for rigid in (None, post):
         med = Medium(343.0, 1.2) if rigid is None else Medium(343.0, 1.2, rigid=jnp.asarray(rigid, float))
         lat = build_lattice(_grid(shape), med, Edges.all(side))
-        rho = spectral_radius(lat, shape, iters=200)
-        assert rho <= 4.0 * (1 + 1e-9), rho
+        rho = spectral_radius(lat, shape, iters=150)
+        assert 3.8 < rho <= 4.0 * (1 + 1e-9), rho  # converged near the bound (checkerboard modes), not above
     small = (6, 5, 4)
     lat = build_lattice(_grid(small), Medium(343.0, 1.2), Edges.all(side))
     n = math.prod(small)

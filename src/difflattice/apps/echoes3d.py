@@ -186,6 +186,12 @@ def propagated_envelope_peak_s(
     return k_pk * dt - dt
 
 
+def _transmit_peak(a: np.ndarray, gate_start_step: int, burst_steps: float) -> float:
+    """The transmit's peak: the A-scan before the gate, or over the burst when the gate is at 0."""
+    n = max(1, gate_start_step, int(math.ceil(burst_steps)))
+    return float(np.abs(a[:n]).max()) or 1.0
+
+
 def _peak(env: np.ndarray, lo: int, hi: int) -> tuple[float, float, bool]:
     """(fractional index, value, inside) of the envelope's largest value in [lo, hi), refined by
     a parabola through its neighbours; `inside` is False where it lies on the window's edge."""
@@ -212,7 +218,7 @@ def label_echoes(t_s, a_scan, scene, grid, *, cycles: float, gate_start_step: in
     f0 = grid.frequency_hz
     c_air = grid.c_max_m_s if grid.c_max_m_s > 0 else SPEED_OF_SOUND_20C_M_S
     env = envelope(np.where(np.arange(len(a)) >= gate_start_step, a, 0.0))
-    transmit = float(np.abs(a[: max(1, gate_start_step)]).max()) or 1.0
+    transmit = _transmit_peak(a, gate_start_step, cycles / f0 / dt)
     half = 0.5 * cycles / f0
     rows = []
     found = surfaces(scene, grid, centre_m)
@@ -264,8 +270,9 @@ def plot_labelled(t_s, a_scan, table: dict, gate_start_step: int, path):
     from .. import plots
 
     a = np.asarray(a_scan, float)
+    ts = np.asarray(t_s, float)
     env = envelope(np.where(np.arange(len(a)) >= gate_start_step, a, 0.0))
-    transmit = float(np.abs(a[: max(1, gate_start_step)]).max()) or 1.0
+    transmit = _transmit_peak(a, gate_start_step, table["burst_cycles"] / table["frequency_hz"] / (ts[1] - ts[0]))
     db = 20 * np.log10(np.maximum(env / transmit, 1e-6))
     fig = Figure(figsize=(9, 4))
     ax = fig.add_subplot()

@@ -167,6 +167,8 @@ def stencil(lat: Lattice, q):
     plane or rz grid compiles the 2-D arithmetic only. The isotropic stencil is written in flux
     form (face values, `_across_faces`, then their divergence)."""
     if lat.stencil == "isotropic":
+        if q.ndim == 3 and lat.bx is None and lat.ax_lo is None:
+            return _isotropic_uniform_3d(lat, q)
         terms = [divergence(lat, face_gradient(lat, q, axis), axis) for axis in range(q.ndim)]
         return sum(terms[1:], terms[0])
     if q.ndim == 3:
@@ -195,6 +197,35 @@ def stencil(lat: Lattice, q):
             term = c_hi * (hi - q) - c_lo * (q - lo)
         total = term if total is None else total + term
     return total
+
+
+_AXIS_LINKS = ((1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1))
+_FACE_DIAGONALS = tuple(
+    v for v in ((a, b, c) for a in (-1, 0, 1) for b in (-1, 0, 1) for c in (-1, 0, 1)) if sum(abs(x) for x in v) == 2
+)
+
+
+def _isotropic_uniform_3d(lat: Lattice, q):
+    """The 3-D isotropic stencil on uniform faces as its 19-point row: ``(sum of the 6 axis
+    neighbours) / 3 + (sum of the 12 face-diagonal neighbours) / 6 - 4 q``, read from one copy of
+    q padded by one ghost layer: the boundary cell itself on a rigid side (the even mirror), zero
+    on the others (the odd mirror about the ghost cell). Equal to the flux form (`_across_faces`)
+    there to rounding (`tests/core/test_3d_isotropic.py`), and 1.9x its speed on XLA's CPU loop
+    (256 x 192 x 160, float32, interleaved: 199-230 against 107-123 MLUPS)."""
+    qp = q
+    for axis in range(3):
+        for side in (0, 1):
+            width = [(0, 0)] * 3
+            width[axis] = (1, 0) if side == 0 else (0, 1)
+            qp = jnp.pad(qp, width, mode="edge" if lat.ghosts[2 * axis + side] == "neumann" else "constant")
+    n = q.shape
+
+    def at(d):
+        return qp[1 + d[0] : 1 + d[0] + n[0], 1 + d[1] : 1 + d[1] + n[1], 1 + d[2] : 1 + d[2] + n[2]]
+
+    axis_sum = sum((at(d) for d in _AXIS_LINKS[1:]), at(_AXIS_LINKS[0]))
+    diag_sum = sum((at(d) for d in _FACE_DIAGONALS[1:]), at(_FACE_DIAGONALS[0]))
+    return axis_sum / 3.0 + diag_sum / 6.0 - 4.0 * q
 
 
 def adjoint_operator(lat: Lattice, lam):

@@ -142,17 +142,28 @@ def test_closed_room_with_a_post_conserves_energy():
 
 
 @pytest.mark.parametrize("sides", ["rigid", "soft", "mixed"])
-def test_uniform_row_form_equals_the_flux_form(sides):
-    """In air the stencil runs as its 19-point row on a padded copy; it equals the flux form
-    (face values filtered across the faces, then their divergence) to rounding, for rigid, soft
-    and mixed window sides."""
+@pytest.mark.parametrize("obstacles", ["air", "post", "voxels", "cut_cells"])
+def test_row_and_link_forms_equal_the_flux_form(sides, obstacles):
+    """The stencil runs as its 19-point row on a padded copy in air, and as a weighted graph
+    Laplacian over axis and face-diagonal links next to obstacles; both equal the flux form
+    (face values filtered across the faces, then their divergence; the PML's form) to rounding,
+    for rigid, soft and mixed window sides, a post, random voxels and fractional cut cells."""
     shape = (9, 8, 7)
+    x, y, _ = np.meshgrid(*[np.arange(n) for n in shape], indexing="ij")
+    rng = np.random.default_rng(5)
+    rigid = {
+        "air": None,
+        "post": ((x - 4) ** 2 + (y - 4) ** 2 < 4).astype(float),
+        "voxels": (rng.random(shape) < 0.3).astype(float),
+        "cut_cells": np.clip(2 * rng.random(shape) - 0.8, 0, 1),
+    }[obstacles]
     edges = (
         Edges.all(sides)
         if sides != "mixed"
         else Edges(x_lo="rigid", x_hi="soft", y_lo="soft", y_hi="rigid", z_lo="rigid", z_hi="pml", thickness_cells=2)
     )
-    lat = build_lattice(_grid(shape), Medium(343.0, 1.2), edges)
+    med = Medium(343.0, 1.2) if rigid is None else Medium(343.0, 1.2, rigid=jnp.asarray(rigid))
+    lat = build_lattice(_grid(shape, courant=0.5), med, edges)
     q = jnp.asarray(np.random.default_rng(3).standard_normal(shape))
     flux = sum(divergence(lat, face_gradient(lat, q, a), a) for a in range(3))
     assert float(jnp.abs(stencil(lat, q) - flux).max()) < 1e-12

@@ -293,7 +293,11 @@ def measure_mlups(
 
 
 def _time_run(
-    ndim: int, stepper: str, dtype: Literal["float32", "float64"], heterogeneous: bool = False, stencil: str = "standard"
+    ndim: int,
+    stepper: str,
+    dtype: Literal["float32", "float64"],
+    heterogeneous: bool = False,
+    stencil: str = "standard",
 ) -> float:
     """MLUPS of the slowest of 3 timed runs (after a compile run) of a homogeneous scene or one
     with a rigid wall as cut cells (K and face-conductance maps)."""

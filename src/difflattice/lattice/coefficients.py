@@ -322,8 +322,7 @@ class Lattice(eqx.Module):
     mur: tuple[bool, ...] = eqx.field(static=True)
     bz: Float[Array, "nx ny nz1"] | None = None  # 3-D grids only
     stencil: StencilKind = eqx.field(static=True, default="standard")  # `Grid.stencil`: "standard" | "isotropic"
-    uniform_faces: bool = eqx.field(static=True, default=True)  # the stencil's own limit holds: one density, no
-    # obstacles, or (3-D isotropic) rigid obstacles, whose spectrum `spectrum.check_spectrum` measures (`speed_limit`)
+    uniform_faces: bool = eqx.field(static=True, default=True)  # the stencil's limit holds (`speed_limit`, `spectrum`)
     relax: AirRelaxation | None = None  # air's absorption (None: lossless, no fields, no work)
 
     def conductance(self, axis: int):
@@ -487,11 +486,10 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
         bz = closed_faces[2] if ndim == 3 else None
     elif a["ax_lo"] is not None:
         a = _close_cells(a, closed)
-    # the isotropic stencil's sqrt(3)/2 holds for uniform face conductances (one density, no
-    # obstacles); otherwise its bound is the standard stencil's (`speed_limit`)
+    # the isotropic stencil's sqrt(3)/2 holds for uniform face conductances (one density, no obstacles), in a
+    # volume with rigid obstacles if the operator's measured spectrum allows (`spectrum.check_spectrum`, at
+    # `Stepper.build`); otherwise its bound is the standard stencil's (`speed_limit`)
     uniform_faces = medium.rigid is None and medium.soft is None and _uniform(medium.density_kg_m3)
-    # in a volume, rigid obstacles in one density: the actual operator's spectrum is measured when
-    # a stepper is built (`spectrum.check_spectrum`)
     measure = (
         ndim == 3 and medium.soft is None and _uniform(medium.density_kg_m3) and not isinstance(c, jax.core.Tracer)
     )
@@ -501,7 +499,7 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
     sponge = _sponge(grid, edges, dtype) if "sponge" in edges.kinds() else None
     pml = _pml(grid, edges, dtype) if edges.uses_pml else None
     metric = AxisymMetric.build(ny, dtype) if grid.kind.ring_metric else None
-    lat = Lattice(
+    return Lattice(
         K=K,
         q_scale=q_scale,
         bx=bx,
@@ -520,7 +518,6 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
         relax=relax,
         **a,
     )
-    return lat
 
 
 def absorbing_courant(

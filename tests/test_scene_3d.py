@@ -25,6 +25,7 @@ SCENES = ROOT / "data" / "scenes"
 TINY = """
 [grid]
 kind = "3d"
+stencil = "standard"
 frequency_hz = 40000.0
 cells_per_wavelength = 8.0
 size_m = [0.03, 0.025, 0.02]

@@ -174,6 +174,13 @@ def _accuracy(args) -> int:
         rows = accuracy_air.sweep(cpw or accuracy_air.RESOLUTIONS)
         accuracy_air.write(rows, args.out, accuracy_air.point_source())
         print(f"wrote {args.out}/{accuracy_air.FILES}")
+    elif args.case == "dispersion3d":
+        from .apps import accuracy_dispersion3d
+
+        path = accuracy_dispersion3d.write(
+            accuracy_dispersion3d.sweep(cpw or accuracy_dispersion3d.RESOLUTIONS), args.out
+        )
+        print(f"wrote {path}")
     else:
         res = accuracy_wall.edge_sweep(
             cpw or (10, 20), tuple(args.thickness_cells), args.dtype[0], repeats=args.repeats
@@ -341,21 +348,24 @@ def _add_accuracy(sub) -> None:
     )
     a.add_argument(
         "--case",
-        choices=["polaroid", "piston", "wall", "edges", "air"],
+        choices=["polaroid", "piston", "wall", "edges", "air", "dispersion3d"],
         default="polaroid",
         help="polaroid: the Polaroid line's lobe and wavefront vs the continuous line; piston: a baffled "
         "38.4 mm disc on the axisymmetric lattice (on-axis field, lobe, the z = 16.5 mm line) vs "
         "the exact on-axis formula, 2 J1(x)/x and a Rayleigh-integral quadrature; wall: a point "
         "source's echo from a rigid and a soft wall vs the image-source solution; edges: the "
         "reflection of pml/sponge/mur edges vs a window too large to reach; air: plane-wave attenuation and "
-        "phase speed in humid air (20-200 kHz, 0-40 deg C, 10-90 %% RH) vs ISO 9613-1 and the relaxation model",
+        "phase speed in humid air (20-200 kHz, 0-40 deg C, 10-90 %% RH) vs ISO 9613-1 and the relaxation model; "
+        "dispersion3d: the 3-D stencils' phase speed along axes and face and body diagonals, simulated, vs "
+        "their dispersion relations",
     )
     a.add_argument(
         "--cells-per-wavelength",
         type=float,
         nargs="+",
         default=None,
-        help="resolutions (default: polaroid and piston 6 8 10 14 20 28 40; wall 6 8 10 14 20 30; edges 10 20)",
+        help="resolutions (default: polaroid and piston 6 8 10 14 20 28 40; wall 6 8 10 14 20 30; edges 10 20; "
+        "dispersion3d 6 7 8 12)",
     )
     a.add_argument(
         "--thickness-cells",

@@ -37,14 +37,12 @@ def test_kinds_are_types_named_by_strings_at_the_boundary():
 
 def test_stability_limits_are_the_spectral_radius_bounds():
     """c^2 rho(-L) <= 4 with rho < 8 (5-point, and the rz ring operator), 12 (7-point), 16/3
-    (isotropic 9-point): the limits 1/sqrt(2), 1/sqrt(3), sqrt(3)/2 (derivations in grid.py)."""
+    (isotropic 9-point, and the 3-D 19-point): the limits 1/sqrt(2), 1/sqrt(3), sqrt(3)/2 (derivations in grid.py)."""
     for kind, rho in ((PLANE, 8), (AXISYMMETRIC, 8), (VOLUME, 12)):
         assert kind.stability_limit() == pytest.approx(math.sqrt(4 / rho), rel=1e-15)
         assert stability_limit(kind.name) == kind.stability_limit()
-    for kind in (PLANE, AXISYMMETRIC):
+    for kind in (PLANE, AXISYMMETRIC, VOLUME):
         assert kind.stability_limit("isotropic") == pytest.approx(math.sqrt(4 / (16 / 3)), rel=1e-15)
-    with pytest.raises(ValueError, match="implemented for plane and rz grids only"):
-        VOLUME.stability_limit("isotropic")
     with pytest.raises(ValueError, match="exceeds the 3-D stability limit 1/sqrt\\(3\\)"):
         _grid("3d", (4, 4, 4), courant=0.58)
 

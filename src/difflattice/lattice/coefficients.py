@@ -29,6 +29,7 @@ import math
 from typing import Literal
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
@@ -321,7 +322,7 @@ class Lattice(eqx.Module):
     mur: tuple[bool, ...] = eqx.field(static=True)
     bz: Float[Array, "nx ny nz1"] | None = None  # 3-D grids only
     stencil: StencilKind = eqx.field(static=True, default="standard")  # `Grid.stencil`: "standard" | "isotropic"
-    uniform_faces: bool = eqx.field(static=True, default=True)  # one density, no obstacles (`speed_limit`)
+    uniform_faces: bool = eqx.field(static=True, default=True)  # the stencil's limit holds (`speed_limit`, `spectrum`)
     relax: AirRelaxation | None = None  # air's absorption (None: lossless, no fields, no work)
 
     def conductance(self, axis: int):
@@ -485,10 +486,14 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
         bz = closed_faces[2] if ndim == 3 else None
     elif a["ax_lo"] is not None:
         a = _close_cells(a, closed)
-    # the isotropic stencil's sqrt(3)/2 holds for uniform face conductances (one density, no
-    # obstacles); otherwise its bound is the standard stencil's (`speed_limit`)
+    # the isotropic stencil's sqrt(3)/2 holds for uniform face conductances (one density, no obstacles), in a
+    # volume with rigid obstacles if the operator's measured spectrum allows (`spectrum.check_spectrum`, at
+    # `Stepper.build`); otherwise its bound is the standard stencil's (`speed_limit`)
     uniform_faces = medium.rigid is None and medium.soft is None and _uniform(medium.density_kg_m3)
-    if grid.stencil == "isotropic" and not uniform_faces:
+    measure = (
+        ndim == 3 and medium.soft is None and _uniform(medium.density_kg_m3) and not isinstance(c, jax.core.Tracer)
+    )
+    if grid.stencil == "isotropic" and not uniform_faces and not measure:
         _check_speed(c, grid.kind, "standard", why=ISOTROPIC_WITH_FACES)
     mur = tuple(getattr(edges, s) == "mur" for s in sides)
     sponge = _sponge(grid, edges, dtype) if "sponge" in edges.kinds() else None
@@ -509,7 +514,7 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
         mur=mur,
         bz=bz,
         stencil=grid.stencil,
-        uniform_faces=bool(uniform_faces),
+        uniform_faces=bool(uniform_faces or measure),
         relax=relax,
         **a,
     )

@@ -35,6 +35,12 @@ PAPER_COURANT = 0.707
 DEFAULT_COURANT_3D = 0.577
 """The 3-D default courant: 0.06 % under 1/sqrt(3), as the paper's 0.707 is under 1/sqrt(2)."""
 
+DEFAULT_COURANT_3D_ISOTROPIC = 0.86
+"""The 3-D isotropic stencil's default courant: 0.7 % under sqrt(3)/2, a margin for the obstacles
+whose measured spectral radius exceeds the whole-space bound by up to 1.4 % (posts, steps,
+diagonal plates; `coefficients.build_lattice` measures it); phase-speed error 1.3 % at 6
+cells/wavelength against 1.24 % at the limit."""
+
 
 class LatticeKind:
     """A kind of lattice (abstract): rank, axis conventions, stability limit and labels.
@@ -54,6 +60,8 @@ class LatticeKind:
     """Coordinate name of each array axis (e.g. ("z", "r") for rz)."""
     stencils: ClassVar[tuple[str, ...]] = ("standard",)
     """Spatial stencils implemented on this kind (`Grid.stencil`)."""
+    default_stencil: ClassVar[StencilKind] = "standard"
+    """The stencil a scene file gets when it names none (`scene.media`)."""
     default_courant: ClassVar[float] = PAPER_COURANT
     origin_cells: ClassVar[float] = 0.0
     """Offset of cell centres from the origin, in cells (0: the origin is the centre of cell 0)."""
@@ -148,6 +156,15 @@ class LatticeKind:
         """E.g. "2-D", "rz isotropic-stencil": whose limit a message speaks of."""
         return self.label + (" isotropic-stencil" if stencil == "isotropic" else "")
 
+    def default_courant_for(self, stencil: str) -> float:
+        """The courant a scene gets when it names none, for `stencil`."""
+        return self.default_courant
+
+    def resolved_cells_per_wavelength(self, stencil: str) -> float:
+        """Cells per wavelength below which a medium counts as under-resolved with `stencil` (its
+        worst phase-speed error above ~2 %; `medium.MIN_CELLS_PER_WAVELENGTH`)."""
+        return 8.0
+
     @property
     def usual_courant(self) -> str:
         """The usual courant, for a fix hint."""
@@ -203,17 +220,28 @@ class Axisymmetric(LatticeKind):
 
 class Volume(LatticeKind):
     """A volume of cubic cells, shape (nx, ny, nz); the origin is the centre of cell (0, 0, 0).
-    Seven-point stencil, limit 1/sqrt(3)."""
+    Seven-point stencil, limit 1/sqrt(3), or the 19-point isotropic one (scenes' default), limit
+    sqrt(3)/2: 1.2 % phase-speed error at 6 cells/wavelength in every direction against the
+    seven-point stencil's 3.1 % on the axes (`observe.analytic3d`)."""
 
     name = "3d"
     label = "3-D"
     noun = "3-D"
     ndim = 3
     axis_names = ("x", "y", "z")
+    stencils = ("standard", "isotropic")
+    default_stencil = "isotropic"
     default_courant = DEFAULT_COURANT_3D
     min_cells = 3
     _standard_limit = MAX_COURANT_3D
     _standard_formula = "1/sqrt(3)"
+
+    def default_courant_for(self, stencil: str) -> float:
+        return DEFAULT_COURANT_3D_ISOTROPIC if stencil == "isotropic" else self.default_courant
+
+    def resolved_cells_per_wavelength(self, stencil: str) -> float:
+        # the isotropic stencil's 2 % point: 1.33 % at 6 cells/wavelength, error ~ 1/cpw^2
+        return 5.0 if stencil == "isotropic" else 8.0
 
 
 PLANE = Plane()

@@ -1,8 +1,9 @@
 """Independent 3-D references (NumPy only, lattice units: cells, steps, cells/step).
 
 - the discrete dispersion relation of the 7-point leapfrog,
-  ``sin^2(omega/2) = c^2 (sin^2(kx/2) + sin^2(ky/2) + sin^2(kz/2))``, solved for |k| along any
-  direction (`lattice_wavenumber_3d`) or for omega (`lattice_omega_3d`);
+  ``sin^2(omega/2) = c^2 (sin^2(kx/2) + sin^2(ky/2) + sin^2(kz/2))``, and of the 19-point
+  isotropic one (``- (2/3) sum s_i s_j`` added), solved for |k| along any direction
+  (`lattice_wavenumber_3d`) or for omega (`lattice_omega_3d`), with the group velocity;
 - the field of a point source on the lattice: the time-discrete recursion
   ``P(n+1) = 2 P(n) - P(n-1) + c^2 Lap P(n) + v(n+1)`` gives, for the phasors
   ``X^ = sum_n x(n) exp(+i omega n)``, ``-4 sin^2(omega/2) P^ = c^2 Lap P^ + exp(-i omega) v^``, so
@@ -41,30 +42,63 @@ def _unit(direction) -> np.ndarray:
     return d / n
 
 
-def lattice_omega_3d(k_vec, c: float) -> np.ndarray:
+STENCILS_3D = ("standard", "isotropic")
+
+
+def _pair_weight(stencil: str) -> float:
+    """The weight w of the pair products in the symbol ``sum s_i - w sum_(i<j) s_i s_j``."""
+    if stencil not in STENCILS_3D:
+        raise ValueError(f"stencil = {stencil!r}; allowed: {', '.join(map(repr, STENCILS_3D))}")
+    return 2.0 / 3.0 if stencil == "isotropic" else 0.0
+
+
+def lattice_symbol_3d(k_vec, stencil: str = "standard") -> np.ndarray:
+    """``F(k) = -symbol(L) / 4`` of the spatial stencil at wave vector `k_vec` (radians/cell, last
+    axis 3): ``sum s_i`` (7-point) or ``sum s_i - (2/3) sum_(i<j) s_i s_j`` (19-point isotropic,
+    `lattice.operators._across_faces`), s_i = sin^2(k_i / 2). The leapfrog's dispersion relation
+    is ``sin^2(omega / 2) = c^2 F(k)``."""
+    w = _pair_weight(stencil)
+    sv = np.sin(np.asarray(k_vec, dtype=float) / 2) ** 2
+    sx, sy, sz = sv[..., 0], sv[..., 1], sv[..., 2]
+    return sx + sy + sz - w * (sx * sy + sy * sz + sz * sx)
+
+
+def lattice_omega_3d(k_vec, c: float, stencil: str = "standard") -> np.ndarray:
     """Angular frequency (radians/step) of the lattice plane wave of wave vector `k_vec`
-    (radians/cell, last axis 3) at speed `c` (cells/step)."""
-    k = np.asarray(k_vec, dtype=float)
-    s = np.sqrt(np.sum(np.sin(k / 2) ** 2, axis=-1))
-    return 2 * np.arcsin(np.clip(c * s, 0.0, 1.0))
+    (radians/cell, last axis 3) at speed `c` (cells/step) with the spatial `stencil`."""
+    return 2 * np.arcsin(np.clip(c * np.sqrt(lattice_symbol_3d(k_vec, stencil)), 0.0, 1.0))
 
 
-def lattice_wavenumber_3d(omega: float, c: float, direction=(1.0, 0.0, 0.0), iters: int = 60) -> np.ndarray:
+def _symbol_along(k, d, w):
+    """F(k d) and dF/dk along the unit direction d (..., 3) for |k| = k (...)."""
+    a = k[..., None] * d / 2
+    sv = np.sin(a) ** 2
+    dv = 0.5 * d * np.sin(2 * a)  # d s_i / dk
+    sx, sy, sz = sv[..., 0], sv[..., 1], sv[..., 2]
+    dx, dy, dz = dv[..., 0], dv[..., 1], dv[..., 2]
+    f = sx + sy + sz - w * (sx * sy + sy * sz + sz * sx)
+    df = dx + dy + dz - w * (dx * (sy + sz) + dy * (sx + sz) + dz * (sx + sy))
+    return f, df
+
+
+def lattice_wavenumber_3d(
+    omega: float, c: float, direction=(1.0, 0.0, 0.0), iters: int = 60, stencil: str = "standard"
+) -> np.ndarray:
     """|k| (radians/cell) of the lattice plane wave of angular frequency `omega` (radians/step) and
-    speed `c` (cells/step) whose wave vector points along `direction` (..., 3). Newton's method on
-    the dispersion relation from the continuum k = omega / c (converges monotonically: the sum of
-    sin^2 is convex in |k| below the first band edge); exact to round-off."""
+    speed `c` (cells/step) whose wave vector points along `direction` (..., 3), for the spatial
+    `stencil`. Newton's method on the dispersion relation from the continuum k = omega / c
+    (monotone below the first band edge); exact to round-off."""
     d = _unit(direction)
+    w = _pair_weight(stencil)
     target = math.sin(omega / 2) ** 2 / c**2
     k = np.full(d.shape[:-1], omega / c, dtype=float)
     for _ in range(iters):
-        f = np.sum(np.sin(k[..., None] * d / 2) ** 2, axis=-1) - target
-        df = 0.5 * np.sum(d * np.sin(k[..., None] * d), axis=-1)
-        step = f / df
+        f, df = _symbol_along(k, d, w)
+        step = (f - target) / df
         k = k - step
         if np.all(np.abs(step) <= 1e-15 * np.abs(k)):
             break
-    resid = np.sum(np.sin(k[..., None] * d / 2) ** 2, axis=-1) - target
+    resid = _symbol_along(k, d, w)[0] - target
     if not np.all(np.isfinite(k)) or np.max(np.abs(resid)) > 1e-12 * max(target, 1e-300):
         raise ValueError(
             f"no lattice wave of omega = {omega} rad/step at c = {c} cells/step along some direction "
@@ -73,9 +107,19 @@ def lattice_wavenumber_3d(omega: float, c: float, direction=(1.0, 0.0, 0.0), ite
     return k
 
 
-def phase_velocity_3d(omega: float, c: float, direction=(1.0, 0.0, 0.0)) -> np.ndarray:
+def phase_velocity_3d(omega: float, c: float, direction=(1.0, 0.0, 0.0), stencil: str = "standard") -> np.ndarray:
     """Phase velocity omega / |k| (cells/step) of the lattice wave along `direction`."""
-    return omega / lattice_wavenumber_3d(omega, c, direction)
+    return omega / lattice_wavenumber_3d(omega, c, direction, stencil=stencil)
+
+
+def group_velocity_3d(omega: float, c: float, direction=(1.0, 0.0, 0.0), stencil: str = "standard") -> np.ndarray:
+    """Group velocity d omega / d|k| (cells/step) of the lattice wave whose wave vector points
+    along `direction`: the speed of a tone burst's envelope, from differentiating
+    ``sin^2(omega/2) = c^2 F``: ``d omega / dk = c^2 F'(k) / (sin(omega/2) cos(omega/2))``."""
+    d = _unit(direction)
+    k = lattice_wavenumber_3d(omega, c, d, stencil=stencil)
+    _, df = _symbol_along(k, d, _pair_weight(stencil))
+    return c**2 * df / (math.sin(omega / 2) * math.cos(omega / 2))
 
 
 def _surface_point(omega: float, c: float, x_dir: np.ndarray, iters: int = 200) -> np.ndarray:

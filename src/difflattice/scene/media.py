@@ -90,20 +90,21 @@ def _make_grid(scene: Scene, mats: list[Material]) -> Grid:
                     f"= {list(g['size_m'])} m: {small[0]:g} m is fewer than 3 cells of {dx * 1e3:.3g} mm at this "
                     "resolution; give each size in metres, at least a few wavelengths plus the edge layers",
                 )
-    default = kind.default_courant
-    courant = default if g["courant"] is None else float(g["courant"])
     air_cond = scene.air_conditions()
     # rz scenes in air (no objects, no housing, one fluid) default to the isotropic stencil: the
     # near field in place, on the native kernels; with obstacles the standard one (the native
-    # kernels run the isotropic stencil on uniform faces only)
+    # kernels run the isotropic stencil on uniform faces only); 3-D scenes default to the 19-point
+    # isotropic stencil (`kinds.Volume`)
     in_air = not scene.objects and all(
         t.get("type") != "disc" or t.get("baffle", "rigid") == "rigid" for t in scene.transducers
     )
-    stencil: StencilKind = g["stencil"] or ("isotropic" if kind.ring_metric and in_air else "standard")
+    stencil: StencilKind = g["stencil"] or ("isotropic" if kind.ring_metric and in_air else kind.default_stencil)
     try:
         kind.check_stencil(stencil)
     except ValueError as err:
         _fail(p, "grid.stencil", str(err))
+    default = kind.default_courant_for(stencil)
+    courant = default if g["courant"] is None else float(g["courant"])
     limit = kind.stability_limit(stencil)
     if air_cond is not None:  # absorption stiffens the step: its own, lower limit (docs/air.md)
         from ..lattice.coefficients import absorbing_courant
@@ -148,7 +149,14 @@ def _make_grid(scene: Scene, mats: list[Material]) -> Grid:
     for m in fluids:
         if m.name not in seen:
             seen.add(m.name)
-            warn_if_under_resolved(m.name, m.speed_m_s, grid.frequency_hz, grid.dx_m, fastest=fastest.name)
+            warn_if_under_resolved(
+                m.name,
+                m.speed_m_s,
+                grid.frequency_hz,
+                grid.dx_m,
+                fastest=fastest.name,
+                minimum=kind.resolved_cells_per_wavelength(stencil),
+            )
     return grid
 
 

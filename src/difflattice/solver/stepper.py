@@ -29,6 +29,7 @@ from ..lattice.coefficients import Edges, Lattice, build_lattice
 from ..lattice.grid import Grid
 from ..lattice.medium import Medium
 from ..lattice.operators import divergence, face_gradient, operator
+from ..lattice.spectrum import check_spectrum
 from .sensors import Sensors
 from .sources import PointSources
 
@@ -124,6 +125,7 @@ class Stepper(eqx.Module):
         sensors.check_inside(grid)
         edges = edges.for_rank(grid.ndim)
         lat = build_lattice(grid, medium, edges)
+        check_spectrum(lat, tuple(grid.shape))  # 3-D isotropic stencil next to obstacles
         shape = tuple(grid.shape)
         dims = " x ".join(map(str, shape))
         L = edges.thickness_cells if (edges.kinds() & {"pml", "sponge"}) else 0

@@ -1,0 +1,290 @@
+"""Echoes of a 3-D pulse-echo run labelled by their image-source delays, and what a sonar would
+detect of them.
+
+Every reflecting surface of the scene (each object, and each rigid window side: a wall) gives a
+first echo from its point nearest the transducer's centre (for a plane, the foot of the normal:
+the image source; for a post or a door jamb, the nearest point of its surface or edge), at the
+round-trip path ``2 d``. Its delay is given twice: in air (``2 d / c``) and on the lattice
+(``2 d / v_g``, the lattice's group velocity at the drive frequency along that path,
+`observe.analytic3d.group_velocity_3d`: where a tone burst's envelope arrives). The measured
+arrival is the envelope peak of the A-scan (Hilbert envelope, parabolic refinement) within half
+a burst of the lattice delay, compared in periods of the drive frequency. The level of each echo
+(dB re the transmit peak) against a set of detection thresholds is the detection map of the pose.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from typing import Any
+
+import numpy as np
+
+THRESHOLDS_DB = (-20.0, -30.0, -40.0, -50.0, -60.0)
+"""Detection thresholds, dB re the transmit peak of the A-scan."""
+
+
+def surfaces(scene, grid, centre_m=None) -> list[dict[str, Any]]:
+    """The reflecting surfaces of a 3-D scene seen from its first transducer's centre (or
+    `centre_m`: where its cells lie on the lattice, e.g. their mean): name, the
+    nearest point (m), the one-way distance d (m) and the unit direction to it. Window sides that
+    pass within a transducer radius of the centre (a symmetry plane through the transducer) are
+    left out: they give no echo of their own."""
+    import jax
+    import jax.numpy as jnp
+
+    from ..scene.objects import shape3d
+
+    t = scene.transducers[0]
+    c = np.asarray(t["centre_m"] if centre_m is None else centre_m, float)
+    radius = 0.5 * float(t.get("diameter_m") or 0.0)
+    out: list[dict[str, Any]] = []
+    shapes = []
+    for i, o in enumerate(scene.objects):
+        shape = shape3d(scene.path, f"objects[{i}]", o)
+
+        def f(p, shape=shape):
+            return shape.sdf(p[0], p[1], p[2])
+
+        def nearest(x, f=f):  # the surface point nearest x (the SDF and its gradient)
+            p = jnp.asarray(np.asarray(x, float))
+            g = np.asarray(jax.grad(f)(p), float)
+            return np.asarray(x, float) - float(f(p)) * g / max(np.linalg.norm(g), 1e-30)
+
+        point = nearest(c)
+        d = float(np.linalg.norm(point - c))
+        name = str(o.get("name") or f"{o['shape']} {i}")
+        shapes.append(shape)
+        out.append(
+            {
+                "surface": name,
+                "distance_m": d,
+                "point_m": point.tolist(),
+                "direction": ((point - c) / max(d, 1e-30)).tolist(),
+                "nearest": nearest,
+            }
+        )
+    sides = {k for k in ("x_lo", "x_hi", "y_lo", "y_hi", "z_lo", "z_hi") if scene.edges.get(k) == "rigid"}
+    lo = -0.5 * grid.dx_m
+    for axis, n in enumerate(grid.shape):
+        hi = (n - 0.5) * grid.dx_m
+        for side, plane in (("lo", lo), ("hi", hi)):
+            key = f"{'xyz'[axis]}_{side}"
+            if key not in sides:
+                continue
+            d = abs(c[axis] - plane)
+            if d <= max(radius, grid.dx_m):
+                continue
+            u = np.zeros(3)
+            u[axis] = 1.0 if side == "hi" else -1.0
+            point = c.copy()
+            point[axis] = plane
+            if any(float(sh.sdf(*(jnp.asarray(v) for v in point))) < 0 for sh in shapes):
+                continue  # its nearest point lies behind an object: no image-source echo
+            out.append(
+                {
+                    "surface": f"wall {key}",
+                    "distance_m": float(d),
+                    "point_m": point.tolist(),
+                    "direction": u.tolist(),
+                    "nearest": functools.partial(_on_plane, axis=axis, plane=plane),
+                }
+            )
+    return sorted(out, key=lambda s: s["distance_m"])
+
+
+def _on_plane(x, *, axis: int, plane: float) -> np.ndarray:
+    p = np.array(x, float)
+    p[axis] = plane
+    return p
+
+
+def _rigid_planes(scene, grid, centre_m=None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The transducer's images in the rigid window sides: (its centre mirrored, the side's axis)."""
+    t = scene.transducers[0]
+    c = np.asarray(t["centre_m"] if centre_m is None else centre_m, float)
+    out = []
+    for axis, n in enumerate(grid.shape):
+        for side, plane in (("lo", -0.5 * grid.dx_m), ("hi", (n - 0.5) * grid.dx_m)):
+            if scene.edges.get(f"{'xyz'[axis]}_{side}") == "rigid":
+                image = c.copy()
+                image[axis] = 2 * plane - c[axis]
+                out.append((image, c))
+    return out
+
+
+def _merged_paths(s: dict, mirrors, within_m: float) -> tuple[list[float], list[float]]:
+    """The round trips that make one echo with the direct one (2 d): out or back via the
+    transducer's image T' in a rigid window side (a floor under it), each path through its own
+    reflection point (the surface point nearest the midpoint of its ends: exact for planes and
+    posts parallel to the image's offset), kept when it adds less than `within_m` (half a burst):
+    T -> S -> T' twice, T' -> S -> T' once."""
+    nearest = s["nearest"]
+    d = s["distance_m"]
+    paths, weights = [2 * d], [1.0]
+    for image, c in mirrors:
+        pm = nearest(0.5 * (image + c))
+        cross = float(np.linalg.norm(pm - c) + np.linalg.norm(pm - image))
+        double = 2 * float(np.linalg.norm(nearest(image) - image))
+        if 1e-6 < cross - 2 * d < within_m:  # (the side the point lies on mirrors it onto itself)
+            paths += [cross, double]
+            weights += [2.0, 1.0]
+    return paths, weights
+
+
+def envelope(x: np.ndarray) -> np.ndarray:
+    """The Hilbert envelope |x + i H x| (FFT)."""
+    n = len(x)
+    spec = np.fft.fft(x)
+    h = np.zeros(n)
+    h[0] = 1.0
+    if n % 2 == 0:
+        h[n // 2] = 1.0
+        h[1 : n // 2] = 2.0
+    else:
+        h[1 : (n + 1) // 2] = 2.0
+    return np.abs(np.fft.ifft(spec * h))
+
+
+def propagated_envelope_peak_s(
+    grid, path_m, direction, cycles: float, n: int, *, lattice: bool = True, weights=None
+) -> float:
+    """When the envelope of the drive burst (hann, `cycles` cycles) peaks after travelling
+    `path_m` along `direction`: every frequency of the burst delayed by its own phase delay, the
+    lattice's (its dispersion relation along that direction, `analytic3d.lattice_wavenumber_3d`)
+    or the air's (``path / c``); so the group delay and its spread over the band are both in it.
+    `path_m` may be several paths (summed with `weights`: one echo over paths that merge, e.g.
+    via a floor's image). On `n` steps; a soft source's one-step lead included."""
+    paths = np.atleast_1d(np.asarray(path_m, float))
+    wts = np.ones_like(paths) if weights is None else np.asarray(weights, float)
+    from ..observe.analytic3d import lattice_wavenumber_3d
+    from ..solver.sources import ToneBurst
+
+    dt = grid.dt_s
+    n_fft = 1 << int(math.ceil(math.log2(2 * n)))
+    t = np.arange(n_fft) * dt
+    s = np.asarray(ToneBurst(grid.frequency_hz, cycles)(t))
+    spec = np.fft.rfft(s)
+    w = 2 * np.pi * np.fft.rfftfreq(n_fft)  # rad/step
+    keep = np.abs(spec) > 1e-6 * np.abs(spec).max()
+    keep[0] = False
+    slowness = np.zeros_like(w)  # phase delay per cell, steps
+    for j in np.flatnonzero(keep):
+        if lattice:
+            try:
+                k = float(lattice_wavenumber_3d(w[j], grid.courant, direction, stencil=grid.stencil))
+            except ValueError:  # above the band edge
+                keep[j] = False
+                continue
+        else:
+            k = w[j] / grid.courant
+        slowness[j] = k / w[j]
+    phase = sum(wt * np.exp(-1j * w * slowness * p / grid.dx_m) for p, wt in zip(paths, wts))
+    spec = np.where(keep, spec * phase, 0.0)
+    env = envelope(np.fft.irfft(spec, n_fft))
+    k_pk, _, _ = _peak(env, 1, n_fft - 1)
+    return k_pk * dt - dt
+
+
+def _transmit_peak(a: np.ndarray, gate_start_step: int, burst_steps: float) -> float:
+    """The transmit's peak: the A-scan before the gate, or over the burst when the gate is at 0."""
+    n = max(1, gate_start_step, int(math.ceil(burst_steps)))
+    return float(np.abs(a[:n]).max()) or 1.0
+
+
+def _peak(env: np.ndarray, lo: int, hi: int) -> tuple[float, float, bool]:
+    """(fractional index, value, inside) of the envelope's largest value in [lo, hi), refined by
+    a parabola through its neighbours; `inside` is False where it lies on the window's edge."""
+    lo, hi = max(lo, 1), min(hi, len(env) - 1)
+    if hi <= lo:
+        return float("nan"), 0.0, False
+    k = lo + int(np.argmax(env[lo:hi]))
+    a, b, c = env[k - 1], env[k], env[k + 1]
+    den = a - 2 * b + c
+    dk = 0.5 * (a - c) / den if den < 0 else 0.0
+    return k + dk, float(b - 0.25 * (a - c) * dk), lo < k < hi - 1
+
+
+def label_echoes(t_s, a_scan, scene, grid, *, cycles: float, gate_start_step: int, centre_m=None) -> dict[str, Any]:
+    """The echo table of an A-scan (see the module docstring): per surface the delays in air and on
+    the lattice, the measured arrival and its error in periods, the level and the detection at
+    `THRESHOLDS_DB`."""
+    from ..air import SPEED_OF_SOUND_20C_M_S
+    from ..observe.analytic3d import group_velocity_3d
+
+    a = np.asarray(a_scan, float)
+    t = np.asarray(t_s, float)
+    dt = grid.dt_s
+    f0 = grid.frequency_hz
+    c_air = grid.c_max_m_s if grid.c_max_m_s > 0 else SPEED_OF_SOUND_20C_M_S
+    env = envelope(np.where(np.arange(len(a)) >= gate_start_step, a, 0.0))
+    transmit = _transmit_peak(a, gate_start_step, cycles / f0 / dt)
+    half = 0.5 * cycles / f0
+    rows = []
+    found = surfaces(scene, grid, centre_m)
+    mirrors = _rigid_planes(scene, grid, centre_m)
+    for s in found:
+        path = 2 * s["distance_m"]
+        vg = float(group_velocity_3d(grid.omega, grid.courant, s["direction"], stencil=grid.stencil))
+        v_lat = vg * grid.dx_m / dt  # m/s
+        paths, weights = _merged_paths(s, mirrors, half * c_air)
+        t_air = propagated_envelope_peak_s(grid, paths, s["direction"], cycles, len(a), lattice=False, weights=weights)
+        t_lat = propagated_envelope_peak_s(grid, paths, s["direction"], cycles, len(a), weights=weights)
+        if t_lat - half < gate_start_step * dt:
+            continue  # inside the transmit: no echo of its own (e.g. a floor beside the transducer)
+        lo = int(round((t_lat - half) / dt))
+        hi = int(round((t_lat + half) / dt))
+        k, level, inside = _peak(env, lo, hi)
+        t_meas = t[0] + k * dt if np.isfinite(k) else float("nan")
+        level_db = 20 * math.log10(max(level, 1e-300) / transmit)
+        rows.append(
+            {k: v for k, v in s.items() if k != "nearest"}
+            | {
+                "path_m": path,
+                "merged_paths_m": [float(p) for p in paths],
+                "delay_air_s": t_air,
+                "delay_lattice_s": t_lat,
+                "group_velocity_m_s": v_lat,
+                "arrival_s": t_meas,
+                "error_periods": (t_meas - t_lat) * f0,
+                "error_periods_air": (t_meas - t_air) * f0,
+                "resolved": bool(inside and gate_start_step <= lo),
+                "level_db": level_db,
+                "detected": {f"{th:g}": bool(level_db >= th) for th in THRESHOLDS_DB},
+            }
+        )
+    return {
+        "what": "first echo of each surface: image-source / nearest-point delay in air and with the lattice's "
+        "group velocity, the A-scan's envelope peak within half a burst of it, level dB re the transmit peak",
+        "frequency_hz": f0,
+        "burst_cycles": cycles,
+        "thresholds_db": list(THRESHOLDS_DB),
+        "echoes": rows,
+    }
+
+
+def plot_labelled(t_s, a_scan, table: dict, gate_start_step: int, path):
+    """The A-scan's envelope (dB re the transmit peak) with each surface's lattice delay marked."""
+    from matplotlib.figure import Figure
+
+    from .. import plots
+
+    a = np.asarray(a_scan, float)
+    ts = np.asarray(t_s, float)
+    env = envelope(np.where(np.arange(len(a)) >= gate_start_step, a, 0.0))
+    transmit = _transmit_peak(a, gate_start_step, table["burst_cycles"] / table["frequency_hz"] / (ts[1] - ts[0]))
+    db = 20 * np.log10(np.maximum(env / transmit, 1e-6))
+    fig = Figure(figsize=(9, 4))
+    ax = fig.add_subplot()
+    t_ms = np.asarray(t_s) * 1e3
+    ax.plot(t_ms, db, lw=0.8)
+    for i, e in enumerate(table["echoes"]):
+        ax.axvline(e["delay_lattice_s"] * 1e3, color="C1", lw=0.6, ls="--")
+        ax.text(e["delay_lattice_s"] * 1e3, -5 - 6 * (i % 4), f" {e['surface']}", fontsize=7, color="C1")
+    for th in table["thresholds_db"]:
+        ax.axhline(th, color="0.7", lw=0.5)
+    ax.set_ylim(-90, 0)
+    ax.set_xlabel("t (ms)")
+    ax.set_ylabel("echo envelope (dB re transmit peak)")
+    ax.set_title("A-scan, echoes labelled by their image-source delays (lattice group velocity)")
+    return plots.save(fig, path)

@@ -246,7 +246,7 @@ def test_concurrent_runs_from_two_threads_equal_sequential_ones(monkeypatch):
 
 def _uses_native(fn, *args) -> bool:
     text = str(jax.make_jaxpr(fn)(*args))
-    return "difflattice_leapfrog" in text or "difflattice_staggered" in text
+    return "difflattice_leapfrog" in text or "difflattice_layered" in text
 
 
 def test_auto_runs_native_where_supported_and_falls_back_elsewhere():

@@ -183,10 +183,16 @@ class RadialPML(eqx.Module):
     width: int = eqx.field(static=True)
 
 
+Box = tuple[tuple[int, int], ...]  # cell ranges [lo, hi) per axis
+
+
 class PML(eqx.Module):
     """Split-field PML update factors (decay a, gain b) per axis, for cells and faces; `radial`:
     the cylindrical correction of an rz grid's r_hi layer (None otherwise). On a 3-D grid the z
-    factors exist too and every array has rank 3 (broadcast along the other axes)."""
+    factors exist too and every array has rank 3 (broadcast along the other axes).
+
+    `boxes`: the layer's cells as disjoint boxes (`layer_boxes`), the only cells that carry split
+    fields; every other cell has a = b = 1 on itself and its faces and steps the leapfrog."""
 
     ax_cell: Float[Array, "nx 1"]
     bx_cell: Float[Array, "nx 1"]
@@ -201,6 +207,7 @@ class PML(eqx.Module):
     bz_cell: Float[Array, "1 1 nz"] | None = None
     az_face: Float[Array, "1 1 nz1"] | None = None
     bz_face: Float[Array, "1 1 nz1"] | None = None
+    boxes: tuple[Box, ...] = eqx.field(static=True, default=())
 
     def factors(self, axis: int, where: str):
         """(a, b) of `axis` (0, 1, 2) at "cell" or "face"."""
@@ -661,7 +668,28 @@ def _pml(grid: Grid, edges: Edges, dtype) -> PML:
             out[f"a{key}_{where}"] = jnp.asarray(av.reshape(shape), dtype)
             out[f"b{key}_{where}"] = jnp.asarray(bv.reshape(shape), dtype)
     radial = _radial_pml(ny, L, m, smax, dtype) if grid.kind.ring_metric and edges.y_hi == "pml" else None
-    return PML(**out, radial=radial)
+    return PML(**out, radial=radial, boxes=layer_boxes(tuple(grid.shape), edges))
+
+
+def layer_boxes(shape: tuple[int, ...], edges: Edges) -> tuple[Box, ...]:
+    """The PML layer's cells as disjoint boxes: per axis in turn, the lo and hi slabs of that
+    axis's layer, spanning the middle of the axes before it (whose slabs hold their own corners)
+    and all of the axes after it (2-D: x slabs of full width, then y slabs between them). A cell
+    outside every box has sigma = 0 on itself and on its faces (`Edges.layer_depth`: the layer
+    is the `thickness_cells` outermost cells, its inner face undamped)."""
+    L = edges.thickness_cells
+    ndim = len(shape)
+    lo = [min(L, n) if getattr(edges, f"{'xyz'[a]}_lo") == "pml" else 0 for a, n in enumerate(shape)]
+    hi = [min(L, n - lo[a]) if getattr(edges, f"{'xyz'[a]}_hi") == "pml" else 0 for a, n in enumerate(shape)]
+    boxes = []
+    for axis in range(ndim):
+        for r in ((0, lo[axis]), (shape[axis] - hi[axis], shape[axis])):
+            box = tuple(
+                r if a == axis else ((lo[a], shape[a] - hi[a]) if a < axis else (0, shape[a])) for a in range(ndim)
+            )
+            if all(h > l for l, h in box):
+                boxes.append(box)
+    return tuple(boxes)
 
 
 def _radial_pml(ny: int, L: int, m: float, smax: float, dtype) -> RadialPML:

@@ -27,7 +27,7 @@ from pathlib import Path
 SOURCE = Path(__file__).with_name("lattice.cc")
 TARGETS = {
     "difflattice_leapfrog": "DifflatticeLeapfrog",
-    "difflattice_staggered": "DifflatticeStaggered",
+    "difflattice_layered": "DifflatticeLayered",
     "difflattice_adjoint_chunk": "DifflatticeAdjointChunk",
 }
 COMPILE_TIMEOUT_S = 300

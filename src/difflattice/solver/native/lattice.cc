@@ -5,7 +5,8 @@
 // - `difflattice_leapfrog`: P(t+1) = 2 P(t) - P(t-1) + K L(q), L the flux stencil of
 //   difflattice.lattice.operators, with the optional sponge, soft-cell factor (`keep`), q = c^2 P
 //   (`q_scale`) and viscous (`eta`) terms; `combine = 2` runs the adjoint step instead.
-// - `difflattice_staggered`: the split-field PML form (face fluxes wx, wy; pressure parts px, py).
+// - `difflattice_layered`: the leapfrog with PML layers: the split-field form (face fluxes wx, wy;
+//   pressure parts px, py) on the layer's boxes only, the leapfrog's arithmetic everywhere else.
 //
 // Both run the standard 5-point stencil, and the isotropic 9-point one (attribute `stencil` = 1)
 // on uniform faces (air: the window's 0/1 masks and the rz metric; `row_iso`, `face_x_iso`).
@@ -339,7 +340,6 @@ struct CellOps {
   const int32_t* src_hard = nullptr;
   const T* src_vals = nullptr;  // (n_steps, n_src)
   int64_t n_src = 0;
-  T* src_acc = nullptr;  // staggered form: running sums of soft sources (n_src)
   const int32_t* rec_cells = nullptr;  // recorded after the sources: rec_out (n_steps, n_rec)
   T* rec_out = nullptr;
   int64_t n_rec = 0;
@@ -394,41 +394,6 @@ void leapfrog_cells(const CellOps<T>& c, const CellPlan<T>& pl, int64_t i, int64
     for (int64_t u = pl.pha.start[i]; u < pl.pha.start[i + 1]; ++u) {
       const int64_t k = pl.pha.item[u];
       const T v = nw[i * ny + c.ph_cells[2 * k + 1]];
-      c.ph_re[k] = c.ph_re[k] + v * cs;
-      c.ph_im[k] = c.ph_im[k] + v * sn;
-    }
-  }
-}
-
-// the staggered form's cells: sources on both pressure parts, records of px + py
-template <typename T>
-void staggered_cells(const CellOps<T>& c, const CellPlan<T>& pl, int64_t i, int64_t s, T* px, T* py) {
-  const int64_t ny = c.ny;
-  for (int64_t u = pl.src.start[i]; u < pl.src.start[i + 1]; ++u) {
-    const int64_t k = pl.src.item[u];
-    const int64_t at = i * ny + c.src_cells[2 * k + 1];
-    const T v = c.src_vals[s * c.n_src + k];
-    if (c.src_hard[k]) {
-      px[at] = T(0.5) * v;
-      py[at] = T(0.5) * v;
-    } else {
-      c.src_acc[k] = c.src_acc[k] + v;
-      const T half = T(0.5) * c.src_acc[k];
-      px[at] = px[at] + half;
-      py[at] = py[at] + half;
-    }
-  }
-  for (int64_t u = pl.rec.start[i]; u < pl.rec.start[i + 1]; ++u) {
-    const int64_t k = pl.rec.item[u];
-    const int64_t at = i * ny + c.rec_cells[2 * k + 1];
-    c.rec_out[s * c.n_rec + k] = px[at] + py[at];
-  }
-  if (pl.pha.start[i] != pl.pha.start[i + 1]) {
-    const T cs = c.ph_cos[s], sn = c.ph_sin[s];
-    for (int64_t u = pl.pha.start[i]; u < pl.pha.start[i + 1]; ++u) {
-      const int64_t k = pl.pha.item[u];
-      const int64_t at = i * ny + c.ph_cells[2 * k + 1];
-      const T v = px[at] + py[at];
       c.ph_re[k] = c.ph_re[k] + v * cs;
       c.ph_im[k] = c.ph_im[k] + v * sn;
     }
@@ -735,6 +700,57 @@ RowFn<T> pick_row(int bx, int by, bool kreg) {
   return nullptr;
 }
 
+// ----------------------------------------------------------------------------------------------
+// PML layers (stepper._step_layers): the leapfrog runs on every row; the split-field form runs on
+// the layer's boxes only (coefficients.layer_boxes: rows [r0, r1) x columns [c0, c1), disjoint),
+// whose cells take the sum of their parts:
+//   wx = axf wx + bxf (b_x (q_i - q_{i-1}))      (the box's faces along x, its outer two included)
+//   wy = ayf wy + byf (b_y (q_j - q_{j-1}))
+//   px = axc px + bxc (K (wx_{i+1} - wx_i)),  py = ayc py + byc (K ((mh wy_{j+1} - ml wy_j) + C));
+//   keep px, py;  P = px + py
+// with the rz r_hi layer's ring correction C = decay C + drive (the ring's two y faces, new and
+// old) on the outer w columns. Row i of a step updates the box's x face i + 1 (and face r0 at its
+// first row) from q rows i, i + 1, its y faces and parts of row i: the pipeline's order for the
+// leapfrog (step L + 1 takes row i after step L finished row i + 1) keeps one copy of each.
+
+// a coefficient's row i as a plain pointer: its own row, or a buffer holding its one value
+template <typename T>
+struct RowBuf {
+  std::vector<T> v;
+  T value = T(0);
+  bool filled = false;
+  const T* get(const Coef<T>& c, int64_t i, int64_t n) {
+    if (!c.in_register()) return c.row(i);
+    const T x = c.value(i);
+    if (!filled || !(x == value) || int64_t(v.size()) < n) {
+      v.assign(n, x);
+      value = x;
+      filled = true;
+    }
+    return v.data();
+  }
+};
+
+template <typename T>
+struct LayerBox {
+  int64_t r0, r1, c0, c1;
+  T *px, *py;  // (r1 - r0, c1 - c0)
+  T* wx;       // (r1 - r0 + 1, c1 - c0): x faces r0 .. r1
+  T* wy;       // (r1 - r0, c1 - c0 + 1): y faces c0 .. c1 of each row
+  T* cr;       // (r1 - r0, w): the ring correction on columns [ny - w, ny), or nullptr
+};
+
+template <typename T>
+struct LayerArgs {
+  std::vector<LayerBox<T>> boxes;
+  std::vector<std::vector<int>> of_row;  // the boxes holding each row (at most three)
+  std::vector<char> whole_row;           // rows every column of which lies in a box
+  Coef<T> axc, bxc, axf, bxf;            // one value per row: (nx, 1), (nx + 1, 1)
+  Coef<T> ayc, byc, ayf, byf;            // one vector for all rows: (1, ny), (1, ny + 1)
+  const T *rad_decay = nullptr, *rad_drive = nullptr;
+  int64_t w = 0;
+};
+
 template <typename T>
 struct LeapfrogArgs {
   int64_t nx, ny, n_steps;
@@ -753,6 +769,7 @@ struct LeapfrogArgs {
   T* rq[2] = {nullptr, nullptr};
   T r_eta = T(0), r_eps[2] = {T(0), T(0)}, r_a[2] = {T(0), T(0)}, r_g[2] = {T(0), T(0)};
   CellOps<T> cells;
+  const LayerArgs<T>* layers = nullptr;  // PML layers (nullptr: none)
 };
 
 // per-row coefficients and the row kernel that fits them
@@ -964,6 +981,143 @@ bool plan_rows(const LeapfrogArgs<T>& a, int cmb, RowPlan<T>& plan) {
   return true;
 }
 
+// per-thread scratch of the layer rows
+template <typename T>
+struct LayerScratch {
+  RowBuf<T> k, bxl, bxh, by, keep, ml, mh;
+  std::vector<T> ones, old, d, P;
+  explicit LayerScratch(int64_t ny, int64_t w) : ones(ny + 2, T(1)), old(w + 1, T(0)), d(ny + 2, T(0)), P(ny + 2, T(0)) {}
+};
+
+// the isotropic stencil's filter weights across x faces (rz: the ring areas (j + 1, j) / (j + 1/2);
+// 0 past the row's ends: a mirror)
+template <typename T>
+struct IsoWeights {
+  std::vector<T> rl, rh;
+  IsoWeights(int64_t ny, bool ring) : rl(ny, T(0)), rh(ny, T(0)) {
+    for (int64_t j = 0; j < ny; ++j) {
+      rl[j] = j == 0 ? T(0) : (ring ? T(double(j) / (double(j) + 0.5)) : T(1));
+      rh[j] = j + 1 == ny ? T(0) : (ring ? T((double(j) + 1.0) / (double(j) + 0.5)) : T(1));
+    }
+  }
+};
+
+// x face f (the box's face kf) from q rows lo, hi: w = A w + B (b (hi - lo)), or with the
+// isotropic stencil the difference filtered across the face ([1, 10, 1] / 12, uniform faces)
+template <typename T>
+void layer_x_face(const LeapfrogArgs<T>& a, const LayerArgs<T>& la, const IsoWeights<T>& iw, const LayerBox<T>& b,
+                  int64_t kf, int64_t f, const T* __restrict lo, const T* __restrict hi, LayerScratch<T>& S) {
+  const int64_t ny = a.ny, c0 = b.c0, nc = b.c1 - b.c0;
+  T* __restrict w = b.wx + kf * nc;
+  const T A = la.axf.present() ? la.axf.at(f, 0) : T(1), B = la.bxf.present() ? la.bxf.at(f, 0) : T(1);
+  if (a.iso) {
+    T* __restrict d = S.d.data() + 1;  // d[-1] = d[ny] = 0
+    const int64_t j0 = std::max<int64_t>(c0 - 1, 0), j1 = std::min<int64_t>(b.c1 + 1, ny);
+    for (int64_t j = j0; j < j1; ++j) d[j] = hi[j] - lo[j];
+    const T bb = a.bx.present() ? a.bx.at(f, 0) : T(1);  // uniform faces: the window's mask
+    const T* __restrict rl = iw.rl.data();
+    const T* __restrict rh = iw.rh.data();
+    constexpr T w12 = T(1.0 / 12.0);
+#pragma GCC ivdep
+    for (int64_t k = 0; k < nc; ++k) {
+      const int64_t j = c0 + k;
+      const T g = d[j];
+      w[k] = A * w[k] + B * (bb * (g + (rh[j] * (d[j + 1] - g) - rl[j] * (g - d[j - 1])) * w12));
+    }
+    return;
+  }
+  const T* __restrict bb = a.bx.present() ? S.bxl.get(a.bx, f, ny) : S.ones.data();
+#pragma GCC ivdep
+  for (int64_t k = 0; k < nc; ++k) {
+    const int64_t j = c0 + k;
+    w[k] = A * w[k] + B * (bb[j] * (hi[j] - lo[j]));
+  }
+}
+
+// the y faces c0 .. c1 of row i (box row kr) from the q row q (zero beyond the window), and the
+// rz ring correction of the row
+template <typename T>
+void layer_y_faces(const LeapfrogArgs<T>& a, const LayerArgs<T>& la, const LayerBox<T>& b, int64_t kr, int64_t i,
+                   const T* __restrict q, LayerScratch<T>& S) {
+  const int64_t ny = a.ny, c0 = b.c0, nc = b.c1 - b.c0;
+  T* __restrict w = b.wy + kr * (nc + 1);
+  const int64_t w_r = b.cr ? la.w : 0;
+  T* old = S.old.data();
+  if (w_r) std::copy(w + nc - w_r, w + nc + 1, old);  // the outer rings' faces before the update
+  const T* __restrict bb = a.by.present() ? S.by.get(a.by, i, ny + 1) : S.ones.data();
+  const T* __restrict ayf = la.ayf.present() ? la.ayf.row(0) : S.ones.data();
+  const T* __restrict byf = la.byf.present() ? la.byf.row(0) : S.ones.data();
+#pragma GCC ivdep
+  for (int64_t k = 0; k <= nc; ++k) {
+    const int64_t f = c0 + k;
+    const T hi = f < ny ? q[f] : T(0), lo = f > 0 ? q[f - 1] : T(0);
+    w[k] = ayf[f] * w[k] + byf[f] * (bb[f] * (hi - lo));
+  }
+  if (w_r) {
+    T* c = b.cr + kr * w_r;
+    for (int64_t k = 0; k < w_r; ++k) {
+      const int64_t kk = nc - w_r + k;  // the box's face of ring ny - w + k
+      const T sum = ((w[kk + 1] + w[kk]) + old[k + 1]) + old[k];
+      c[k] = la.rad_decay[k] * c[k] + la.rad_drive[k] * sum;
+    }
+  }
+}
+
+// row i of box b at one step: its faces from the q rows of the previous step (qm, q0, qp: rows
+// i - 1, i, i + 1, zero beyond the window), its parts, and P = px + py into the new row `out`
+template <typename T>
+void layer_row(const LeapfrogArgs<T>& a, const LayerArgs<T>& la, const IsoWeights<T>& iw, const LayerBox<T>& b,
+               int64_t i, const T* qm, const T* q0, const T* qp, T* out, LayerScratch<T>& S) {
+  const int64_t ny = a.ny, c0 = b.c0, nc = b.c1 - b.c0, kr = i - b.r0;
+  if (i == b.r0) layer_x_face(a, la, iw, b, 0, i, qm, q0, S);
+  layer_x_face(a, la, iw, b, kr + 1, i + 1, q0, qp, S);
+  if (a.iso) {  // the y faces from P = q0 filtered across them (am, ap = 0 at the first / last row)
+    T* __restrict P = S.P.data();
+    const T am = i > 0 ? T(1) : T(0), ap = i + 1 < a.nx ? T(1) : T(0);
+    constexpr T w12 = T(1.0 / 12.0);
+    const int64_t j0 = std::max<int64_t>(c0 - 1, 0), j1 = std::min<int64_t>(b.c1 + 1, ny);
+    for (int64_t j = j0; j < j1; ++j) P[j] = q0[j] + (ap * (qp[j] - q0[j]) - am * (q0[j] - qm[j])) * w12;
+    layer_y_faces(a, la, b, kr, i, P, S);
+  } else {
+    layer_y_faces(a, la, b, kr, i, q0, S);
+  }
+  T* __restrict x = b.px + kr * nc;
+  T* __restrict y = b.py + kr * nc;
+  const T* __restrict wlo = b.wx + kr * nc;
+  const T* __restrict whi = wlo + nc;
+  const T* __restrict wy = b.wy + kr * (nc + 1);
+  const T* __restrict kk = S.k.get(a.K, i, ny) + c0;
+  const T Ax = la.axc.present() ? la.axc.at(i, 0) : T(1), Bx = la.bxc.present() ? la.bxc.at(i, 0) : T(1);
+  const T* __restrict ayc = (la.ayc.present() ? la.ayc.row(0) : S.ones.data()) + c0;
+  const T* __restrict byc = (la.byc.present() ? la.byc.row(0) : S.ones.data()) + c0;
+#pragma GCC ivdep
+  for (int64_t k = 0; k < nc; ++k) x[k] = Ax * x[k] + Bx * (kk[k] * (whi[k] - wlo[k]));
+  if (a.my_lo.present()) {  // rz: (m_hi w_(j+1) - m_lo w_j) (+ C on the ring columns)
+    const T* __restrict ml = S.ml.get(a.my_lo, i, ny) + c0;
+    const T* __restrict mh = S.mh.get(a.my_hi, i, ny) + c0;
+    const int64_t w_r = b.cr ? la.w : 0, k_r = nc - w_r;
+#pragma GCC ivdep
+    for (int64_t k = 0; k < k_r; ++k) y[k] = ayc[k] * y[k] + byc[k] * (kk[k] * (mh[k] * wy[k + 1] - ml[k] * wy[k]));
+    const T* c = b.cr ? b.cr + kr * w_r - k_r : nullptr;
+    for (int64_t k = k_r; k < nc; ++k)
+      y[k] = ayc[k] * y[k] + byc[k] * (kk[k] * ((mh[k] * wy[k + 1] - ml[k] * wy[k]) + c[k]));
+  } else {
+#pragma GCC ivdep
+    for (int64_t k = 0; k < nc; ++k) y[k] = ayc[k] * y[k] + byc[k] * (kk[k] * (wy[k + 1] - wy[k]));
+  }
+  if (a.keep.present()) {
+    const T* __restrict kp = S.keep.get(a.keep, i, ny) + c0;
+#pragma GCC ivdep
+    for (int64_t k = 0; k < nc; ++k) {
+      x[k] = kp[k] * x[k];
+      y[k] = kp[k] * y[k];
+    }
+  }
+  T* __restrict o = out + c0;
+#pragma GCC ivdep
+  for (int64_t k = 0; k < nc; ++k) o[k] = x[k] + y[k];
+}
+
 // RELAX: air absorption (a compile-time flag: the lossless instantiation has none of its code)
 template <typename T, bool RELAX>
 bool leapfrog_steps(const LeapfrogArgs<T>& a) {
@@ -982,6 +1136,8 @@ bool leapfrog_steps(const LeapfrogArgs<T>& a) {
   if (!(a.iso ? plan_iso(a, cmb, plan) : plan_rows(a, cmb, plan))) return false;
   const T eta1 = T(1.0 + a.eta), eta = T(a.eta);
   T* buf[2] = {a.p, a.pp};  // step L lives in buf[L % 2] (step 0 = P(t) in buf[0])
+  const LayerArgs<T>* la = a.layers;
+  const IsoWeights<T> iw(la && a.iso ? ny : 0, a.my_lo.present());
 
   // q of row i from step L - 1 (p_) and step L - 2 (pp_), before step L overwrites row i
   auto q_of = [&](int64_t i, T* dst, const T* p_, const T* pp_) {
@@ -1032,7 +1188,9 @@ bool leapfrog_steps(const LeapfrogArgs<T>& a) {
       if (qbuf) l.ring.assign(3 * ny, T(0));
       if (extras) l.d.assign(ny, T(0));
     }
-    return [&, lv = std::move(lv)](int l, int64_t L, int64_t i) mutable {
+    std::optional<LayerScratch<T>> ls;
+    if (la) ls.emplace(ny, la->w);
+    return [&, lv = std::move(lv), ls = std::move(ls)](int l, int64_t L, int64_t i) mutable {
       Level& S = lv[l];
       const T* p = buf[(L - 1) & 1];  // step L - 1
       T* pp = buf[L & 1];             // step L - 2, overwritten by step L
@@ -1062,7 +1220,9 @@ bool leapfrog_steps(const LeapfrogArgs<T>& a) {
       const T* p0 = p + i * ny;
       c.p0 = p0;
       c.pp0 = out;
-      if (!extras) {
+      if (la && la->whole_row[i]) {
+        // a row of layer cells only: the boxes write it
+      } else if (!extras) {
         c.out = out;
         plan.fn[i](plan.ctx[i], c, ny);
       } else {
@@ -1087,6 +1247,8 @@ bool leapfrog_steps(const LeapfrogArgs<T>& a) {
           }
         }
       }
+      if (la)  // the layer's cells of the row: the split-field form replaces the leapfrog's values
+        for (int bi : la->of_row[i]) layer_row(a, *la, iw, la->boxes[bi], i, c.qm, c.q0, c.qp, out, *ls);
       if (cplan.busy[i]) leapfrog_cells(a.cells, cplan, i, L - 1, pp);
       if constexpr (relax) {  // stepper._relaxed_memory: step L - 1's q rows of row i are read (q ring)
         T* q0r = a.rq[0] + i * ny;
@@ -1108,7 +1270,7 @@ bool leapfrog_steps(const LeapfrogArgs<T>& a) {
     const int64_t r0 = nx * t / nt, r1 = nx * (t + 1) / nt;
     for (int64_t i = r0; i < r1; ++i) std::swap_ranges(a.p + i * ny, a.p + (i + 1) * ny, a.pp + i * ny);
   };
-  if (a.bands && !qbuf) bands(nx, a.n_steps, a.n_threads, make_worker, finish);
+  if (a.bands && !qbuf && !la) bands(nx, a.n_steps, a.n_threads, make_worker, finish);
   else pipeline(nx, ny, a.n_steps, a.n_threads, levels, make_worker, finish);
   return true;
 }
@@ -1117,414 +1279,6 @@ template <typename T>
 bool leapfrog(const LeapfrogArgs<T>& a) {
   if (a.rq[0] != nullptr && a.combine != kAdj) return leapfrog_steps<T, true>(a);
   return leapfrog_steps<T, false>(a);
-}
-
-// ----------------------------------------------------------------------------------------------
-// the staggered split-field PML form (stepper._step_staggered), in place:
-//   q  = qs ((1 + eta) (px + py) - eta p_prev)
-//   wx = ax_face wx + bx_face (b_x (q_i - q_{i-1}))       (nx + 1 faces, zero beyond the window)
-//   wy = ay_face wy + by_face (b_y (q_j - q_{j-1}))
-//   px = ax_cell px + bx_cell (K (wx_{i+1} - wx_i)),  py likewise;  keep px, py
-// Row i of a step updates face i + 1 of wx (from q rows i, i + 1), the faces of row i of wy and
-// then px, py of row i, so one copy of each field suffices; the next step may update row i once
-// this one has finished row i + 1 (the last reader of face i + 1 and of q row i).
-
-// a coefficient's row i as a plain pointer: its own row, or a buffer holding its one value
-template <typename T>
-struct RowBuf {
-  std::vector<T> v;
-  T value = T(0);
-  bool filled = false;
-  const T* get(const Coef<T>& c, int64_t i, int64_t n) {
-    if (!c.in_register()) return c.row(i);
-    const T x = c.value(i);
-    if (!filled || !(x == value) || int64_t(v.size()) < n) {
-      v.assign(n, x);
-      value = x;
-      filled = true;
-    }
-    return v.data();
-  }
-};
-
-template <typename T>
-struct StaggeredArgs {
-  int64_t nx, ny, n_steps;
-  int n_threads, levels;
-  T *px, *py, *wx, *wy, *p_prev;  // p_prev: nullptr unless eta
-  Coef<T> K, bx, by, qs, keep;
-  Coef<T> axc, bxc, axf, bxf;  // one value per row: (nx, 1), (nx + 1, 1)
-  Coef<T> ayc, byc, ayf, byf;  // one vector for all rows: (1, ny), (1, ny + 1)
-  Coef<T> my_lo, my_hi;        // rz metric of the y divergence (per column)
-  // rz r_hi PML (cylindrical correction) on the outer w rings j = ny - w + k: the ring field
-  // C = decay C + drive (sum of the ring's two y faces, new and old), added to the y divergence
-  T* c_r = nullptr;  // (nx, w)
-  const T *rad_decay = nullptr, *rad_drive = nullptr;
-  int64_t w = 0;
-  double eta;
-  bool iso = false;  // the isotropic stencil (uniform faces: x masks per row, y masks per column)
-  // air absorption, as in LeapfrogArgs (rq[0] == nullptr: lossless); needs p_prev
-  T* rq[2] = {nullptr, nullptr};
-  T r_eta = T(0), r_eps[2] = {T(0), T(0)}, r_a[2] = {T(0), T(0)}, r_g[2] = {T(0), T(0)};
-  CellOps<T> cells;
-};
-
-template <typename T, bool RELAX>  // RELAX: air absorption, as in leapfrog_steps
-bool staggered_steps(const StaggeredArgs<T>& a) {
-  const int64_t nx = a.nx, ny = a.ny;
-  const int levels = std::max(1, a.levels);
-  const CellPlan<T> cplan(a.cells, nx);
-  const bool stats = a.cells.p_max || a.cells.p_sq || a.cells.arrival;
-  const T eta1 = T(1.0 + a.eta), eta = T(a.eta);
-  const bool has_eta = a.eta != 0.0;
-  constexpr bool relax = RELAX;
-  // the y-layer columns: PML factors differ from 1 outside [jl, jh) (cells) and [jl, jh] (faces)
-  auto y_one = [&](int64_t j, bool face) {
-    const Coef<T>& A = face ? a.ayf : a.ayc;
-    const Coef<T>& B = face ? a.byf : a.byc;
-    return (!A.present() || A.at(0, j) == T(1)) && (!B.present() || B.at(0, j) == T(1));
-  };
-  int64_t jl = 0;
-  while (jl < ny && !(y_one(jl, false) && y_one(jl, true))) ++jl;
-  int64_t jh = jl;
-  while (jh < ny && y_one(jh, false) && y_one(jh + 1, true)) ++jh;
-  auto x_one_cell = [&](int64_t i) {
-    return (!a.axc.present() || a.axc.at(i, 0) == T(1)) && (!a.bxc.present() || a.bxc.at(i, 0) == T(1));
-  };
-  auto x_one_face = [&](int64_t f) {
-    return (!a.axf.present() || a.axf.at(f, 0) == T(1)) && (!a.bxf.present() || a.bxf.at(f, 0) == T(1));
-  };
-  const std::vector<T> ones(ny + 1, T(1));
-  auto yrow = [&](const Coef<T>& c) -> const T* { return c.present() ? c.row(0) : ones.data(); };
-  const T *ayc = yrow(a.ayc), *byc = yrow(a.byc), *ayf = yrow(a.ayf), *byf = yrow(a.byf);
-
-  // Every loop below runs over plain row pointers (no branch per cell, so it vectorises): a
-  // coefficient held as one value per row is expanded into a row buffer of the thread (`RowBuf`),
-  // an absent conductance is a row of ones (1 * g is g exactly).
-  struct Scratch {
-    RowBuf<T> k, bx, by, qs, keep;
-  };
-
-  // q of row i (ny values) from the fields of the previous step
-  auto q_of = [&](Scratch& S, int64_t i, T* __restrict dst) {
-    const T* __restrict x = a.px + i * ny;
-    const T* __restrict y = a.py + i * ny;
-    if (has_eta) {
-      const T* __restrict pr = a.p_prev + i * ny;
-      for (int64_t j = 0; j < ny; ++j) dst[j] = eta1 * (x[j] + y[j]) - eta * pr[j];
-    } else {
-      for (int64_t j = 0; j < ny; ++j) dst[j] = x[j] + y[j];
-    }
-    if constexpr (relax) {  // stepper._relaxed_operand, in its order
-      const T* __restrict pr = a.p_prev + i * ny;
-      const T* __restrict q0r = a.rq[0] + i * ny;
-      const T* __restrict q1r = a.rq[1] + i * ny;
-      const T re = a.r_eta, e0 = a.r_eps[0], e1 = a.r_eps[1];
-#pragma GCC ivdep
-      for (int64_t j = 0; j < ny; ++j)
-        dst[j] = ((dst[j] + re * ((x[j] + y[j]) - pr[j])) + e0 * q0r[j]) + e1 * q1r[j];
-    }
-    if (a.qs.present()) {
-      const T* __restrict s_ = S.qs.get(a.qs, i, ny);
-      for (int64_t j = 0; j < ny; ++j) dst[j] = s_[j] * dst[j];
-    }
-  };
-
-  // wx face f from q rows f - 1 (lo) and f (hi)
-  auto face_x = [&](Scratch& S, int64_t f, const T* __restrict lo, const T* __restrict hi) {
-    T* __restrict w = a.wx + f * ny;
-    const bool unit = !a.bx.present();
-    const T* __restrict bb = unit ? ones.data() : S.bx.get(a.bx, f, ny);
-    if (x_one_face(f)) {
-      if (unit) {
-#pragma GCC ivdep
-        for (int64_t j = 0; j < ny; ++j) w[j] = w[j] + (hi[j] - lo[j]);
-      } else {
-#pragma GCC ivdep
-        for (int64_t j = 0; j < ny; ++j) w[j] = w[j] + bb[j] * (hi[j] - lo[j]);
-      }
-    } else {
-      const T A = a.axf.present() ? a.axf.at(f, 0) : T(1), B = a.bxf.present() ? a.bxf.at(f, 0) : T(1);
-#pragma GCC ivdep
-      for (int64_t j = 0; j < ny; ++j) w[j] = A * w[j] + B * (bb[j] * (hi[j] - lo[j]));
-    }
-  };
-  // the rz r_hi PML's ring field of row i from its y faces, new (w) and old:
-  // C = decay C + drive ((w_new[j+1] + w_new[j]) + w_old[j+1]) + w_old[j])
-  auto ring_field = [&](int64_t i, const T* w, const T* old) {
-    if (!a.w) return;
-    T* c = a.c_r + i * a.w;
-    for (int64_t k = 0; k < a.w; ++k) {
-      const int64_t j = ny - a.w + k;
-      const T sum = ((w[j + 1] + w[j]) + old[k + 1]) + old[k];
-      c[k] = a.rad_decay[k] * c[k] + a.rad_drive[k] * sum;
-    }
-  };
-  // the ny + 1 y faces of row i from q row i
-  auto faces_y = [&](Scratch& S, int64_t i, const T* __restrict q, T* old) {
-    T* __restrict w = a.wy + i * (ny + 1);
-    if (a.w) std::copy(w + ny - a.w, w + ny + 1, old);  // the outer rings' faces before the update
-    const bool unit = !a.by.present();
-    const T* __restrict bb = unit ? ones.data() : S.by.get(a.by, i, ny + 1);
-    // the two outer faces (zero beyond the row)
-    w[0] = ayf[0] * w[0] + byf[0] * (bb[0] * (q[0] - T(0)));
-    w[ny] = ayf[ny] * w[ny] + byf[ny] * (bb[ny] * (T(0) - q[ny - 1]));
-    const int64_t f0 = std::min(jl + 1, ny), f1 = std::max(jh, f0);  // interior faces [f0, f1)
-#pragma GCC ivdep
-    for (int64_t f = 1; f < f0; ++f) w[f] = ayf[f] * w[f] + byf[f] * (bb[f] * (q[f] - q[f - 1]));
-    if (unit) {
-#pragma GCC ivdep
-      for (int64_t f = f0; f < f1; ++f) w[f] = w[f] + (q[f] - q[f - 1]);
-    } else {
-#pragma GCC ivdep
-      for (int64_t f = f0; f < f1; ++f) w[f] = w[f] + bb[f] * (q[f] - q[f - 1]);
-    }
-#pragma GCC ivdep
-    for (int64_t f = f1; f < ny; ++f) w[f] = ayf[f] * w[f] + byf[f] * (bb[f] * (q[f] - q[f - 1]));
-    ring_field(i, w, old);
-  };
-  // px, py of row i from the new faces
-  auto cells = [&](Scratch& S, int64_t i) {
-    T* __restrict x = a.px + i * ny;
-    T* __restrict y = a.py + i * ny;
-    const T* __restrict wlo = a.wx + i * ny;
-    const T* __restrict whi = wlo + ny;
-    const T* __restrict wyr = a.wy + i * (ny + 1);
-    const T* __restrict kr = S.k.get(a.K, i, ny);
-    if (x_one_cell(i)) {
-#pragma GCC ivdep
-      for (int64_t j = 0; j < ny; ++j) x[j] = x[j] + kr[j] * (whi[j] - wlo[j]);
-    } else {
-      const T A = a.axc.present() ? a.axc.at(i, 0) : T(1), B = a.bxc.present() ? a.bxc.at(i, 0) : T(1);
-#pragma GCC ivdep
-      for (int64_t j = 0; j < ny; ++j) x[j] = A * x[j] + B * (kr[j] * (whi[j] - wlo[j]));
-    }
-    // cells without y damping: [j0, j1); the rz ring correction's cells: [cw, ny)
-    const int64_t cw = ny - a.w;
-    const int64_t j0 = std::min(jl, cw), j1 = std::min(std::max(jh, j0), cw);
-    if (a.my_lo.present() || a.w) {  // rz: (m_hi w_(j+1)) - (m_lo w_j)
-      const T* __restrict ml = a.my_lo.present() ? a.my_lo.row(i) : ones.data();
-      const T* __restrict mh = a.my_hi.present() ? a.my_hi.row(i) : ones.data();
-#pragma GCC ivdep
-      for (int64_t j = 0; j < j0; ++j) y[j] = ayc[j] * y[j] + byc[j] * (kr[j] * (mh[j] * wyr[j + 1] - ml[j] * wyr[j]));
-#pragma GCC ivdep
-      for (int64_t j = j0; j < j1; ++j) y[j] = y[j] + kr[j] * (mh[j] * wyr[j + 1] - ml[j] * wyr[j]);
-#pragma GCC ivdep
-      for (int64_t j = j1; j < cw; ++j) y[j] = ayc[j] * y[j] + byc[j] * (kr[j] * (mh[j] * wyr[j + 1] - ml[j] * wyr[j]));
-      const T* c = a.w ? a.c_r + i * a.w : nullptr;  // + C, then K: K ((m_hi w_(j+1) - m_lo w_j) + C)
-      for (int64_t j = cw; j < ny; ++j) {
-        const T d = kr[j] * ((mh[j] * wyr[j + 1] - ml[j] * wyr[j]) + c[j - cw]);
-        y[j] = (j >= jl && j < jh) ? y[j] + d : ayc[j] * y[j] + byc[j] * d;
-      }
-    } else {
-#pragma GCC ivdep
-      for (int64_t j = 0; j < j0; ++j) y[j] = ayc[j] * y[j] + byc[j] * (kr[j] * (wyr[j + 1] - wyr[j]));
-#pragma GCC ivdep
-      for (int64_t j = j0; j < j1; ++j) y[j] = y[j] + kr[j] * (wyr[j + 1] - wyr[j]);
-#pragma GCC ivdep
-      for (int64_t j = j1; j < ny; ++j) y[j] = ayc[j] * y[j] + byc[j] * (kr[j] * (wyr[j + 1] - wyr[j]));
-    }
-    if (a.keep.present()) {
-      const T* __restrict kp = S.keep.get(a.keep, i, ny);
-      for (int64_t j = 0; j < ny; ++j) {
-        x[j] = kp[j] * x[j];
-        y[j] = kp[j] * y[j];
-      }
-    }
-  };
-
-  // The isotropic stencil (operators._across_faces, uniform faces): a face's difference averaged
-  // across the face by [1, 10, 1] / 12. x faces: S(hi - lo), S the filter along the row (rz: ring
-  // areas (j + 1, j) / (j + 1/2); a mirror past the row's ends); y faces of row i: the differences
-  // of P = q_i + (ap (q_(i+1) - q_i) - am (q_i - q_(i-1))) / 12 (am, ap = 0 at the first / last
-  // row), so this step reads q rows i - 1, i, i + 1 (a ring of three per level).
-  std::vector<T> r_lo(ny, T(0)), r_hi(ny, T(0));
-  const bool ring_w = a.my_lo.present();
-  for (int64_t j = 0; j < ny; ++j) {
-    r_lo[j] = j == 0 ? T(0) : (ring_w ? T(double(j) / (double(j) + 0.5)) : T(1));
-    r_hi[j] = j + 1 == ny ? T(0) : (ring_w ? T((double(j) + 1.0) / (double(j) + 0.5)) : T(1));
-  }
-  // x face f, isotropic: w = A w + B (b_f S(hi - lo)) with the difference row d in scratch
-  auto face_x_iso = [&](int64_t f, const T* __restrict lo, const T* __restrict hi, T* __restrict d) {
-    T* __restrict w = a.wx + f * ny;
-    const T* __restrict rl = r_lo.data();
-    const T* __restrict rh = r_hi.data();
-    constexpr T w12 = T(1.0 / 12.0);
-    const T bb = a.bx.present() ? a.bx.at(f, 0) : T(1);  // uniform faces: the window's mask
-    d[-1] = T(0);
-    d[ny] = T(0);
-#pragma GCC ivdep
-    for (int64_t j = 0; j < ny; ++j) d[j] = hi[j] - lo[j];
-    if (x_one_face(f)) {
-#pragma GCC ivdep
-      for (int64_t j = 0; j < ny; ++j) {
-        const T g = d[j];
-        w[j] = w[j] + bb * (g + (rh[j] * (d[j + 1] - g) - rl[j] * (g - d[j - 1])) * w12);
-      }
-    } else {
-      const T A = a.axf.present() ? a.axf.at(f, 0) : T(1), B = a.bxf.present() ? a.bxf.at(f, 0) : T(1);
-#pragma GCC ivdep
-      for (int64_t j = 0; j < ny; ++j) {
-        const T g = d[j];
-        w[j] = A * w[j] + B * (bb * (g + (rh[j] * (d[j + 1] - g) - rl[j] * (g - d[j - 1])) * w12));
-      }
-    }
-  };
-
-  // face arrays (obstacles, a density or speed map): operators._across_faces as written, the
-  // edge weights min(b_j, b_k) (times the ring boundary's area j + 1 over the ring's j + 1/2 on an
-  // rz grid's x faces)
-  const bool iso_faces = a.iso && ((a.bx.present() && !a.bx.in_register()) ||
-                                   (a.by.present() && a.by.mode != kScalar && a.by.mode != kPerCol));
-  std::vector<T> e_lo(ny, T(1)), e_hi(ny, T(1)), inva(ny, T(1));
-  for (int64_t j = 0; ring_w && j < ny; ++j) {
-    e_lo[j] = T(double(j));
-    e_hi[j] = T(double(j) + 1.0);
-    inva[j] = T(1.0 / (double(j) + 0.5));
-  }
-  auto face_x_faces = [&](Scratch& R, int64_t f, const T* __restrict lo, const T* __restrict hi, T* __restrict d,
-                          T* __restrict e) {
-    T* __restrict w = a.wx + f * ny;
-    const T* __restrict bb = a.bx.present() ? R.bx.get(a.bx, f, ny) : ones.data();
-    constexpr T w12 = T(1.0 / 12.0);
-    const T A = a.axf.present() ? a.axf.at(f, 0) : T(1), B = a.bxf.present() ? a.bxf.at(f, 0) : T(1);
-    const T* __restrict eh = e_hi.data();
-    const T* __restrict ia = inva.data();
-#pragma GCC ivdep
-    for (int64_t j = 0; j < ny; ++j) d[j] = hi[j] - lo[j];
-    // e[j]: the edge between columns j - 1 and j (e[0] = e[ny] = 0: the window's ends)
-    e[0] = T(0);
-    e[ny] = T(0);
-#pragma GCC ivdep
-    for (int64_t j = 1; j < ny; ++j) {
-      const T m = bb[j - 1] < bb[j] ? bb[j - 1] : bb[j];
-      e[j] = (d[j] - d[j - 1]) * m * eh[j - 1];
-    }
-#pragma GCC ivdep
-    for (int64_t j = 0; j < ny; ++j) w[j] = A * w[j] + B * (bb[j] * d[j] + (e[j + 1] - e[j]) * ia[j] * w12);
-  };
-  // the ny + 1 y faces of row i from q rows i - 1, i, i + 1 and their by rows (by as a full
-  // array; `y` scratch of 3 (ny + 1))
-  std::vector<T> by_full;
-  if (iso_faces) materialise(a.by, nx, ny + 1, by_full);
-  auto faces_y_faces = [&](int64_t i, const T* qm, const T* q0, const T* qp, T* old, T* y) {
-    T* __restrict w = a.wy + i * (ny + 1);
-    if (a.w) std::copy(w + ny - a.w, w + ny + 1, old);
-    const int64_t n1 = ny + 1;
-    T* __restrict gm = y;
-    T* __restrict g0 = y + n1;
-    T* __restrict gp = y + 2 * n1;
-    y_differences(qm, gm, ny);
-    y_differences(q0, g0, ny);
-    y_differences(qp, gp, ny);
-    const T* __restrict b0 = by_full.data() + i * n1;
-    const T* __restrict bm = i > 0 ? b0 - n1 : b0;
-    const T* __restrict bp = i + 1 < nx ? b0 + n1 : b0;
-    const T am = i > 0 ? T(1) : T(0), ap = i + 1 < nx ? T(1) : T(0);
-#pragma GCC ivdep
-    for (int64_t f = 0; f <= ny; ++f)
-      w[f] = ayf[f] * w[f] + byf[f] * iso_y_face(gm[f], g0[f], gp[f], bm[f], b0[f], bp[f], am, ap);
-    ring_field(i, w, old);
-  };
-
-  struct Level {
-    std::vector<T> ring, row, old;  // q rows i, i + 1 (isotropic: i - 1 too); p = px + py of a row; old faces
-    std::vector<T> d, f, y;         // isotropic: a face difference row, its filtered row; y-face differences
-    T* q[3] = {nullptr, nullptr, nullptr};
-  };
-  const std::vector<T> zero(ny, T(0));
-  auto make_worker = [&](int) {
-    std::vector<Level> lv(levels);
-    for (auto& l : lv) {
-      l.ring.assign(3 * ny, T(0));
-      if (stats) l.row.assign(ny, T(0));
-      l.old.assign(a.w + 1, T(0));
-      if (a.iso) {
-        l.d.assign(ny + 2, T(0));
-        l.f.assign(ny, T(0));
-        if (iso_faces) l.y.assign(3 * (ny + 1), T(0));
-      }
-    }
-    return [&, lv = std::move(lv), R = Scratch()](int l, int64_t L, int64_t i) mutable {
-      Level& S = lv[l];
-      // x face f from q rows lo, hi (isotropic: the filtered difference as hi, zero as lo)
-      auto x_face = [&](int64_t f, const T* lo, const T* hi) {
-        if (iso_faces) face_x_faces(R, f, lo, hi, S.d.data(), S.y.data());
-        else if (a.iso) face_x_iso(f, lo, hi, S.d.data() + 1);
-        else face_x(R, f, lo, hi);
-      };
-      if (i == 0) {
-        S.q[0] = S.ring.data();
-        S.q[1] = S.ring.data() + ny;
-        S.q[2] = S.ring.data() + 2 * ny;  // row i - 1 (zero before the first row)
-        std::fill(S.q[2], S.q[2] + ny, T(0));
-        q_of(R, 0, S.q[0]);
-        x_face(0, zero.data(), S.q[0]);
-      } else {
-        T* t = S.q[2];
-        S.q[2] = S.q[0];
-        S.q[0] = S.q[1];
-        S.q[1] = t;
-      }
-      const T* q0 = S.q[0];
-      if (i + 1 < nx) {
-        q_of(R, i + 1, S.q[1]);
-        x_face(i + 1, q0, S.q[1]);
-      } else {
-        std::fill(S.q[1], S.q[1] + ny, T(0));
-        x_face(nx, q0, zero.data());
-      }
-      if (iso_faces) {
-        faces_y_faces(i, S.q[2], q0, S.q[1], S.old.data(), S.y.data());
-      } else if (a.iso) {  // the y faces from P (row i filtered across the y faces)
-        const T* qm = S.q[2];
-        const T* qp = S.q[1];
-        const T am = i > 0 ? T(1) : T(0), ap = i + 1 < nx ? T(1) : T(0);
-        constexpr T w12 = T(1.0 / 12.0);
-        T* P = S.f.data();
-#pragma GCC ivdep
-        for (int64_t j = 0; j < ny; ++j) P[j] = q0[j] + (ap * (qp[j] - q0[j]) - am * (q0[j] - qm[j])) * w12;
-        faces_y(R, i, P, S.old.data());
-      } else {
-        faces_y(R, i, q0, S.old.data());
-      }
-      if (has_eta || relax) {  // P(n - 1) of this row for the next step, before px, py change
-        T* pr = a.p_prev + i * ny;
-        const T* x = a.px + i * ny;
-        const T* y = a.py + i * ny;
-        for (int64_t j = 0; j < ny; ++j) pr[j] = x[j] + y[j];
-      }
-      cells(R, i);
-      if (cplan.busy[i]) staggered_cells(a.cells, cplan, i, L - 1, a.px, a.py);
-      if constexpr (relax) {  // stepper._relaxed_memory (p_prev's row holds P(n) now; q rows of row i are read)
-        const T* x = a.px + i * ny;
-        const T* y = a.py + i * ny;
-        const T* pr = a.p_prev + i * ny;
-        T* q0r = a.rq[0] + i * ny;
-        T* q1r = a.rq[1] + i * ny;
-        const T a0 = a.r_a[0], a1 = a.r_a[1], g0 = a.r_g[0], g1 = a.r_g[1];
-#pragma GCC ivdep
-        for (int64_t j = 0; j < ny; ++j) {
-          const T dp = (x[j] + y[j]) - pr[j];
-          q0r[j] = a0 * q0r[j] + g0 * dp;
-          q1r[j] = a1 * q1r[j] + g1 * dp;
-        }
-      }
-      if (stats) {
-        const T* x = a.px + i * ny;
-        const T* y = a.py + i * ny;
-        for (int64_t j = 0; j < ny; ++j) S.row[j] = x[j] + y[j];
-        row_stats(a.cells, i, L - 1, S.row.data());
-      }
-    };
-  };
-  pipeline(nx, ny, a.n_steps, a.n_threads, levels, make_worker, [](int, int) {});
-  return true;
-}
-
-template <typename T>
-bool staggered(const StaggeredArgs<T>& a) {
-  return a.rq[0] != nullptr ? staggered_steps<T, true>(a) : staggered_steps<T, false>(a);
 }
 
 // ----------------------------------------------------------------------------------------------
@@ -1808,6 +1562,80 @@ bool bind_relax(Args& a, int64_t n_cells, ffi::DataType type, const Opt& rq0_, c
 
 const char* kRelax = "air absorption needs two memory fields of the grid's shape and 7 coefficients";
 
+// the extra buffers of a call with PML layers (difflattice_layered): the boxes' packed fields (parts
+// px, py of each box; faces wx, wy of each box; the ring correction of each box on the r_hi
+// rings), the boxes (n, 4: r0 r1 c0 c1), the PML factors and the ring correction's factors
+struct LayerBind {
+  ffi::AnyBuffer lp, lw, lc, boxes, axc, bxc, axf, bxf, ayc, byc, ayf, byf, rad_decay, rad_drive;
+  ffi::Result<ffi::AnyBuffer>*lp_o, *lw_o, *lc_o;
+};
+
+template <typename T>
+const char* bind_layers(dl::LayerArgs<T>& la, LayerBind& lb, const dl::LeapfrogArgs<T>& a) {
+  const int64_t nx = a.nx, ny = a.ny;
+  bool ok = true;
+  la.axc = dl::make_coef<T>(lb.axc, nx, ny, &ok);
+  la.bxc = dl::make_coef<T>(lb.bxc, nx, ny, &ok);
+  la.axf = dl::make_coef<T>(lb.axf, nx + 1, ny, &ok);
+  la.bxf = dl::make_coef<T>(lb.bxf, nx + 1, ny, &ok);
+  la.ayc = dl::make_coef<T>(lb.ayc, nx, ny, &ok);
+  la.byc = dl::make_coef<T>(lb.byc, nx, ny, &ok);
+  la.ayf = dl::make_coef<T>(lb.ayf, nx, ny + 1, &ok);
+  la.byf = dl::make_coef<T>(lb.byf, nx, ny + 1, &ok);
+  auto row_layout = [](const dl::Coef<T>& c) { return !c.present() || c.mode == dl::kScalar || c.mode == dl::kPerRow; };
+  auto col_layout = [](const dl::Coef<T>& c) { return !c.present() || c.mode == dl::kPerCol; };
+  ok = ok && row_layout(la.axc) && row_layout(la.bxc) && row_layout(la.axf) && row_layout(la.bxf) &&
+       col_layout(la.ayc) && col_layout(la.byc) && col_layout(la.ayf) && col_layout(la.byf);
+  if (!ok) return "PML factors of an unsupported layout";
+  if (a.iso && ((a.bx.present() && !a.bx.in_register()) || (a.by.present() && a.by.mode != dl::kScalar && a.by.mode != dl::kPerCol)))
+    return "the isotropic stencil with face-conductance arrays has no layer kernel";
+  la.w = int64_t(lb.rad_decay.element_count());
+  if (la.w > ny || int64_t(lb.rad_drive.element_count()) != la.w) return "radial PML arrays of inconsistent sizes";
+  la.rad_decay = reinterpret_cast<const T*>(lb.rad_decay.untyped_data());
+  la.rad_drive = reinterpret_cast<const T*>(lb.rad_drive.untyped_data());
+  T* lp = out_from<T>(*lb.lp_o, lb.lp);
+  T* lw = out_from<T>(*lb.lw_o, lb.lw);
+  T* lc = out_from<T>(*lb.lc_o, lb.lc);
+  const int32_t* bx = reinterpret_cast<const int32_t*>(lb.boxes.untyped_data());
+  const int64_t n_boxes = int64_t(lb.boxes.element_count() / 4);
+  int64_t op = 0, ow = 0, oc = 0;
+  la.of_row.assign(nx, {});
+  std::vector<int64_t> covered(nx, 0);
+  for (int64_t k = 0; k < n_boxes; ++k) {
+    dl::LayerBox<T> b{};
+    b.r0 = bx[4 * k];
+    b.r1 = bx[4 * k + 1];
+    b.c0 = bx[4 * k + 2];
+    b.c1 = bx[4 * k + 3];
+    if (b.r0 < 0 || b.r1 > nx || b.r0 >= b.r1 || b.c0 < 0 || b.c1 > ny || b.c0 >= b.c1) return "a layer box outside the grid";
+    const int64_t nr = b.r1 - b.r0, nc = b.c1 - b.c0;
+    b.px = lp + op;
+    b.py = lp + op + nr * nc;
+    op += 2 * nr * nc;
+    b.wx = lw + ow;
+    b.wy = lw + ow + (nr + 1) * nc;
+    ow += (nr + 1) * nc + nr * (nc + 1);
+    if (la.w && b.c1 == ny) {
+      if (nc < la.w) return "a box on the r_hi rings narrower than the layer";
+      b.cr = lc + oc;
+      oc += nr * la.w;
+    }
+    for (int64_t i = b.r0; i < b.r1; ++i) {
+      la.of_row[i].push_back(int(k));
+      covered[i] += nc;
+    }
+    la.boxes.push_back(b);
+  }
+  if (op != int64_t(lb.lp.element_count()) || ow != int64_t(lb.lw.element_count()) || oc != int64_t(lb.lc.element_count()))
+    return "layer fields whose sizes do not match the boxes";
+  la.whole_row.assign(nx, 0);
+  for (int64_t i = 0; i < nx; ++i) {
+    if (covered[i] > ny) return "overlapping layer boxes";
+    la.whole_row[i] = covered[i] == ny;
+  }
+  return nullptr;
+}
+
 template <typename T>
 ffi::Error leapfrog_typed(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K, ffi::AnyBuffer bx, ffi::AnyBuffer by,
                           ffi::AnyBuffer qs, ffi::AnyBuffer keep, ffi::AnyBuffer sponge, ffi::AnyBuffer my_lo,
@@ -1822,7 +1650,7 @@ ffi::Error leapfrog_typed(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K,
                           ffi::Result<ffi::AnyBuffer> p_sq_o, ffi::Result<ffi::AnyBuffer> arrival_o,
                           Opt rq0, Opt rq1, Opt relax, OptRet rq0_o, OptRet rq1_o,
                           int64_t n_steps, int64_t threads, int64_t levels, int64_t bands, int64_t combine,
-                          int64_t stencil, double eta, double threshold) {
+                          int64_t stencil, double eta, double threshold, LayerBind* lb) {
   auto dims = p.dimensions();
   if (dims.size() != 2) return ffi::Error::InvalidArgument("difflattice_leapfrog: the field must be 2-D");
   const int64_t nx = dims[0], ny = dims[1];
@@ -1862,6 +1690,12 @@ ffi::Error leapfrog_typed(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K,
     return ffi::Error::InvalidArgument(std::string("difflattice_leapfrog: ") + kRelax);
   if (a.rq[0] && combine == dl::kAdj)
     return ffi::Error::InvalidArgument("difflattice_leapfrog: the adjoint mode has no air absorption");
+  dl::LayerArgs<T> la;
+  if (lb) {
+    if (combine == dl::kAdj) return ffi::Error::InvalidArgument("difflattice_layered: the adjoint mode has no PML layers");
+    if (const char* err = bind_layers<T>(la, *lb, a)) return ffi::Error::InvalidArgument(std::string("difflattice_layered: ") + err);
+    a.layers = &la;
+  }
   if (!dl::leapfrog<T>(a)) return ffi::Error::InvalidArgument("difflattice_leapfrog: unsupported coefficient layout");
   return ffi::Error::Success();
 }
@@ -1882,7 +1716,8 @@ ffi::Error leapfrog_impl(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K, 
 #define DL_ARGS                                                                                                 \
   p, pp, K, bx, by, qs, keep, sponge, my_lo, my_hi, src_cells, src_hard, src_vals, rec_cells, zero_cells, ph_cells, ph_cos, \
       ph_sin, ph_re, ph_im, p_max, p_sq, arrival, n0, p_o, pp_o, rec_o, ph_re_o, ph_im_o, p_max_o, p_sq_o,      \
-      arrival_o, rq0, rq1, relax, rq0_o, rq1_o, n_steps, threads, levels, bands, combine, stencil, eta, threshold
+      arrival_o, rq0, rq1, relax, rq0_o, rq1_o, n_steps, threads, levels, bands, combine, stencil, eta, threshold, \
+      nullptr
   switch (p.element_type()) {
     case ffi::DataType::F32:
       return leapfrog_typed<float>(DL_ARGS);
@@ -1894,119 +1729,39 @@ ffi::Error leapfrog_impl(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K, 
 #undef DL_ARGS
 }
 
-template <typename T>
-ffi::Error staggered_typed(ffi::AnyBuffer px, ffi::AnyBuffer py, ffi::AnyBuffer wx, ffi::AnyBuffer wy,
-                           ffi::AnyBuffer p_prev, ffi::AnyBuffer K, ffi::AnyBuffer bx, ffi::AnyBuffer by,
-                           ffi::AnyBuffer qs, ffi::AnyBuffer keep, ffi::AnyBuffer my_lo, ffi::AnyBuffer my_hi,
-                           ffi::AnyBuffer axc, ffi::AnyBuffer bxc,
-                           ffi::AnyBuffer axf, ffi::AnyBuffer bxf, ffi::AnyBuffer ayc, ffi::AnyBuffer byc,
-                           ffi::AnyBuffer ayf, ffi::AnyBuffer byf, ffi::AnyBuffer src_cells, ffi::AnyBuffer src_hard,
-                           ffi::AnyBuffer src_vals, ffi::AnyBuffer src_acc, ffi::AnyBuffer rec_cells,
-                           ffi::AnyBuffer ph_cells, ffi::AnyBuffer ph_cos, ffi::AnyBuffer ph_sin,
-                           ffi::AnyBuffer ph_re, ffi::AnyBuffer ph_im, ffi::AnyBuffer p_max, ffi::AnyBuffer p_sq,
-                           ffi::AnyBuffer arrival, ffi::AnyBuffer n0, ffi::AnyBuffer c_r, ffi::AnyBuffer rad_decay,
-                           ffi::AnyBuffer rad_drive, ffi::Result<ffi::AnyBuffer> px_o,
-                           ffi::Result<ffi::AnyBuffer> py_o, ffi::Result<ffi::AnyBuffer> wx_o,
-                           ffi::Result<ffi::AnyBuffer> wy_o, ffi::Result<ffi::AnyBuffer> p_prev_o,
-                           ffi::Result<ffi::AnyBuffer> src_acc_o, ffi::Result<ffi::AnyBuffer> rec_o,
-                           ffi::Result<ffi::AnyBuffer> ph_re_o, ffi::Result<ffi::AnyBuffer> ph_im_o,
-                           ffi::Result<ffi::AnyBuffer> p_max_o, ffi::Result<ffi::AnyBuffer> p_sq_o,
-                           ffi::Result<ffi::AnyBuffer> arrival_o, ffi::Result<ffi::AnyBuffer> c_r_o,
-                           Opt rq0, Opt rq1, Opt relax, OptRet rq0_o, OptRet rq1_o,
-                           int64_t n_steps, int64_t threads, int64_t levels, int64_t stencil,
-                           double eta, double threshold) {
-  auto dims = px.dimensions();
-  if (dims.size() != 2) return ffi::Error::InvalidArgument("difflattice_staggered: the field must be 2-D");
-  const int64_t nx = dims[0], ny = dims[1];
-  dl::StaggeredArgs<T> a{};
-  a.nx = nx;
-  a.ny = ny;
-  a.n_steps = n_steps;
-  a.n_threads = int(threads);
-  a.levels = int(levels);
-  bool ok = true;
-  a.K = dl::make_coef<T>(K, nx, ny, &ok);
-  a.bx = dl::make_coef<T>(bx, nx + 1, ny, &ok);
-  a.by = dl::make_coef<T>(by, nx, ny + 1, &ok);
-  a.qs = dl::make_coef<T>(qs, nx, ny, &ok);
-  a.keep = dl::make_coef<T>(keep, nx, ny, &ok);
-  a.my_lo = dl::make_coef<T>(my_lo, nx, ny, &ok);
-  a.my_hi = dl::make_coef<T>(my_hi, nx, ny, &ok);
-  ok = ok && (a.my_lo.present() == a.my_hi.present()) && !a.my_lo.in_register() && !a.my_hi.in_register();
-  a.axc = dl::make_coef<T>(axc, nx, ny, &ok);
-  a.bxc = dl::make_coef<T>(bxc, nx, ny, &ok);
-  a.axf = dl::make_coef<T>(axf, nx + 1, ny, &ok);
-  a.bxf = dl::make_coef<T>(bxf, nx + 1, ny, &ok);
-  a.ayc = dl::make_coef<T>(ayc, nx, ny, &ok);
-  a.byc = dl::make_coef<T>(byc, nx, ny, &ok);
-  a.ayf = dl::make_coef<T>(ayf, nx, ny + 1, &ok);
-  a.byf = dl::make_coef<T>(byf, nx, ny + 1, &ok);
-  auto row_layout = [](const dl::Coef<T>& c) { return !c.present() || c.mode == dl::kScalar || c.mode == dl::kPerRow; };
-  auto col_layout = [](const dl::Coef<T>& c) { return !c.present() || c.mode == dl::kPerCol; };
-  ok = ok && a.K.present() && row_layout(a.axc) && row_layout(a.bxc) && row_layout(a.axf) && row_layout(a.bxf) &&
-       col_layout(a.ayc) && col_layout(a.byc) && col_layout(a.ayf) && col_layout(a.byf);
-  if (!ok) return ffi::Error::InvalidArgument("difflattice_staggered: a coefficient array has an unsupported layout");
-  if (!inside(src_cells, nx, ny) || !inside(rec_cells, nx, ny) || !inside(ph_cells, nx, ny))
-    return ffi::Error::InvalidArgument(kOutside);
-  a.px = out_from<T>(px_o, px);
-  a.py = out_from<T>(py_o, py);
-  a.wx = out_from<T>(wx_o, wx);
-  a.wy = out_from<T>(wy_o, wy);
-  a.p_prev = out_from<T>(p_prev_o, p_prev);
-  a.eta = eta;
-  if (eta != 0.0 && !a.p_prev) return ffi::Error::InvalidArgument("difflattice_staggered: eta needs p_prev");
-  if (!bind_relax<T>(a, nx * ny, px.element_type(), rq0, rq1, relax, rq0_o, rq1_o))
-    return ffi::Error::InvalidArgument(std::string("difflattice_staggered: ") + kRelax);
-  if (a.rq[0] && int64_t(p_prev.element_count()) != nx * ny)
-    return ffi::Error::InvalidArgument("difflattice_staggered: air absorption needs p_prev");
-  bind_cells<T>(a.cells, ny, src_cells, src_hard, src_vals, rec_cells, rec_o, ph_cells, ph_cos, ph_sin,
-                out_from<T>(ph_re_o, ph_re), out_from<T>(ph_im_o, ph_im), out_from<T>(p_max_o, p_max),
-                out_from<T>(p_sq_o, p_sq), out_from<int32_t>(arrival_o, arrival), n0, threshold);
-  a.cells.src_acc = out_from<T>(src_acc_o, src_acc);
-  a.w = int64_t(rad_decay.element_count());
-  a.iso = stencil == 1;
-  if (a.w) {
-    if (a.w > ny || int64_t(rad_drive.element_count()) != a.w || int64_t(c_r.element_count()) != nx * a.w)
-      return ffi::Error::InvalidArgument("difflattice_staggered: radial PML arrays of inconsistent sizes");
-    a.c_r = out_from<T>(c_r_o, c_r);
-    a.rad_decay = reinterpret_cast<const T*>(rad_decay.untyped_data());
-    a.rad_drive = reinterpret_cast<const T*>(rad_drive.untyped_data());
-  }
-  if (!dl::staggered<T>(a)) return ffi::Error::InvalidArgument("difflattice_staggered: unsupported layout");
-  return ffi::Error::Success();
-}
-
-ffi::Error staggered_impl(ffi::AnyBuffer px, ffi::AnyBuffer py, ffi::AnyBuffer wx, ffi::AnyBuffer wy,
-                          ffi::AnyBuffer p_prev, ffi::AnyBuffer K, ffi::AnyBuffer bx, ffi::AnyBuffer by,
-                          ffi::AnyBuffer qs, ffi::AnyBuffer keep, ffi::AnyBuffer my_lo, ffi::AnyBuffer my_hi,
-                          ffi::AnyBuffer axc, ffi::AnyBuffer bxc,
-                          ffi::AnyBuffer axf, ffi::AnyBuffer bxf, ffi::AnyBuffer ayc, ffi::AnyBuffer byc,
-                          ffi::AnyBuffer ayf, ffi::AnyBuffer byf, ffi::AnyBuffer src_cells, ffi::AnyBuffer src_hard,
-                          ffi::AnyBuffer src_vals, ffi::AnyBuffer src_acc, ffi::AnyBuffer rec_cells,
-                          ffi::AnyBuffer ph_cells, ffi::AnyBuffer ph_cos, ffi::AnyBuffer ph_sin, ffi::AnyBuffer ph_re,
-                          ffi::AnyBuffer ph_im, ffi::AnyBuffer p_max, ffi::AnyBuffer p_sq, ffi::AnyBuffer arrival,
-                          ffi::AnyBuffer n0, ffi::AnyBuffer c_r, ffi::AnyBuffer rad_decay, ffi::AnyBuffer rad_drive,
-                          ffi::Result<ffi::AnyBuffer> px_o, ffi::Result<ffi::AnyBuffer> py_o,
-                          ffi::Result<ffi::AnyBuffer> wx_o, ffi::Result<ffi::AnyBuffer> wy_o,
-                          ffi::Result<ffi::AnyBuffer> p_prev_o, ffi::Result<ffi::AnyBuffer> src_acc_o,
-                          ffi::Result<ffi::AnyBuffer> rec_o, ffi::Result<ffi::AnyBuffer> ph_re_o,
-                          ffi::Result<ffi::AnyBuffer> ph_im_o, ffi::Result<ffi::AnyBuffer> p_max_o,
-                          ffi::Result<ffi::AnyBuffer> p_sq_o, ffi::Result<ffi::AnyBuffer> arrival_o,
-                          ffi::Result<ffi::AnyBuffer> c_r_o, Opt rq0, Opt rq1, Opt relax, OptRet rq0_o,
-                          OptRet rq1_o, int64_t n_steps,
-                          int64_t threads, int64_t levels, int64_t stencil, double eta, double threshold) {
-#define DL_ARGS                                                                                                  \
-  px, py, wx, wy, p_prev, K, bx, by, qs, keep, my_lo, my_hi, axc, bxc, axf, bxf, ayc, byc, ayf, byf, src_cells, src_hard,    \
-      src_vals, src_acc, rec_cells, ph_cells, ph_cos, ph_sin, ph_re, ph_im, p_max, p_sq, arrival, n0, c_r,        \
-      rad_decay, rad_drive, px_o, py_o, wx_o, wy_o, p_prev_o, src_acc_o, rec_o, ph_re_o, ph_im_o, p_max_o, p_sq_o, \
-      arrival_o, c_r_o, rq0, rq1, relax, rq0_o, rq1_o, n_steps, threads, levels, stencil, eta, threshold
-  switch (px.element_type()) {
+// a leapfrog call with PML layers: the leapfrog's arguments, then the layers' (`LayerBind`)
+ffi::Error layered_impl(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K, ffi::AnyBuffer bx, ffi::AnyBuffer by,
+                        ffi::AnyBuffer qs, ffi::AnyBuffer keep, ffi::AnyBuffer sponge, ffi::AnyBuffer my_lo,
+                        ffi::AnyBuffer my_hi, ffi::AnyBuffer src_cells, ffi::AnyBuffer src_hard,
+                        ffi::AnyBuffer src_vals, ffi::AnyBuffer rec_cells, ffi::AnyBuffer zero_cells,
+                        ffi::AnyBuffer ph_cells, ffi::AnyBuffer ph_cos, ffi::AnyBuffer ph_sin, ffi::AnyBuffer ph_re,
+                        ffi::AnyBuffer ph_im, ffi::AnyBuffer p_max, ffi::AnyBuffer p_sq, ffi::AnyBuffer arrival,
+                        ffi::AnyBuffer n0, ffi::AnyBuffer lp, ffi::AnyBuffer lw, ffi::AnyBuffer lc,
+                        ffi::AnyBuffer boxes, ffi::AnyBuffer axc, ffi::AnyBuffer bxc, ffi::AnyBuffer axf,
+                        ffi::AnyBuffer bxf, ffi::AnyBuffer ayc, ffi::AnyBuffer byc, ffi::AnyBuffer ayf,
+                        ffi::AnyBuffer byf, ffi::AnyBuffer rad_decay, ffi::AnyBuffer rad_drive,
+                        ffi::Result<ffi::AnyBuffer> p_o, ffi::Result<ffi::AnyBuffer> pp_o,
+                        ffi::Result<ffi::AnyBuffer> rec_o, ffi::Result<ffi::AnyBuffer> ph_re_o,
+                        ffi::Result<ffi::AnyBuffer> ph_im_o, ffi::Result<ffi::AnyBuffer> p_max_o,
+                        ffi::Result<ffi::AnyBuffer> p_sq_o, ffi::Result<ffi::AnyBuffer> arrival_o,
+                        ffi::Result<ffi::AnyBuffer> lp_o, ffi::Result<ffi::AnyBuffer> lw_o,
+                        ffi::Result<ffi::AnyBuffer> lc_o, Opt rq0, Opt rq1, Opt relax, OptRet rq0_o, OptRet rq1_o,
+                        int64_t n_steps, int64_t threads, int64_t levels, int64_t bands, int64_t combine,
+                        int64_t stencil, double eta, double threshold) {
+  LayerBind lb{lp, lw, lc, boxes, axc, bxc, axf, bxf, ayc, byc, ayf, byf, rad_decay, rad_drive, &lp_o, &lw_o, &lc_o};
+  if (sponge.element_count() || zero_cells.element_count())
+    return ffi::Error::InvalidArgument("difflattice_layered: no sponge or zeroed cells with PML layers");
+#define DL_ARGS                                                                                                 \
+  p, pp, K, bx, by, qs, keep, sponge, my_lo, my_hi, src_cells, src_hard, src_vals, rec_cells, zero_cells, ph_cells, ph_cos, \
+      ph_sin, ph_re, ph_im, p_max, p_sq, arrival, n0, p_o, pp_o, rec_o, ph_re_o, ph_im_o, p_max_o, p_sq_o,      \
+      arrival_o, rq0, rq1, relax, rq0_o, rq1_o, n_steps, threads, levels, bands, combine, stencil, eta, threshold, &lb
+  switch (p.element_type()) {
     case ffi::DataType::F32:
-      return staggered_typed<float>(DL_ARGS);
+      return leapfrog_typed<float>(DL_ARGS);
     case ffi::DataType::F64:
-      return staggered_typed<double>(DL_ARGS);
+      return leapfrog_typed<double>(DL_ARGS);
     default:
-      return ffi::Error::InvalidArgument("difflattice_staggered: float32 or float64 fields only");
+      return ffi::Error::InvalidArgument("difflattice_layered: float32 or float64 fields only");
   }
 #undef DL_ARGS
 }
@@ -2139,19 +1894,22 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(DifflatticeLeapfrog, leapfrog_impl,
                                   .Attr<double>("eta")
                                   .Attr<double>("threshold"));
 
-// args: px py wx wy p_prev K bx by | qs keep my_lo my_hi axc bxc axf bxf | ayc byc ayf byf src_cells
-//       src_hard src_vals src_acc | rec_cells ph_cells ph_cos ph_sin ph_re ph_im p_max p_sq | arrival n0
-//       c_r rad_decay rad_drive | optional: rq0 rq1 relax (air absorption, as the leapfrog's; needs p_prev)
-// rets: px py wx wy p_prev src_acc rec ph_re ph_im p_max p_sq arrival c_r | optional: rq0 rq1
-XLA_FFI_DEFINE_HANDLER_SYMBOL(DifflatticeStaggered, staggered_impl,
+// args: the leapfrog's 24 | lp lw lc boxes axc bxc axf bxf | ayc byc ayf byf rad_decay rad_drive |
+//       optional: rq0 rq1 relax
+// rets: the leapfrog's 8 | lp lw lc | optional: rq0 rq1
+XLA_FFI_DEFINE_HANDLER_SYMBOL(DifflatticeLayered, layered_impl,
                               ffi::Ffi::Bind() DL_BUFS_8 DL_BUFS_8 DL_BUFS_8 DL_BUFS_8.Arg<ffi::AnyBuffer>()
                                   .Arg<ffi::AnyBuffer>()
                                   .Arg<ffi::AnyBuffer>()
                                   .Arg<ffi::AnyBuffer>()
-                                  .Arg<ffi::AnyBuffer>() DL_RETS_4 DL_RETS_4 DL_RETS_4.Ret<ffi::AnyBuffer>() DL_RELAX
-                                  .Attr<int64_t>("n_steps")
+                                  .Arg<ffi::AnyBuffer>()
+                                  .Arg<ffi::AnyBuffer>() DL_RETS_4 DL_RETS_4.Ret<ffi::AnyBuffer>()
+                                  .Ret<ffi::AnyBuffer>()
+                                  .Ret<ffi::AnyBuffer>() DL_RELAX.Attr<int64_t>("n_steps")
                                   .Attr<int64_t>("threads")
                                   .Attr<int64_t>("levels")
+                                  .Attr<int64_t>("bands")
+                                  .Attr<int64_t>("combine")
                                   .Attr<int64_t>("stencil")
                                   .Attr<double>("eta")
                                   .Attr<double>("threshold"));

@@ -147,8 +147,6 @@ def unsupported(stepper: Stepper, state: State | None, sharding) -> str | None:
         v = getattr(lat, name)
         if v is not None and not _broadcasts(jnp.shape(v), full):
             return f"a {name} array of shape {jnp.shape(v)} (not a row, column or full layout of {full})"
-    if stepper.staggered and lat.stencil != "standard" and not _uniform_faces(lat, grid.shape):
-        return "the isotropic stencil with face-conductance arrays and PML layers (no layer kernel for it)"
     if stepper.staggered and lat.pml is None:
         return "a staggered stepper without PML factors"
     metric = getattr(lat, "metric", None)
@@ -157,15 +155,6 @@ def unsupported(stepper: Stepper, state: State | None, sharding) -> str | None:
     if state is not None and stepper.staggered != isinstance(state, StaggeredState):
         return "a start state of the other stepper"
     return None
-
-
-def _uniform_faces(lat: Lattice, shape) -> bool:
-    """Face conductances that are the window's masks only (one value per x-face row, one row of y
-    faces): the layer kernel's isotropic stencil."""
-    bx, by = _face_coefficients(lat, shape, jnp.float32)
-    return (bx is None or jnp.ndim(bx) == 0 or jnp.shape(bx)[1:] == (1,)) and (
-        by is None or jnp.ndim(by) == 0 or jnp.shape(by)[0] == 1
-    )
 
 
 def _relax_unsupported(stepper: Stepper) -> str | None:

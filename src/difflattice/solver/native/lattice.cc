@@ -749,6 +749,8 @@ struct LayerArgs {
   Coef<T> ayc, byc, ayf, byf;            // one vector for all rows: (1, ny), (1, ny + 1)
   const T *rad_decay = nullptr, *rad_drive = nullptr;
   int64_t w = 0;
+  bool iso_faces = false;  // the isotropic stencil with face-conductance arrays: by as a full array
+  std::vector<T> by_full;
 };
 
 template <typename T>
@@ -985,19 +987,25 @@ bool plan_rows(const LeapfrogArgs<T>& a, int cmb, RowPlan<T>& plan) {
 template <typename T>
 struct LayerScratch {
   RowBuf<T> k, bxl, bxh, by, keep, ml, mh;
-  std::vector<T> ones, old, d, P;
-  explicit LayerScratch(int64_t ny, int64_t w) : ones(ny + 2, T(1)), old(w + 1, T(0)), d(ny + 2, T(0)), P(ny + 2, T(0)) {}
+  std::vector<T> ones, old, d, P, e;
+  explicit LayerScratch(int64_t ny, int64_t w)
+      : ones(ny + 2, T(1)), old(w + 1, T(0)), d(ny + 2, T(0)), P(ny + 2, T(0)), e(ny + 1, T(0)) {}
 };
 
 // the isotropic stencil's filter weights across x faces (rz: the ring areas (j + 1, j) / (j + 1/2);
 // 0 past the row's ends: a mirror)
+// (with face arrays: the ring boundaries' areas eh = j + 1 and 1 / (j + 1/2), 1 on a plane grid)
 template <typename T>
 struct IsoWeights {
-  std::vector<T> rl, rh;
-  IsoWeights(int64_t ny, bool ring) : rl(ny, T(0)), rh(ny, T(0)) {
+  std::vector<T> rl, rh, eh, inva;
+  IsoWeights(int64_t ny, bool ring) : rl(ny, T(0)), rh(ny, T(0)), eh(ny, T(1)), inva(ny, T(1)) {
     for (int64_t j = 0; j < ny; ++j) {
       rl[j] = j == 0 ? T(0) : (ring ? T(double(j) / (double(j) + 0.5)) : T(1));
       rh[j] = j + 1 == ny ? T(0) : (ring ? T((double(j) + 1.0) / (double(j) + 0.5)) : T(1));
+      if (ring) {
+        eh[j] = T(double(j) + 1.0);
+        inva[j] = T(1.0 / (double(j) + 0.5));
+      }
     }
   }
 };
@@ -1010,6 +1018,27 @@ void layer_x_face(const LeapfrogArgs<T>& a, const LayerArgs<T>& la, const IsoWei
   const int64_t ny = a.ny, c0 = b.c0, nc = b.c1 - b.c0;
   T* __restrict w = b.wx + kf * nc;
   const T A = la.axf.present() ? la.axf.at(f, 0) : T(1), B = la.bxf.present() ? la.bxf.at(f, 0) : T(1);
+  if (la.iso_faces) {  // operators._across_faces: b d + (edge differences) / 12, edges weighted min(b, b')
+    T* __restrict d = S.d.data() + 1;
+    T* __restrict e = S.e.data();  // e[j]: the edge between columns j - 1 and j (0 at the window's ends)
+    const int64_t j0 = std::max<int64_t>(c0 - 1, 0), j1 = std::min<int64_t>(b.c1 + 1, ny);
+    for (int64_t j = j0; j < j1; ++j) d[j] = hi[j] - lo[j];
+    const T* __restrict bb = a.bx.present() ? S.bxl.get(a.bx, f, ny) : S.ones.data();
+    for (int64_t j = c0; j <= b.c1; ++j) {
+      if (j == 0 || j == ny) {
+        e[j] = T(0);
+      } else {
+        const T m = bb[j - 1] < bb[j] ? bb[j - 1] : bb[j];
+        e[j] = (d[j] - d[j - 1]) * m * iw.eh[j - 1];
+      }
+    }
+    constexpr T w12 = T(1.0 / 12.0);
+    for (int64_t k = 0; k < nc; ++k) {
+      const int64_t j = c0 + k;
+      w[k] = A * w[k] + B * (bb[j] * d[j] + (e[j + 1] - e[j]) * iw.inva[j] * w12);
+    }
+    return;
+  }
   if (a.iso) {
     T* __restrict d = S.d.data() + 1;  // d[-1] = d[ny] = 0
     const int64_t j0 = std::max<int64_t>(c0 - 1, 0), j1 = std::min<int64_t>(b.c1 + 1, ny);
@@ -1038,7 +1067,7 @@ void layer_x_face(const LeapfrogArgs<T>& a, const LayerArgs<T>& la, const IsoWei
 // rz ring correction of the row
 template <typename T>
 void layer_y_faces(const LeapfrogArgs<T>& a, const LayerArgs<T>& la, const LayerBox<T>& b, int64_t kr, int64_t i,
-                   const T* __restrict q, LayerScratch<T>& S) {
+                   const T* __restrict q, const T* qm, const T* qp, LayerScratch<T>& S) {
   const int64_t ny = a.ny, c0 = b.c0, nc = b.c1 - b.c0;
   T* __restrict w = b.wy + kr * (nc + 1);
   const int64_t w_r = b.cr ? la.w : 0;
@@ -1047,11 +1076,24 @@ void layer_y_faces(const LeapfrogArgs<T>& a, const LayerArgs<T>& la, const Layer
   const T* __restrict bb = a.by.present() ? S.by.get(a.by, i, ny + 1) : S.ones.data();
   const T* __restrict ayf = la.ayf.present() ? la.ayf.row(0) : S.ones.data();
   const T* __restrict byf = la.byf.present() ? la.byf.row(0) : S.ones.data();
+  if (la.iso_faces) {  // from the differences of rows i - 1, i, i + 1 and their by rows (iso_y_face)
+    const int64_t n1 = ny + 1;
+    const T* b0 = la.by_full.data() + i * n1;
+    const T* bm = i > 0 ? b0 - n1 : b0;
+    const T* bp = i + 1 < a.nx ? b0 + n1 : b0;
+    const T am = i > 0 ? T(1) : T(0), ap = i + 1 < a.nx ? T(1) : T(0);
+    auto diff = [&](const T* r, int64_t f) { return (f < ny ? r[f] : T(0)) - (f > 0 ? r[f - 1] : T(0)); };
+    for (int64_t k = 0; k <= nc; ++k) {
+      const int64_t f = c0 + k;
+      w[k] = ayf[f] * w[k] + byf[f] * iso_y_face(diff(qm, f), diff(q, f), diff(qp, f), bm[f], b0[f], bp[f], am, ap);
+    }
+  } else {
 #pragma GCC ivdep
-  for (int64_t k = 0; k <= nc; ++k) {
-    const int64_t f = c0 + k;
-    const T hi = f < ny ? q[f] : T(0), lo = f > 0 ? q[f - 1] : T(0);
-    w[k] = ayf[f] * w[k] + byf[f] * (bb[f] * (hi - lo));
+    for (int64_t k = 0; k <= nc; ++k) {
+      const int64_t f = c0 + k;
+      const T hi = f < ny ? q[f] : T(0), lo = f > 0 ? q[f - 1] : T(0);
+      w[k] = ayf[f] * w[k] + byf[f] * (bb[f] * (hi - lo));
+    }
   }
   if (w_r) {
     T* c = b.cr + kr * w_r;
@@ -1071,15 +1113,15 @@ void layer_row(const LeapfrogArgs<T>& a, const LayerArgs<T>& la, const IsoWeight
   const int64_t ny = a.ny, c0 = b.c0, nc = b.c1 - b.c0, kr = i - b.r0;
   if (i == b.r0) layer_x_face(a, la, iw, b, 0, i, qm, q0, S);
   layer_x_face(a, la, iw, b, kr + 1, i + 1, q0, qp, S);
-  if (a.iso) {  // the y faces from P = q0 filtered across them (am, ap = 0 at the first / last row)
+  if (a.iso && !la.iso_faces) {  // the y faces from P = q0 filtered across them (am, ap = 0 at the first / last row)
     T* __restrict P = S.P.data();
     const T am = i > 0 ? T(1) : T(0), ap = i + 1 < a.nx ? T(1) : T(0);
     constexpr T w12 = T(1.0 / 12.0);
     const int64_t j0 = std::max<int64_t>(c0 - 1, 0), j1 = std::min<int64_t>(b.c1 + 1, ny);
     for (int64_t j = j0; j < j1; ++j) P[j] = q0[j] + (ap * (qp[j] - q0[j]) - am * (q0[j] - qm[j])) * w12;
-    layer_y_faces(a, la, b, kr, i, P, S);
+    layer_y_faces(a, la, b, kr, i, P, qm, qp, S);
   } else {
-    layer_y_faces(a, la, b, kr, i, q0, S);
+    layer_y_faces(a, la, b, kr, i, q0, qm, qp, S);
   }
   T* __restrict x = b.px + kr * nc;
   T* __restrict y = b.py + kr * nc;
@@ -1587,8 +1629,9 @@ const char* bind_layers(dl::LayerArgs<T>& la, LayerBind& lb, const dl::LeapfrogA
   ok = ok && row_layout(la.axc) && row_layout(la.bxc) && row_layout(la.axf) && row_layout(la.bxf) &&
        col_layout(la.ayc) && col_layout(la.byc) && col_layout(la.ayf) && col_layout(la.byf);
   if (!ok) return "PML factors of an unsupported layout";
-  if (a.iso && ((a.bx.present() && !a.bx.in_register()) || (a.by.present() && a.by.mode != dl::kScalar && a.by.mode != dl::kPerCol)))
-    return "the isotropic stencil with face-conductance arrays has no layer kernel";
+  la.iso_faces = a.iso && ((a.bx.present() && !a.bx.in_register()) ||
+                            (a.by.present() && a.by.mode != dl::kScalar && a.by.mode != dl::kPerCol));
+  if (la.iso_faces) dl::materialise(a.by, nx, ny + 1, la.by_full);
   la.w = int64_t(lb.rad_decay.element_count());
   if (la.w > ny || int64_t(lb.rad_drive.element_count()) != la.w) return "radial PML arrays of inconsistent sizes";
   la.rad_decay = reinterpret_cast<const T*>(lb.rad_decay.untyped_data());

@@ -428,8 +428,9 @@ def test_bench_refuses_a_busy_machine_and_computes_ratios(monkeypatch):
     from difflattice.apps import bench
 
     monkeypatch.setattr(os, "getloadavg", lambda: (3.0, 2.0, 1.0))
-    with pytest.raises(RuntimeError, match="load average 3.00"):
+    with pytest.raises(RuntimeError, match="load average 3.00") as refused:
         bench.bench()
+    assert "difflattice bench --force" in str(refused.value)  # the way to measure anyway
     rows = [
         {"case": "homogeneous", "grid": "840x630", "impl": "native", "mlups": 6000.0},
         {"case": "homogeneous", "grid": "840x630", "impl": "numba-1thread", "mlups": 4000.0},
@@ -697,3 +698,17 @@ def test_native_lattice_adjoint_reconstructs_the_forward_field_over_a_long_chunk
     got = grad("float32", n, "native")
     assert ref != 0
     assert abs(got - ref) <= n * 16 * float(jnp.finfo(jnp.float32).eps) * abs(ref), (got, ref)
+
+
+def test_a_build_says_so_on_stderr(monkeypatch, tmp_path, capsys):
+    """The one slow start of a machine (compiling the kernels) prints a line when it begins and
+    when it ends. A stand-in compiler writes an empty file: the build 'succeeds', loading fails."""
+    fake = tmp_path / "fake-c++"
+    fake.write_text('#!/bin/sh\nfor a; do out="$b"; b="$a"; done\n: > "$b"\n')
+    fake.chmod(0o755)
+    monkeypatch.setenv("DIFFLATTICE_NATIVE_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv("CXX", str(fake))
+    reason = build._load()
+    err = capsys.readouterr().err
+    assert "compiling the native CPU kernels" in err and "compiled in" in err
+    assert isinstance(reason, str) and "loading" in reason

@@ -568,8 +568,8 @@ def schedule(stepper: Stepper) -> tuple[int, int, bool]:
     """(threads, levels, bands) of the kernels for this stepper's grid."""
     nx, ny = stepper.grid.shape
     extra = 0 if stepper.lattice.relax is None else 2  # Q_O, Q_N
-    # PML layers: the leapfrog's rows; the layer's fields add ~1/3 of a field per row on average
-    levels = _levels(ny, jnp.dtype(stepper.grid.jnp_dtype).itemsize, False, extra + (1 if stepper.staggered else 0))
+    # PML layers: the leapfrog's rows (the layer's fields are a few columns of most rows)
+    levels = _levels(ny, jnp.dtype(stepper.grid.jnp_dtype).itemsize, False, extra)
     bands = _bands(stepper)
     return _threads(nx, 0 if bands else levels), levels, bands
 

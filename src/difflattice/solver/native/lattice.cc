@@ -928,11 +928,22 @@ bool plan_rows(const LeapfrogArgs<T>& a, int cmb, RowPlan<T>& plan) {
   }
   plan.fn.resize(nx);
   plan.ctx.resize(nx);
-  const bool kreg = a.K.in_register();
+  // A row whose coefficients are one value (a layered medium, the rows that miss an obstacle) runs
+  // the kernel of register coefficients: the arrays are not streamed for it
+  auto uniform = [](const T* r, int64_t n) {
+    for (int64_t j = 1; j < n; ++j)
+      if (!(r[j] == r[0])) return false;
+    return true;
+  };
   for (int64_t i = 0; i < nx; ++i) {
     RowCtx<T>& c = plan.ctx[i];
     c = RowCtx<T>{};
-    if (kreg) {
+    bool kreg = a.K.in_register();
+    if (!kreg && cmb != kAdj && a.K.mode == kFull && uniform(a.K.row(i), ny)) {
+      kreg = true;
+      c.k = a.K.row(i)[0];
+      c.c0 = T(2) - T(4) * c.k;
+    } else if (kreg) {
       c.k = a.K.value(i);
       c.c0 = T(2) - T(4) * c.k;
     } else {
@@ -942,6 +953,10 @@ bool plan_rows(const LeapfrogArgs<T>& a, int cmb, RowPlan<T>& plan) {
     if (bx.in_register()) {
       c.bxlo = bx.value(i);
       c.bxhi = bx.mode == kScalar ? c.bxlo : bx.value(i + 1);
+      bxm = (c.bxlo == T(1) && c.bxhi == T(1)) ? kUnit : kReg;
+    } else if (bx.mode == kFull && uniform(bx.row(i), ny) && uniform(bx.row(i + 1), ny)) {
+      c.bxlo = bx.row(i)[0];
+      c.bxhi = bx.row(i + 1)[0];
       bxm = (c.bxlo == T(1) && c.bxhi == T(1)) ? kUnit : kReg;
     } else if (bx.present()) {
       c.bxlo_r = bx.row(i);
@@ -961,16 +976,21 @@ bool plan_rows(const LeapfrogArgs<T>& a, int cmb, RowPlan<T>& plan) {
       const T* r = by.row(i);
       c.cyl = r;
       c.cyh = r + 1;
-      // unit inside (a rigid window's closed faces): only the edge cells differ
-      bym = (bxm == kVec || !all_one(r + 1, ny - 1)) ? kVec : kUnit;
+      // one value inside (e.g. unit with a rigid window's closed faces): only the edge cells differ
+      bym = kVec;
+      if (bxm != kVec && uniform(r + 1, ny - 1)) {
+        c.by = r[1];
+        bym = c.by == T(1) ? kUnit : kReg;
+        c.by_first_lo = r[0];
+        c.by_first_hi = r[1];
+        c.by_last_lo = r[ny - 1];
+        c.by_last_hi = r[ny];
+      }
     }
     if (bym == kVec) {
       c.by_first_lo = c.cyl[0];
       c.by_first_hi = c.cyh[0];
       c.by_last_lo = c.cyl[ny - 1];
-      c.by_last_hi = c.cyh[ny - 1];
-    } else if (by.present() && !by.in_register()) {
-      c.by_first_lo = c.cyl[0];
       c.by_last_hi = c.cyh[ny - 1];
     }
     if (bxm == kVec && bym != kVec) return false;  // (by was materialised above)
@@ -1088,12 +1108,16 @@ void layer_y_faces(const LeapfrogArgs<T>& a, const LayerArgs<T>& la, const Layer
       w[k] = ayf[f] * w[k] + byf[f] * iso_y_face(diff(qm, f), diff(q, f), diff(qp, f), bm[f], b0[f], bp[f], am, ap);
     }
   } else {
+    // the window's outer faces (zero beyond the row) apart, so the loop has no branch
+    const int64_t kb = c0 == 0 ? 1 : 0, ke = b.c1 == ny ? nc : nc + 1;
+    if (kb) w[0] = ayf[0] * w[0] + byf[0] * (bb[0] * (q[0] - T(0)));
+    if (ke == nc) w[nc] = ayf[ny] * w[nc] + byf[ny] * (bb[ny] * (T(0) - q[ny - 1]));
+    const T* __restrict qf = q + c0;
+    const T* __restrict af = ayf + c0;
+    const T* __restrict bf = byf + c0;
+    const T* __restrict cf = bb + c0;
 #pragma GCC ivdep
-    for (int64_t k = 0; k <= nc; ++k) {
-      const int64_t f = c0 + k;
-      const T hi = f < ny ? q[f] : T(0), lo = f > 0 ? q[f - 1] : T(0);
-      w[k] = ayf[f] * w[k] + byf[f] * (bb[f] * (hi - lo));
-    }
+    for (int64_t k = kb; k < ke; ++k) w[k] = af[k] * w[k] + bf[k] * (cf[k] * (qf[k] - qf[k - 1]));
   }
   if (w_r) {
     T* c = b.cr + kr * w_r;
@@ -1132,32 +1156,39 @@ void layer_row(const LeapfrogArgs<T>& a, const LayerArgs<T>& la, const IsoWeight
   const T Ax = la.axc.present() ? la.axc.at(i, 0) : T(1), Bx = la.bxc.present() ? la.bxc.at(i, 0) : T(1);
   const T* __restrict ayc = (la.ayc.present() ? la.ayc.row(0) : S.ones.data()) + c0;
   const T* __restrict byc = (la.byc.present() ? la.byc.row(0) : S.ones.data()) + c0;
-#pragma GCC ivdep
-  for (int64_t k = 0; k < nc; ++k) x[k] = Ax * x[k] + Bx * (kk[k] * (whi[k] - wlo[k]));
+  const T* __restrict kp = (a.keep.present() ? S.keep.get(a.keep, i, ny) : S.ones.data()) + c0;  // 1 x is x
+  T* __restrict o = out + c0;
+  // one pass: px, py (keep), P = px + py
   if (a.my_lo.present()) {  // rz: (m_hi w_(j+1) - m_lo w_j) (+ C on the ring columns)
     const T* __restrict ml = S.ml.get(a.my_lo, i, ny) + c0;
     const T* __restrict mh = S.mh.get(a.my_hi, i, ny) + c0;
     const int64_t w_r = b.cr ? la.w : 0, k_r = nc - w_r;
 #pragma GCC ivdep
-    for (int64_t k = 0; k < k_r; ++k) y[k] = ayc[k] * y[k] + byc[k] * (kk[k] * (mh[k] * wy[k + 1] - ml[k] * wy[k]));
+    for (int64_t k = 0; k < k_r; ++k) {
+      const T xv = kp[k] * (Ax * x[k] + Bx * (kk[k] * (whi[k] - wlo[k])));
+      const T yv = kp[k] * (ayc[k] * y[k] + byc[k] * (kk[k] * (mh[k] * wy[k + 1] - ml[k] * wy[k])));
+      x[k] = xv;
+      y[k] = yv;
+      o[k] = xv + yv;
+    }
     const T* c = b.cr ? b.cr + kr * w_r - k_r : nullptr;
-    for (int64_t k = k_r; k < nc; ++k)
-      y[k] = ayc[k] * y[k] + byc[k] * (kk[k] * ((mh[k] * wy[k + 1] - ml[k] * wy[k]) + c[k]));
+    for (int64_t k = k_r; k < nc; ++k) {
+      const T xv = kp[k] * (Ax * x[k] + Bx * (kk[k] * (whi[k] - wlo[k])));
+      const T yv = kp[k] * (ayc[k] * y[k] + byc[k] * (kk[k] * ((mh[k] * wy[k + 1] - ml[k] * wy[k]) + c[k])));
+      x[k] = xv;
+      y[k] = yv;
+      o[k] = xv + yv;
+    }
   } else {
 #pragma GCC ivdep
-    for (int64_t k = 0; k < nc; ++k) y[k] = ayc[k] * y[k] + byc[k] * (kk[k] * (wy[k + 1] - wy[k]));
-  }
-  if (a.keep.present()) {
-    const T* __restrict kp = S.keep.get(a.keep, i, ny) + c0;
-#pragma GCC ivdep
     for (int64_t k = 0; k < nc; ++k) {
-      x[k] = kp[k] * x[k];
-      y[k] = kp[k] * y[k];
+      const T xv = kp[k] * (Ax * x[k] + Bx * (kk[k] * (whi[k] - wlo[k])));
+      const T yv = kp[k] * (ayc[k] * y[k] + byc[k] * (kk[k] * (wy[k + 1] - wy[k])));
+      x[k] = xv;
+      y[k] = yv;
+      o[k] = xv + yv;
     }
   }
-  T* __restrict o = out + c0;
-#pragma GCC ivdep
-  for (int64_t k = 0; k < nc; ++k) o[k] = x[k] + y[k];
 }
 
 // RELAX: air absorption (a compile-time flag: the lossless instantiation has none of its code)

@@ -11,7 +11,7 @@ runs the lossless leapfrog's arithmetic and pays the layer's cost on its cells o
 
 Both run on 2-D, axisymmetric (rz) and 3-D grids: the ring metric lives in the operator
 (`Lattice.metric`); an rz grid's r_hi PML carries one more field, the ring correction `c_r` on the
-layer's rings (`lattice.coefficients.RadialPML`); a 3-D grid's split-field form carries P_z and
+layer's rings (`lattice.pml.RadialPML`); a 3-D grid's split-field form carries P_z and
 the z face flux too (``P = P_x + P_y + P_z``). The loops over axes unroll at trace time, so a
 plane or rz scene compiles exactly its 2-D arithmetic (no z term, no z field).
 """

@@ -1,7 +1,8 @@
 """Compile the native kernels for the machine they run on, cache the library, register its XLA
 FFI targets.
 
-The C++ source ships as package data (`lattice.cc`). At first use it is compiled with the C++
+The C++ source ships as package data (`lattice.cc` and the headers it includes, one translation
+unit). At first use it is compiled with the C++
 compiler found (`$CXX`, else `c++`, `g++`, `clang++`) for this processor (`-march=native`: not
 portable, hence compiled where it runs) against XLA's FFI headers from the installed jaxlib, and
 cached in ``$DIFFLATTICE_NATIVE_CACHE`` (default ``~/.cache/difflattice/native``) under a hash of
@@ -146,6 +147,7 @@ def _load() -> Library | str:
     key = hashlib.sha256()
     for part in (
         SOURCE.read_bytes(),
+        *(h.read_bytes() for h in sorted(SOURCE.parent.glob("*.h"))),  # its headers (one translation unit)
         " ".join(_flags(include_dir, True)).encode(),
         _compiler_version(cxx).encode(),
         jaxlib.__version__.encode(),

@@ -32,7 +32,7 @@ from jaxtyping import Array, Float, Int
 from ..lattice.coefficients import Edges, Lattice, build_lattice
 from ..lattice.grid import Grid
 from ..lattice.medium import Medium
-from ..lattice.operators import _along, _cell_factors, face_gradient, stencil
+from ..lattice.operators import _along, _cell_factors, _face_coefficients, face_gradient, stencil
 from .sensors import Sensors
 from .sources import PointSources
 
@@ -296,11 +296,16 @@ class Stepper(eqx.Module):
                 f"this stepper's PML has {0 if pml is None else len(pml.boxes)} layer boxes, the state "
                 f"{len(state.layers)}: start from stepper.init() (or the final state of a run of the same scene)"
             )
-        # the face gradients of the whole grid, sliced per box: XLA computes the sliced faces only
-        grads = [face_gradient(self.lattice, q, axis) for axis in range(q.ndim)]
+        lat = self.lattice
+        if lat.stencil == "isotropic":  # face values filtered across faces: the whole grid's, sliced
+            full = [face_gradient(lat, q, axis) for axis in range(q.ndim)]
+            grads = lambda box: [g[_faces_of(box, a)] for a, g in enumerate(full)]
+        else:  # from the box's cells and a one-cell halo (zero beyond the window)
+            faces = _face_coefficients(lat, q.shape, q.dtype)
+            grads = lambda box: _box_gradients(q, box, faces)
         layers = []
         for box, fields in zip(pml.boxes, state.layers):
-            fields, p_box = _layer_step(self.lattice, box, fields, grads)
+            fields, p_box = _layer_step(lat, box, fields, grads(box))
             p_new = p_new.at[_cells_of(box)].set(p_box)
             layers.append(fields)
         return p_new, tuple(layers)
@@ -365,8 +370,8 @@ def _zero_layer(pml, box, dtype, grid_shape) -> LayerFields:
 
 
 def _layer_step(lat: Lattice, box, f: LayerFields, grads) -> tuple[LayerFields, Float[Array, "*box"]]:
-    """One step of the split-field form on one box: ``w = a_face w + b_face g`` (g: the face
-    gradients of the whole grid, sliced), ``P_axis = a_cell P_axis + b_cell K div_axis w`` (plus
+    """One step of the split-field form on one box: ``w = a_face w + b_face g`` (g: the box's
+    face gradients, one array per axis), ``P_axis = a_cell P_axis + b_cell K div_axis w`` (plus
     the rz ring correction C on the r_hi rings), keep; returns the new fields and P = sum of parts."""
     pml = lat.pml
     assert pml is not None
@@ -375,7 +380,7 @@ def _layer_step(lat: Lattice, box, f: LayerFields, grads) -> tuple[LayerFields, 
     for axis, w in enumerate(f.fluxes):
         a, b = pml.factors(axis, "face")
         at = _faces_of(box, axis)
-        new_w.append(_cut(a, at) * w + _cut(b, at) * grads[axis][at])
+        new_w.append(_cut(a, at) * w + _cut(b, at) * grads[axis])
     c_r = f.c_r
     parts = []
     for axis, part in enumerate(f.parts):
@@ -397,6 +402,25 @@ def _layer_step(lat: Lattice, box, f: LayerFields, grads) -> tuple[LayerFields, 
     for pa in parts[1:]:
         p_box = p_box + pa
     return LayerFields(parts=tuple(parts), fluxes=tuple(new_w), c_r=c_r), p_box
+
+
+def _box_gradients(q, box, faces) -> list:
+    """`operators.face_gradient` (standard stencil) on a box's faces along each axis: b (q_hi -
+    q_lo) from the box's cells and a one-cell halo, zero beyond the window (`faces`: the face
+    conductances or masks per axis, None where unit)."""
+    idx, pad = [], []
+    for (lo, hi), n in zip(box, q.shape):
+        idx.append(slice(max(lo - 1, 0), min(hi + 1, n)))
+        pad.append((1 if lo == 0 else 0, 1 if hi == n else 0))
+    qh = q[tuple(idx)]
+    if any(p != (0, 0) for p in pad):
+        qh = jnp.pad(qh, pad)
+    inner = slice(1, -1)
+    out = []
+    for axis, b in enumerate(faces):
+        g = _along(qh, axis, slice(1, None), inner) - _along(qh, axis, slice(None, -1), inner)
+        out.append(g if b is None else _cut(b, _faces_of(box, axis)) * g)
+    return out
 
 
 def _box_divergence(lat: Lattice, g, axis: int, cells):

@@ -712,3 +712,21 @@ def test_a_build_says_so_on_stderr(monkeypatch, tmp_path, capsys):
     err = capsys.readouterr().err
     assert "compiling the native CPU kernels" in err and "compiled in" in err
     assert isinstance(reason, str) and "loading" in reason
+
+
+@pytest.mark.parametrize("dtype", ["float32", "float64"])
+def test_a_pml_state_continues_across_backends(dtype):
+    """The layered PML state (P, P(n-1) and the layer boxes' split fields) means the same to both
+    loops: 40 steps of one and 57 of the other equal 97 of the JAX loop (rounding, as `_compare`)."""
+    g, medium, src, sens, edges = _scene("conservative+pml", dtype)
+    st = Stepper.build(g, medium, src, sens, edges)
+    ref = run(st, N, backend="jax")
+    for first, second in (("jax", "native"), ("native", "jax")):
+        a = run(st, 40, backend=first)
+        b = run(st, N - 40, state=a.final, backend=second)
+        eps = float(jnp.finfo(jnp.dtype(dtype)).eps)
+        tol = N * 16 * eps * float(jnp.max(ref.peak_history))
+        assert float(jnp.max(jnp.abs(b.final.pressure - ref.final.pressure))) <= tol
+        # parts and fluxes: pressures and sums of pressure differences, rounded on the pressure's scale
+        for fa, fb in zip(jax.tree_util.tree_leaves(b.final.layers), jax.tree_util.tree_leaves(ref.final.layers)):
+            assert float(jnp.max(jnp.abs(fa - fb))) <= tol

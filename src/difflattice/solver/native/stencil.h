@@ -468,6 +468,22 @@ bool plan_rows(const LeapfrogArgs<T>& a, int cmb, RowPlan<T>& plan) {
     const T d = plan.cy_lo[j] + plan.cy_hi[j] - T(2);
     ring_form = (d < T(0) ? -d : d) <= T(8) * std::numeric_limits<T>::epsilon();
   }
+  // rz rows of one material among face arrays: b times the ring form of the metric alone (its
+  // interior factors summing to 2 in one shared row), K b as the coefficient
+  bool metric_ring = metric && cy_rows && cmb == kFwd && ny > 2 && bx.mode == kFull && by.mode == kFull &&
+                     a.my_lo.mode != kFull && a.my_lo.mode != kPerRow && a.my_hi.mode != kFull && a.my_hi.mode != kPerRow;
+  if (metric_ring) {
+    plan.m_lo.assign(ny, T(0));
+    plan.m_hi.assign(ny, T(0));
+    for (int64_t j = 0; j < ny; ++j) {
+      plan.m_lo[j] = a.my_lo.at(0, j);
+      plan.m_hi[j] = a.my_hi.at(0, j);
+    }
+    for (int64_t j = 1; metric_ring && j < ny - 1; ++j) {
+      const T d = plan.m_lo[j] + plan.m_hi[j] - T(2);
+      metric_ring = (d < T(0) ? -d : d) <= T(8) * std::numeric_limits<T>::epsilon();
+    }
+  }
   plan.fn.resize(nx);
   plan.ctx.resize(nx);
   // A row whose coefficients are one value (a layered medium, the rows that miss an obstacle) runs
@@ -534,6 +550,20 @@ bool plan_rows(const LeapfrogArgs<T>& a, int cmb, RowPlan<T>& plan) {
       c.by_first_hi = c.cyh[0];
       c.by_last_lo = c.cyl[ny - 1];
       c.by_last_hi = c.cyh[ny - 1];
+    }
+    if (metric_ring && kreg && (bxm == kReg || bxm == kUnit) && c.bxlo == c.bxhi && c.bxlo > T(0) && uniform(by.row(i), ny + 1) &&
+        by.row(i)[0] == c.bxlo) {
+      const T b = c.bxlo;
+      c.k = c.k * b;
+      c.c0 = T(2) - T(4) * c.k;
+      c.cyl = plan.m_lo.data();
+      c.cyh = plan.m_hi.data();
+      c.by_first_lo = plan.m_lo[0];
+      c.by_first_hi = plan.m_hi[0];
+      c.by_last_lo = plan.m_lo[ny - 1];
+      c.by_last_hi = plan.m_hi[ny - 1];
+      bxm = kUnit;
+      bym = kMetric;
     }
     if (bxm == kVec && bym != kVec) return false;  // (by was materialised above)
     if (ring_form && bxm == kUnit && bym == kVec) bym = kMetric;

@@ -4,7 +4,7 @@ variants, each in its own process, interleaved over rounds.
     python3 benchmarks/pml_cost.py [--rounds 3] [--threads 1] [--out DIR]
 
 Variants: "rigid" (homogeneous air, rigid edges: the leapfrog kernel), "pml" (homogeneous air,
-the default 20-cell PML: the staggered split-field kernel), "full" (the bench's full-featured
+the default 20-cell PML: the leapfrog with the split-field form on the layer's cells only), "full" (the bench's full-featured
 scene: maps, obstacle, PML, probes, phasors). Prints one JSON line per run and the medians; with
 `--out`, writes pml_cost.json. For where the time goes inside a variant, run one child under a
 sampling profiler, e.g.

@@ -4,7 +4,8 @@ average recorded.
 
 Cases (float32): the bare homogeneous leapfrog (rigid window, one line source, no sensors) at
 840 x 630 x 1000 steps and 2048 x 2048 x 200 steps, and a full-featured scene at 840 x 630 x 1000
-(density and speed maps, a rigid obstacle, 20-cell PML, probes and phasors); the same two
+(density and speed maps, a rigid obstacle, 20-cell PML, probes and phasors: the leapfrog on the
+whole grid, the PML's split fields on the layer's cells only); the same two
 840 x 630 scenes on the axisymmetric lattice (grid "840x630 rz": 840 cells along z, 630 rings, a
 disc source); on a GPU also 4096 x 4096 x 200. Implementations: "native" (the C++ kernels, all
 cores), "native-1thread", "jax" (the XLA loop); `reference=True` adds the numba (1 thread and all
@@ -228,12 +229,13 @@ def bench(
     if provisional and not force:
         raise RuntimeError(
             f"1-minute load average {load0:.2f} > {MAX_LOAD}: the machine is busy and timings would "
-            "not be comparable; wait for a quiet machine or pass --force (results marked provisional)"
+            "not be comparable; wait for a quiet machine (`uptime` shows the load), or measure anyway "
+            "with `difflattice bench --force` (every line then marked provisional: not a figure to quote)"
         )
     gpu = jax.default_backend() != "cpu"
     cases = list(cases or (GPU_CASES + CPU_CASES[:1] if gpu else CPU_CASES))
     if quick:  # a tenth of the steps (a check that everything runs, not a measurement)
-        cases = [Case(c.name, c.nx, c.ny, max(1, c.steps // 10), c.dtype) for c in cases]
+        cases = [Case(c.name, c.nx, c.ny, max(1, c.steps // 10), c.dtype, c.kind) for c in cases]
     impls = list(impls or (("jax",) if gpu else OWN_IMPLS))
     if reference and not gpu:
         if reference_script() is None:

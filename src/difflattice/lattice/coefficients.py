@@ -37,6 +37,7 @@ from jaxtyping import Array, Float
 from .grid import Grid, GridKind, StencilKind, check_courant, stability_limit
 from .kinds import LatticeKind, as_kind
 from .medium import Medium
+from .pml import PML, Box, RadialPML, layer_boxes, pml_factors  # noqa: F401 (re-exported)
 
 EdgeKind = Literal["pml", "mur", "sponge", "rigid", "soft", "axis"]
 EDGE_KINDS = ("pml", "mur", "sponge", "rigid", "soft", "axis")
@@ -159,54 +160,6 @@ class Edges(eqx.Module):
         if getattr(self, hi) in ("pml", "sponge"):
             d = np.maximum(d, x - (n - 1 - (L - 0.5)))
         return np.clip(d, 0.0, L)
-
-
-class RadialPML(eqx.Module):
-    """The cylindrical correction of the r_hi PML of an rz grid, on its outer `width` rings.
-
-    The split-field PML stretches d/dr -> d/dr / s_r (s_r = 1 + i sigma / omega) but a ring's
-    metric (1/r) d/dr (r .) also needs the stretched radius r~ = r s_bar, s_bar = 1 + i sigma_bar /
-    omega, sigma_bar(r) = (1/r) int_0^r sigma: the radial operator is
-    ``(1 / (s_r s_bar)) (1/r) d/dr (r (s_bar / s_r) dP/dr)``
-    ``= (1 / s_r) [(1/r) d/dr (r W) + C]``, with W = dP/dr / s_r the split form's radial flux and
-    ``C = (s_bar' / s_bar) W = (sigma - sigma_bar) / (r (-i omega + sigma_bar)) W``: in time,
-    ``dC/dt + sigma_bar C = (sigma - sigma_bar) W / r`` (W averaged to the ring centre), one
-    auxiliary field on the layer's rings, added to the ring's flux divergence. Without it the layer
-    reflects obliquely incident waves (-24 dB at 45 deg with 20 cells; with it -100 dB, the 2-D
-    layer: -115 dB).
-    `decay`, `drive`: C's update factors (1 - sigma_bar/2) / (1 + sigma_bar/2) and
-    (sigma - sigma_bar) / (4 r (1 + sigma_bar/2)) (the flux averaged over the ring's two faces and
-    two half steps).
-    """
-
-    decay: Float[Array, "1 w"]
-    drive: Float[Array, "1 w"]
-    width: int = eqx.field(static=True)
-
-
-class PML(eqx.Module):
-    """Split-field PML update factors (decay a, gain b) per axis, for cells and faces; `radial`:
-    the cylindrical correction of an rz grid's r_hi layer (None otherwise). On a 3-D grid the z
-    factors exist too and every array has rank 3 (broadcast along the other axes)."""
-
-    ax_cell: Float[Array, "nx 1"]
-    bx_cell: Float[Array, "nx 1"]
-    ax_face: Float[Array, "nx1 1"]
-    bx_face: Float[Array, "nx1 1"]
-    ay_cell: Float[Array, "1 ny"]
-    by_cell: Float[Array, "1 ny"]
-    ay_face: Float[Array, "1 ny1"]
-    by_face: Float[Array, "1 ny1"]
-    radial: RadialPML | None = None
-    az_cell: Float[Array, "1 1 nz"] | None = None
-    bz_cell: Float[Array, "1 1 nz"] | None = None
-    az_face: Float[Array, "1 1 nz1"] | None = None
-    bz_face: Float[Array, "1 1 nz1"] | None = None
-
-    def factors(self, axis: int, where: str):
-        """(a, b) of `axis` (0, 1, 2) at "cell" or "face"."""
-        key = "xyz"[axis]
-        return getattr(self, f"a{key}_{where}"), getattr(self, f"b{key}_{where}")
 
 
 class AxisymMetric(eqx.Module):
@@ -348,15 +301,9 @@ def _edge(v, axis: int, hi: bool):
     return _along(v, axis, slice(-1, None) if hi else slice(None, 1))
 
 
-def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
-    """Turn SI maps into lattice coefficients (differentiable in the medium's arrays).
-
-    On an rz grid the material coefficients are those of the 2-D conservative model in the
-    meridian plane and `metric` adds the ring volumes and radial face areas; obstacles are bodies
-    of revolution (their occupancy is the ring's volume fraction).
-
-    On a 3-D grid the conservative form is built in all three axes (a z face conductance `bz`),
-    with PML, sponge, rigid and soft edges; the paper's eq. 10 models are 2-D only."""
+def _checked_inputs(grid: Grid, medium: Medium, edges: Edges):
+    """(edges for the grid's rank, lattice speed c, density rho), after refusing what does not fit
+    the grid (a boundary model, shapes, the stability limit, the isotropic stencil's needs)."""
     edges = edges.for_rank(grid.ndim)
     edges.check_kind(grid.kind)
     if medium.boundary_model not in grid.kind.boundary_models:
@@ -367,8 +314,6 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
         )
     dtype = grid.jnp_dtype
     shape = tuple(grid.shape)
-    ndim = len(shape)
-    ny = shape[1] if ndim > 1 else 1
     c = jnp.asarray(grid.speed_to_lattice(medium.sound_speed_m_s), dtype)
     rho = jnp.asarray(medium.density_kg_m3, dtype)
     for name, arr in (("sound_speed_m_s", c), ("density_kg_m3", rho), ("rigid", medium.rigid), ("soft", medium.soft)):
@@ -380,7 +325,13 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
             "stencil = 'isotropic' needs a symmetric flux form: boundary_model = 'paper' (eq. 10's per-cell "
             "factors) has none; use Medium(..., boundary_model='conservative') or stencil='standard'"
         )
+    return edges, c, rho
 
+
+def _materials(medium: Medium, c, rho, shape: tuple[int, ...], dtype) -> dict:
+    """The boundary model's flux-form coefficients (K, q_scale, bx, by, bz, keep and the paper
+    model's per-cell factors ax_lo .. ay_hi; None where absent) of the medium's maps."""
+    ndim = len(shape)
     model = medium.boundary_model
     rigid = None if medium.rigid is None else jnp.clip(jnp.asarray(medium.rigid, dtype), 0, 1)
     if rigid is not None and model == "conservative":
@@ -389,7 +340,6 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
         # ring on their own (|p| ~ 0.3 of the source after 1500 steps in a rigid horn).
         rigid = jnp.where(rigid > 1 - 1e-3, 1.0, rigid).astype(dtype)
     soft = None if medium.soft is None else jnp.clip(jnp.asarray(medium.soft, dtype), 0, 1)
-    model = medium.boundary_model
     homogeneous = jnp.ndim(c) == 0 and jnp.ndim(rho) == 0 and rigid is None and soft is None
 
     K = c**2
@@ -458,7 +408,11 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
                 # alpha at the cell's high face (cell is the low side of that face) and low face
                 a[hi_key] = _with_outer_cells(1 - r_seen_lo, ones, axis, high=True)
                 a[lo_key] = _with_outer_cells(1 - r_seen_hi, ones, axis, high=False)
+    return dict(K=K, q_scale=q_scale, bx=bx, by=by, bz=bz, keep=keep, **a)
 
+
+def _viscous(grid: Grid, medium: Medium) -> float:
+    """The viscous coefficient eta of `absorption_db_per_m` (0: none), refused when too strong."""
     eta = 0.0
     if medium.absorption_db_per_m > 0:
         alpha_cell = medium.absorption_db_per_m / (20 / math.log(10)) * grid.dx_m
@@ -469,6 +423,28 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
                 f"absorption_db_per_m = {medium.absorption_db_per_m} is too strong for this grid "
                 f"(viscous coefficient {eta:.3g} > 0.05 per step): refine the grid"
             )
+    return eta
+
+
+def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
+    """Turn SI maps into lattice coefficients (differentiable in the medium's arrays).
+
+    On an rz grid the material coefficients are those of the 2-D conservative model in the
+    meridian plane and `metric` adds the ring volumes and radial face areas; obstacles are bodies
+    of revolution (their occupancy is the ring's volume fraction).
+
+    On a 3-D grid the conservative form is built in all three axes (a z face conductance `bz`),
+    with PML, sponge, rigid and soft edges; the paper's eq. 10 models are 2-D only."""
+    edges, c, rho = _checked_inputs(grid, medium, edges)
+    dtype = grid.jnp_dtype
+    shape = tuple(grid.shape)
+    ndim = len(shape)
+    ny = shape[1] if ndim > 1 else 1
+    coef = _materials(medium, c, rho, shape, dtype)
+    K, q_scale, keep = coef.pop("K"), coef.pop("q_scale"), coef.pop("keep")
+    bx, by, bz = coef.pop("bx"), coef.pop("by"), coef.pop("bz")
+    a = coef
+    eta = _viscous(grid, medium)
 
     relax = None
     if medium.air is not None:
@@ -497,7 +473,7 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
         _check_speed(c, grid.kind, "standard", why=ISOTROPIC_WITH_FACES)
     mur = tuple(getattr(edges, s) == "mur" for s in sides)
     sponge = _sponge(grid, edges, dtype) if "sponge" in edges.kinds() else None
-    pml = _pml(grid, edges, dtype) if edges.uses_pml else None
+    pml = pml_factors(grid, edges, dtype) if edges.uses_pml else None
     metric = AxisymMetric.build(ny, dtype) if grid.kind.ring_metric else None
     return Lattice(
         K=K,
@@ -646,41 +622,6 @@ def _check_speed(c, kind: LatticeKind | GridKind = "2d", stencil: StencilKind = 
         check_courant(cmax, what="the fastest medium's speed", kind=kind, stencil=stencil)
     except ValueError as e:
         raise ValueError(f"{e} ({why})" if why else str(e)) from None
-
-
-def _pml(grid: Grid, edges: Edges, dtype) -> PML:
-    L = edges.thickness_cells
-    m = edges.pml_order
-    smax = (m + 1) * grid.courant * math.log(1 / edges.pml_r0) / (2 * L)
-    out: dict[str, Array] = {}
-    ndim = len(grid.shape)
-    ny = grid.shape[1]
-    for axis, n in enumerate(grid.shape):
-        key = "xyz"[axis]
-        for where, faces in (("cell", False), ("face", True)):
-            d = edges.layer_depth(n, f"{key}_lo", f"{key}_hi", faces=faces)
-            sigma = smax * (d / L) ** m
-            av = (1 - sigma / 2) / (1 + sigma / 2)
-            bv = 1 / (1 + sigma / 2)
-            shape = _axis_shape(axis, ndim)
-            out[f"a{key}_{where}"] = jnp.asarray(av.reshape(shape), dtype)
-            out[f"b{key}_{where}"] = jnp.asarray(bv.reshape(shape), dtype)
-    radial = _radial_pml(ny, L, m, smax, dtype) if grid.kind.ring_metric and edges.y_hi == "pml" else None
-    return PML(**out, radial=radial)
-
-
-def _radial_pml(ny: int, L: int, m: float, smax: float, dtype) -> RadialPML:
-    """The `RadialPML` of an rz grid's r_hi layer. The layer starts at r0 = ny - L; sigma(r) =
-    smax ((r - r0) / L)^m, sigma_bar(r) = (1/r) int sigma = smax L ((r - r0) / L)^(m+1) / ((m+1) r)."""
-    r0 = ny - L
-    rc = np.arange(ny - L, ny) + 0.5  # the layer's ring centres
-    d = np.clip(rc - r0, 0, L) / L
-    sig = smax * d**m
-    sbar = smax * L * d ** (m + 1) / ((m + 1) * rc)
-    row = lambda a: jnp.asarray(np.asarray(a, float).reshape(1, -1), dtype)
-    return RadialPML(
-        decay=row((1 - sbar / 2) / (1 + sbar / 2)), drive=row((sig - sbar) / (4 * rc * (1 + sbar / 2))), width=L
-    )
 
 
 def _axis_shape(axis: int, ndim: int) -> tuple[int, ...]:

@@ -26,13 +26,14 @@ from .sources import (
     ring_radii_m,
     rings_from_fit_report,
 )
-from .stepper import LeapfrogState, StaggeredState, State, Stepper
+from .stepper import LayerFields, LeapfrogState, StaggeredState, State, Stepper
 
 __all__ = [
     "INSTABILITY_MESSAGE",
     "SPEED_MESSAGE",
     "SPEED_MESSAGE_3D",
     "ContinuousWave",
+    "LayerFields",
     "LeapfrogState",
     "PointSources",
     "Result",

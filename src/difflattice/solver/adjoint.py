@@ -49,7 +49,7 @@ def supports(stepper, state=None) -> str | None:
     lat = stepper.lattice
     sens = stepper.sensors
     if stepper.staggered:
-        return "a PML edge (staggered split-field step)"
+        return "a PML edge (the split-field form on the layer's cells)"
     if lat.stencil != "standard":
         return "the isotropic stencil (the hand-written coefficient cotangents are the standard stencil's)"
     if any(lat.mur):
@@ -199,82 +199,114 @@ def _native_path(stepper, perturbed, native: bool) -> bool:
 
 @linear_run.def_bwd
 def _linear_run_bwd(starts, grads, perturbed, stepper, n_steps, chunk, native=False):
+    """The backward pass: the output cotangents injected into the adjoint field step by step (the
+    native kernels' pass or the JAX scan's), then the per-step source cotangents chained through
+    the drive signals, and the coefficient cotangents."""
     lat = stepper.lattice
     grid, sens = stepper.grid, stepper.sensors
     dtype = grid.jnp_dtype
-    shape = grid.shape
     g_probes, g_re, g_im, g_p, g_pp, _ = grads
-    zeros = jnp.zeros(shape, dtype)
+    zeros = jnp.zeros(grid.shape, dtype)
     g1 = zeros if g_p is None else g_p.astype(dtype)
     g0 = zeros if g_pp is None else g_pp.astype(dtype)
-    want_lat = _lattice_perturbed(perturbed)
     m = sens.n_phasors
-    use_phasors = m and (g_re is not None or g_im is not None)
+    use_phasors = bool(m and (g_re is not None or g_im is not None))
     g_re = jnp.zeros(m, dtype) if (m and g_re is None) else g_re
     g_im = jnp.zeros(m, dtype) if (m and g_im is None) else g_im
     n_probes = sens.n_probes
     if n_probes and g_probes is None:
         g_probes = jnp.zeros((n_steps, n_probes), dtype)
+    # row n of probes_all: the cotangent of the probes recorded at step n (row 0: none)
+    probes_all = jnp.concatenate([jnp.zeros((1, n_probes), dtype), g_probes.astype(dtype)]) if n_probes else None
+    phasor_ct = (g_re, g_im) if use_phasors else None
+    inject = _injector(stepper, probes_all, phasor_ct)
+    fields_wanted = _fields_wanted(lat, perturbed) if _lattice_perturbed(perturbed) else ()
+    g1 = inject(g1, jnp.asarray(n_steps, jnp.int32), None if probes_all is None else probes_all[n_steps])
+    if _native_path(stepper, perturbed, native):
+        src_cts, lat_ct = _native_backward_pass(
+            stepper, g1, g0, n_steps, native_segment(chunk), starts, probes_all, phasor_ct, fields_wanted
+        )
+    else:
+        src_cts, lat_ct = _jax_backward_pass(stepper, g1, g0, n_steps, chunk, starts, probes_all, inject, fields_wanted)
+    src_grads, c_ct = _source_gradients(stepper, perturbed, src_cts, n_steps)
+    if c_ct is not None:
+        lat_ct = dict(lat_ct)
+        lat_ct["c"] = c_ct
+    return _cotangent_tree(stepper, perturbed, src_grads, lat_ct)
+
+
+def _injector(stepper, probes_all, phasor_ct):
+    """inject(g, n, probe_row): the cotangents of the outputs recorded at step n (none at step 0)
+    added to that step's field. Done at the end of each backward step, after the stencil (as the
+    forward step adds its sources last), so XLA keeps the stencil's padded input fused."""
+    grid, sens = stepper.grid, stepper.sensors
+    dtype = grid.jnp_dtype
 
     def inject(g, n, probe_row):
-        """Cotangents of the outputs recorded at step n (none at step 0), added to that step's
-        field. Done at the end of each backward step, after the stencil (as the forward step
-        adds its sources last), so XLA keeps the stencil's padded input fused."""
-        if n_probes:
+        if probes_all is not None:
             g = g.at[cell_index(sens.probes)].add(probe_row)
-        if use_phasors:
+        if phasor_ct is not None:
+            g_re, g_im = phasor_ct
             c = cell_index(sens.phasor_cells)
             ang = _angles(grid, sens, n)
             w = jnp.where(n > sens.phasor_from_step, 1.0, 0.0).astype(dtype)
             g = g.at[c].add(w * (g_re * jnp.cos(ang) + g_im * jnp.sin(ang)))
         return g
 
-    fields_wanted = _fields_wanted(lat, perturbed) if want_lat else ()
+    return inject
 
+
+def _lattice_cotangents(lat, fields_wanted, g, a, ka, p_n, p_nm1):
+    """Cotangents of one step's coefficients at the forward fields (p(n), p(n-1)), by hand:
+    dK = a L(q), dq_scale = p L(K a), db = -grad(q) grad(K a) per face, dkeep = g u,
+    dsponge = a (p(n-1) - u) with u the step before `keep`."""
+    out = {}
+    q = p_n if lat.q_scale is None else lat.q_scale * p_n
+    need_lq = any(f in fields_wanted for f in ("K", "keep", "sponge"))
+    lq = stencil(lat, q) if need_lq else None
+    if "K" in fields_wanted:
+        v = a * lq
+        out["K"] = jnp.sum(v) if jnp.ndim(lat.K) == 0 else v
+    if "q_scale" in fields_wanted:
+        out["q_scale"] = p_n * stencil(lat, ka)
+    if q.ndim == 3:  # 3-D: one face conductance per axis, no metric
+        qp, kp = jnp.pad(q, 1), jnp.pad(ka, 1)
+        inner = slice(1, -1)
+        for f, axis in (("bx", 0), ("by", 1), ("bz", 2)):
+            if f in fields_wanted:
+                dq = _along(qp, axis, slice(1, None), inner) - _along(qp, axis, slice(None, -1), inner)
+                dk = _along(kp, axis, slice(1, None), inner) - _along(kp, axis, slice(None, -1), inner)
+                out[f] = -dq * dk
+    else:
+        for f, axis in (("bx", 0), ("by", 1)):
+            if f in fields_wanted:
+                qp = jnp.pad(q, 1)
+                if axis == 0:
+                    kp = jnp.pad(ka, 1)
+                    out[f] = -(qp[1:, 1:-1] - qp[:-1, 1:-1]) * (kp[1:, 1:-1] - kp[:-1, 1:-1])
+                elif lat.metric is None:
+                    kp = jnp.pad(ka, 1)
+                    out[f] = -(qp[1:-1, 1:] - qp[1:-1, :-1]) * (kp[1:-1, 1:] - kp[1:-1, :-1])
+                else:  # rz: a radial face of area A couples ka / V on either side
+                    kp = jnp.pad(ka / lat.metric.volume, 1)
+                    out[f] = -lat.metric.area * (qp[1:-1, 1:] - qp[1:-1, :-1]) * (kp[1:-1, 1:] - kp[1:-1, :-1])
+    if "keep" in fields_wanted or "sponge" in fields_wanted:
+        s_ = lat.sponge
+        u = 2 * p_n - p_nm1 + lat.K * lq if s_ is None else (2 * p_n - (1 - s_) * p_nm1 + lat.K * lq) / (1 + s_)
+        if "keep" in fields_wanted:
+            out["keep"] = g * u
+        if "sponge" in fields_wanted:
+            out["sponge"] = a * (p_nm1 - u)
+    return out
+
+
+def _jax_backward_pass(stepper, g1, g0, n_steps: int, chunk: int, starts, probes_all, inject, fields_wanted):
+    """The backward pass as a JAX scan, chunk by chunk from the last (the forward fields, where
+    coefficient cotangents need them, recomputed from each chunk's saved start): (per-step source
+    cotangents, one (n_steps, n_cells) array per source; coefficient cotangents {field: array})."""
+    lat, grid = stepper.lattice, stepper.grid
+    dtype = grid.jnp_dtype
     need_prev = "keep" in fields_wanted or "sponge" in fields_wanted
-
-    def lattice_ct(g, a, ka, p_n, p_nm1):
-        """Cotangents of the step's coefficients at the forward fields (p(n), p(n-1)), by hand:
-        dK = a L(q), dq_scale = p L(K a), db = -grad(q) grad(K a) per face, dkeep = g u,
-        dsponge = a (p(n-1) - u) with u the step before `keep`."""
-        out = {}
-        q = p_n if lat.q_scale is None else lat.q_scale * p_n
-        need_lq = any(f in fields_wanted for f in ("K", "keep", "sponge"))
-        lq = stencil(lat, q) if need_lq else None
-        if "K" in fields_wanted:
-            v = a * lq
-            out["K"] = jnp.sum(v) if jnp.ndim(lat.K) == 0 else v
-        if "q_scale" in fields_wanted:
-            out["q_scale"] = p_n * stencil(lat, ka)
-        if q.ndim == 3:  # 3-D: one face conductance per axis, no metric
-            qp, kp = jnp.pad(q, 1), jnp.pad(ka, 1)
-            inner = slice(1, -1)
-            for f, axis in (("bx", 0), ("by", 1), ("bz", 2)):
-                if f in fields_wanted:
-                    dq = _along(qp, axis, slice(1, None), inner) - _along(qp, axis, slice(None, -1), inner)
-                    dk = _along(kp, axis, slice(1, None), inner) - _along(kp, axis, slice(None, -1), inner)
-                    out[f] = -dq * dk
-        else:
-            for f, axis in (("bx", 0), ("by", 1)):
-                if f in fields_wanted:
-                    qp = jnp.pad(q, 1)
-                    if axis == 0:
-                        kp = jnp.pad(ka, 1)
-                        out[f] = -(qp[1:, 1:-1] - qp[:-1, 1:-1]) * (kp[1:, 1:-1] - kp[:-1, 1:-1])
-                    elif lat.metric is None:
-                        kp = jnp.pad(ka, 1)
-                        out[f] = -(qp[1:-1, 1:] - qp[1:-1, :-1]) * (kp[1:-1, 1:] - kp[1:-1, :-1])
-                    else:  # rz: a radial face of area A couples ka / V on either side
-                        kp = jnp.pad(ka / lat.metric.volume, 1)
-                        out[f] = -lat.metric.area * (qp[1:-1, 1:] - qp[1:-1, :-1]) * (kp[1:-1, 1:] - kp[1:-1, :-1])
-        if "keep" in fields_wanted or "sponge" in fields_wanted:
-            s_ = lat.sponge
-            u = 2 * p_n - p_nm1 + lat.K * lq if s_ is None else (2 * p_n - (1 - s_) * p_nm1 + lat.K * lq) / (1 + s_)
-            if "keep" in fields_wanted:
-                out["keep"] = g * u
-            if "sponge" in fields_wanted:
-                out["sponge"] = a * (p_nm1 - u)
-        return out
 
     def back_step(carry, xs):
         """From the cotangents of (p(n+1), p(n)) to those of (p(n), p(n-1))."""
@@ -294,61 +326,45 @@ def _linear_run_bwd(starts, grads, perturbed, stepper, n_steps, chunk, native=Fa
         y = stencil(lat, ka) if lat.metric is None else lat.metric.volume * stencil(lat, ka / lat.metric.volume)
         if fields_wanted:
             p_n, p_nm1 = fields if need_prev else (fields, None)
-            ct = lattice_ct(g1, a, ka, p_n, p_nm1)
+            ct = _lattice_cotangents(lat, fields_wanted, g1, a, ka, p_n, p_nm1)
             lat_ct = {k: lat_ct[k] + ct[k] for k in lat_ct}
         new_g1 = 2 * a + (y if lat.q_scale is None else lat.q_scale * y) + g0
         new_g1 = inject(new_g1, n_next - 1, probe_row)
         new_g0 = -a if lat.sponge is None else -(1 - lat.sponge) * a
         return (new_g1, new_g0, lat_ct), src_ct
 
+    def fwd_one(c, n_next):
+        p, pp = c
+        new = _linear_step(lat, p, pp)
+        t = n_next.astype(dtype) * grid.dt_s
+        for src in stepper.sources:
+            cc = cell_index(src.cells)
+            v = source_injection(src, t, grid, lat).astype(dtype)
+            new = new.at[cc].add(v) if src.adds else new.at[cc].set(v)
+        return (new, p), ((p, pp) if need_prev else p)
+
+    def segment(carry, n_first, length, start):
+        """Backward over steps n_first+1 .. n_first+length (recomputing their fields if needed)."""
+        ns = n_first + 1 + jnp.arange(length)
+        rows = None if probes_all is None else jax.lax.dynamic_slice_in_dim(probes_all, n_first, length, 0)
+        fields = None
+        if fields_wanted:
+            _, fields = jax.lax.scan(fwd_one, start, ns, unroll=min(2, length))
+        return jax.lax.scan(back_step, carry, (ns, rows, fields), reverse=True, unroll=min(2, length))
+
     lat_ct0 = {f: jnp.zeros(jnp.shape(getattr(lat, f)), dtype) for f in fields_wanted}
-    # row n of probes_all: the cotangent of the probes recorded at step n (row 0: none)
-    probes_all = jnp.concatenate([jnp.zeros((1, n_probes), dtype), g_probes.astype(dtype)]) if n_probes else None
-    g1 = inject(g1, jnp.asarray(n_steps, jnp.int32), None if probes_all is None else probes_all[n_steps])
+    full_starts, rem_start = starts[:2]
+    carry, pieces = _chunks_backwards(segment, (g1, g0, lat_ct0), n_steps, chunk, full_starts, rem_start)
+    src_cts = tuple(jnp.concatenate([pc[i] for pc in pieces], axis=0) for i in range(len(stepper.sources)))
+    return src_cts, carry[2]
 
-    if _native_path(stepper, perturbed, native):
-        src_cts, lat_ct = _native_backward_pass(
-            stepper,
-            g1,
-            g0,
-            n_steps,
-            native_segment(chunk),
-            starts,
-            probes_all,
-            (g_re, g_im) if use_phasors else None,
-            fields_wanted,
-        )
-    else:
 
-        def segment(carry, n_first, length, start):
-            """Backward over steps n_first+1 .. n_first+length (recomputing their fields if needed)."""
-            ns = n_first + 1 + jnp.arange(length)
-            rows = None if probes_all is None else jax.lax.dynamic_slice_in_dim(probes_all, n_first, length, 0)
-            fields = None
-            if fields_wanted:
-                p_start, pp_start = start
-
-                def fwd_one(c, n_next):
-                    p, pp = c
-                    new = _linear_step(lat, p, pp)
-                    t = n_next.astype(dtype) * grid.dt_s
-                    for src in stepper.sources:
-                        cc = cell_index(src.cells)
-                        v = source_injection(src, t, grid, lat).astype(dtype)
-                        new = new.at[cc].add(v) if src.adds else new.at[cc].set(v)
-                    return (new, p), ((p, pp) if need_prev else p)
-
-                _, fields = jax.lax.scan(fwd_one, (p_start, pp_start), ns, unroll=min(2, length))
-            carry, src_ct = jax.lax.scan(back_step, carry, (ns, rows, fields), reverse=True, unroll=min(2, length))
-            return carry, src_ct
-
-        full_starts, rem_start = starts[:2]
-        carry, pieces = _chunks_backwards(segment, (g1, g0, lat_ct0), n_steps, chunk, full_starts, rem_start)
-        src_cts = tuple(jnp.concatenate([pc[i] for pc in pieces], axis=0) for i in range(len(stepper.sources)))
-        _, _, lat_ct = carry
-
-    # chain the per-step source cotangents through the drive signals (weights, lags) and, for
-    # velocity sources, the lattice speed at their cells
+def _source_gradients(stepper, perturbed, src_cts, n_steps: int):
+    """The per-step source cotangents chained through the drive signals (weights, lags) and, for
+    velocity sources, the lattice speed at their cells: (one gradient tree per source, the
+    speed's cotangent or None)."""
+    lat, grid = stepper.lattice, stepper.grid
+    dtype = grid.jnp_dtype
     t_all = (jnp.arange(1, n_steps + 1)).astype(dtype) * grid.dt_s
     src_grads = []
     want_c = any(s.injection == "velocity" for s in stepper.sources) and any(
@@ -366,14 +382,17 @@ def _linear_run_bwd(starts, grads, perturbed, stepper, n_steps, chunk, native=Fa
         src_grads.append(g)
         if want_c and src.injection == "velocity":
             c_ct = gc if c_ct is None else c_ct + gc
+    return src_grads, c_ct
 
+
+def _cotangent_tree(stepper, perturbed, src_grads, lat_ct):
+    """The stepper-shaped cotangent: the sources' gradients where perturbed, the lattice's
+    coefficient cotangents, None elsewhere."""
     out = jax.tree_util.tree_map(lambda _: None, stepper)
     sources_ct = tuple(_mask(g, pt) for g, pt in zip(src_grads, perturbed.sources))
     out = eqx.tree_at(lambda s: s.sources, out, sources_ct, is_leaf=lambda x: x is None)
-    if c_ct is not None:
-        lat_ct = dict(lat_ct)
-        lat_ct["c"] = c_ct
     if lat_ct:
+        lat = stepper.lattice
         lat_grad = jax.tree_util.tree_map(lambda _: None, lat)
         names = tuple(lat_ct)
         lat_grad = eqx.tree_at(

@@ -1,13 +1,17 @@
 """The stateless stepper (`Stepper.init` / `Stepper.step`) and its carried `State`.
 
-Two steppers share one spatial operator (`difflattice.lattice.operators`):
-- leapfrog ``P(t+1) = 2 P(t) - P(t-1) + D(P(t))``: state (P, P_prev), used without a PML;
-- staggered split-field form, identical to the leapfrog where no PML damps, used with a PML:
-  face fluxes ``w += b grad q`` and ``P_x += K div_x w``, ``P_y += K div_y w``, ``P = P_x + P_y``.
+Every scene steps the leapfrog ``P(t+1) = 2 P(t) - P(t-1) + D(P(t))`` over the whole grid, with
+one spatial operator (`difflattice.lattice.operators`). A scene with PML edges adds the
+split-field form on the layer's cells only (`PML.boxes`, the layer as disjoint boxes): there
+face fluxes ``w += b grad q`` and ``P_x += K div_x w``, ``P_y += K div_y w``, ``P = P_x + P_y``
+(each damped by its axis's PML factors), and the box's pressure replaces the leapfrog's. Where
+no PML damps the two forms are the same scheme in exact arithmetic (P(n+1) - P(n) = K div
+w(n+1/2)), so the boxes' outer faces, undamped, join them: a homogeneous interior with PML edges
+runs the lossless leapfrog's arithmetic and pays the layer's cost on its cells only.
 
 Both run on 2-D, axisymmetric (rz) and 3-D grids: the ring metric lives in the operator
 (`Lattice.metric`); an rz grid's r_hi PML carries one more field, the ring correction `c_r` on the
-layer's rings (`lattice.coefficients.RadialPML`); a 3-D grid's split-field form carries P_z and
+layer's rings (`lattice.pml.RadialPML`); a 3-D grid's split-field form carries P_z and
 the z face flux too (``P = P_x + P_y + P_z``). The loops over axes unroll at trace time, so a
 plane or rz scene compiles exactly its 2-D arithmetic (no z term, no z field).
 """
@@ -28,7 +32,7 @@ from jaxtyping import Array, Float, Int
 from ..lattice.coefficients import Edges, Lattice, build_lattice
 from ..lattice.grid import Grid
 from ..lattice.medium import Medium
-from ..lattice.operators import divergence, face_gradient, operator
+from ..lattice.operators import _along, _cell_factors, _face_coefficients, face_gradient, stencil
 from ..lattice.spectrum import check_spectrum
 from .sensors import Sensors
 from .sources import PointSources
@@ -64,25 +68,29 @@ class LeapfrogState(State):
         return self.p
 
 
-class StaggeredState(State):
-    """The staggered split-field stepper's state: the split pressures (P = px + py (+ pz)), the
-    face fluxes, the soft sources' running sums, P(n-1) where absorption needs it and the rz r_hi
-    PML's ring correction `c_r` (None where unused; `pz`, `wz` on 3-D grids only)."""
+class LayerFields(eqx.Module):
+    """The split-field PML's fields on one box of layer cells (`PML.boxes`, same order): the
+    pressure's parts per axis (their sum is P there), the face fluxes per axis (the box's faces
+    along that axis, its two outer ones included: one more than its cells along that axis), and
+    on an rz grid's r_hi layer the ring correction `c_r` on the box's outer `width` rings."""
 
-    px: Float[Array, "*grid"]
-    py: Float[Array, "*grid"]
-    wx: Float[Array, "*xfaces"]
-    wy: Float[Array, "*yfaces"]
-    src_acc: tuple[Float[Array, " k"], ...]
-    p_prev: Float[Array, "*grid"] | None = None
-    c_r: Float[Array, "nx w"] | None = None
-    pz: Float[Array, "nx ny nz"] | None = None
-    wz: Float[Array, "nx ny nz1"] | None = None
+    parts: tuple[Float[Array, "*box"], ...]
+    fluxes: tuple[Float[Array, "*faces"], ...]
+    c_r: Float[Array, "rows w"] | None = None
+
+
+class StaggeredState(State):
+    """The state of a scene with PML edges: the leapfrog's P(n) and P(n-1) on the whole grid
+    and the split-field fields of each layer box (`LayerFields`, in `PML.boxes` order)."""
+
+    p: Float[Array, "*grid"]
+    p_prev: Float[Array, "*grid"]
+    layers: tuple[LayerFields, ...]
     relax_q: tuple[Float[Array, "*grid"], ...] | None = None  # air absorption's memory fields Q_i
 
     @property
     def pressure(self) -> Float[Array, "*grid"]:
-        return self.px + self.py if self.pz is None else self.px + self.py + self.pz
+        return self.p
 
 
 S = TypeVar("S", bound=State)
@@ -178,23 +186,13 @@ class Stepper(eqx.Module):
                 p_prev=z,
                 relax_q=relax_q,
             )
-        rad = None if lat.pml is None else lat.pml.radial
-
-        def faces(axis: int) -> Float[Array, "*faces"]:
-            return jnp.zeros(tuple(n + 1 if a == axis else n for a, n in enumerate(shape)), dt)
-
-        in_3d = len(shape) == 3
+        if lat.pml is None:
+            raise ValueError("a PML stepper needs PML factors (build it with Stepper.build)")
         return StaggeredState(
-            px=z,
-            py=z,
-            pz=z if in_3d else None,
-            wx=faces(0),
-            wy=faces(1),
-            wz=faces(2) if in_3d else None,
-            src_acc=tuple(jnp.zeros(s.n_cells, dt) for s in self.sources if s.adds),
-            p_prev=z if (lat.eta > 0 or lat.relax is not None) else None,
+            p=z,
+            p_prev=z,
+            layers=tuple(_zero_layer(lat.pml, box, dt, shape) for box in lat.pml.boxes),
             relax_q=relax_q,
-            c_r=None if rad is None else jnp.zeros((shape[0], rad.width), dt),
             n=n,
             phasor_re=phasor_re,
             phasor_im=phasor_im,
@@ -221,9 +219,7 @@ class Stepper(eqx.Module):
         n_next = state.n + 1
         values = self._source_values(n_next)
         new: State
-        if isinstance(state, StaggeredState) and self.staggered:
-            new, p_new = self._step_staggered(state, values)
-        elif isinstance(state, LeapfrogState) and not self.staggered:
+        if isinstance(state, (LeapfrogState, StaggeredState)) and isinstance(state, StaggeredState) == self.staggered:
             new, p_new = self._step_leapfrog(state, values)
         else:
             want = "StaggeredState" if self.staggered else "LeapfrogState"
@@ -237,12 +233,16 @@ class Stepper(eqx.Module):
             probes = p_new[cell_index(self.sensors.probes)]
         return new, probes
 
-    def _step_leapfrog(self, state: LeapfrogState, values) -> tuple[LeapfrogState, Float[Array, "*grid"]]:
+    def _step_leapfrog(
+        self, state: LeapfrogState | StaggeredState, values
+    ) -> tuple[LeapfrogState | StaggeredState, Float[Array, "*grid"]]:
+        """The leapfrog over the grid, then (PML scenes) the split-field form on the layer's boxes."""
         lat = self.lattice
         p, p_prev = state.p, state.p_prev
         p_eff = p if lat.eta == 0 else (1 + lat.eta) * p - lat.eta * p_prev
         p_eff = _relaxed_operand(lat, state.relax_q, p_eff, p, p_prev)
-        d = operator(lat, p_eff)
+        q = p_eff if lat.q_scale is None else lat.q_scale * p_eff
+        d = lat.K * stencil(lat, q)  # = operators.operator(lat, p_eff)
         if lat.sponge is None:
             p_new = 2 * p - p_prev + d
         else:
@@ -252,6 +252,9 @@ class Stepper(eqx.Module):
             p_new = self._mur(p, p_new)
         if lat.keep is not None:
             p_new = lat.keep * p_new
+        layers = None
+        if isinstance(state, StaggeredState):
+            p_new, layers = self._step_layers(state, q, p_new)
         for src, v in zip(self.sources, values):
             c = cell_index(src.cells)
             if src.adds:
@@ -259,6 +262,8 @@ class Stepper(eqx.Module):
             else:
                 p_new = p_new.at[c].set(v)
         new = eqx.tree_at(lambda s: (s.p, s.p_prev, s.n), state, (p_new, p, state.n + 1))
+        if layers is not None:
+            new = eqx.tree_at(lambda s: s.layers, new, layers)
         if lat.relax is not None:
             new = eqx.tree_at(lambda s: s.relax_q, new, _relaxed_memory(lat, state.relax_q, p_new, p))
         return new, p_new
@@ -284,88 +289,28 @@ class Stepper(eqx.Module):
             p_new = p_new.at[:, -1].set(p[:, -2] + k_of((slice(None), -1)) * (p_new[:, -2] - p[:, -1]))
         return p_new
 
-    def _step_staggered(self, state: StaggeredState, values) -> tuple[StaggeredState, Float[Array, "*grid"]]:
-        lat = self.lattice
-        pml = lat.pml
-        if pml is None:
-            raise ValueError("the staggered stepper needs PML factors (build it with Stepper.build)")
-        ndim = len(self.grid.shape)
-        if ndim == 3:
-            if state.pz is None or state.wz is None:
-                raise ValueError("a 3-D staggered state needs pz and wz: start from stepper.init()")
-            parts = [state.px, state.py, state.pz]
-            fluxes = [state.wx, state.wy, state.wz]
-        else:
-            parts = [state.px, state.py]
-            fluxes = [state.wx, state.wy]
-        p = sum(parts[1:], parts[0])
-        if lat.eta == 0:
-            p_eff = p
-        elif state.p_prev is None:
-            raise ValueError("absorption (eta > 0) needs P(n-1) in the state: start from stepper.init()")
-        else:
-            p_eff = (1 + lat.eta) * p - lat.eta * state.p_prev
-        if lat.relax is not None:
-            if state.p_prev is None:
-                raise ValueError("air absorption needs P(n-1) in the state: start from stepper.init()")
-            p_eff = _relaxed_operand(lat, state.relax_q, p_eff, p, state.p_prev)
-        q = p_eff if lat.q_scale is None else lat.q_scale * p_eff
-        rad = pml.radial
-        new_w = []
-        for axis in range(ndim):
-            a, b = pml.factors(axis, "face")
-            new_w.append(a * fluxes[axis] + b * face_gradient(lat, q, axis))
-        c_r = state.c_r
-        new_p = []
-        for axis in range(ndim):
-            div = divergence(lat, new_w[axis], axis)
-            if axis == 1 and rad is not None:  # cylindrical stretching of the ring metric in the r_hi layer
-                if state.c_r is None:
-                    raise ValueError("an rz r_hi PML needs the ring correction c_r: start from stepper.init()")
-                wy = new_w[1]
-                w = rad.width
-                w_sum = wy[:, -w:] + wy[:, -w - 1 : -1] + state.wy[:, -w:] + state.wy[:, -w - 1 : -1]
-                c_r = rad.decay * state.c_r + rad.drive * w_sum
-                # zero-padded to full width, not added in place: XLA fuses the pad into the update
-                # (measured, XLA CPU: an in-place strip update 0.6x the 2-D speed, the pad 0.75x)
-                div = div + jnp.pad(c_r, ((0, 0), (div.shape[1] - w, 0)))
-            a, b = pml.factors(axis, "cell")
-            new_p.append(a * parts[axis] + b * (lat.K * div))
-        if lat.keep is not None:
-            keep = lat.keep
-            new_p = [keep * pa for pa in new_p]
-        share = 1.0 / ndim  # each source value is split evenly over the pressure parts
-        acc = list(state.src_acc)
-        i_soft = 0
-        for src, v in zip(self.sources, values):
-            c = cell_index(src.cells)
-            if src.adds:
-                acc[i_soft] = acc[i_soft] + v
-                part = share * acc[i_soft]
-                i_soft += 1
-                new_p = [pa.at[c].add(part) for pa in new_p]
-            else:
-                new_p = [pa.at[c].set(share * v) for pa in new_p]
-        p_prev = p if state.p_prev is not None else None
-        p_total = sum(new_p[1:], new_p[0])
-        relax_q = None if lat.relax is None else _relaxed_memory(lat, state.relax_q, p_total, p)
-        if ndim == 2:
-            px, py = new_p
-            wx, wy = new_w
-            new = eqx.tree_at(
-                lambda s: (s.px, s.py, s.wx, s.wy, s.src_acc, s.n, s.p_prev, s.c_r, s.relax_q),
-                state,
-                (px, py, wx, wy, tuple(acc), state.n + 1, p_prev, c_r, relax_q),
-                is_leaf=lambda x: x is None,
+    def _step_layers(self, state: StaggeredState, q, p_new) -> tuple[Float[Array, "*grid"], tuple[LayerFields, ...]]:
+        """The split-field form on each layer box from the operand `q` (the leapfrog's): the
+        boxes' new fields, and `p_new` with each box's cells replaced by the sum of its parts."""
+        pml = self.lattice.pml
+        if pml is None or len(state.layers) != len(pml.boxes):
+            raise ValueError(
+                f"this stepper's PML has {0 if pml is None else len(pml.boxes)} layer boxes, the state "
+                f"{len(state.layers)}: start from stepper.init() (or the final state of a run of the same scene)"
             )
-            return new, p_total
-        new = eqx.tree_at(
-            lambda s: (s.px, s.py, s.pz, s.wx, s.wy, s.wz, s.src_acc, s.n, s.p_prev, s.relax_q),
-            state,
-            (*new_p, *new_w, tuple(acc), state.n + 1, p_prev, relax_q),
-            is_leaf=lambda x: x is None,
-        )
-        return new, p_total
+        lat = self.lattice
+        if lat.stencil == "isotropic":  # face values filtered across faces: the whole grid's, sliced
+            full = [face_gradient(lat, q, axis) for axis in range(q.ndim)]
+            grads = lambda box: [g[_faces_of(box, a)] for a, g in enumerate(full)]
+        else:  # from the box's cells and a one-cell halo (zero beyond the window)
+            faces = _face_coefficients(lat, q.shape, q.dtype)
+            grads = lambda box: _box_gradients(q, box, faces)
+        layers = []
+        for box, fields in zip(pml.boxes, state.layers):
+            fields, p_box = _layer_step(lat, box, fields, grads(box))
+            p_new = p_new.at[_cells_of(box)].set(p_box)
+            layers.append(fields)
+        return p_new, tuple(layers)
 
     def _record(self, state: S, p_new: Float[Array, "*grid"], n_next: Int[Array, ""]) -> S:
         """Add the new step's pressure `p_new` to the sensors' running records."""
@@ -393,6 +338,105 @@ class Stepper(eqx.Module):
             return state
         keys = tuple(updates)
         return eqx.tree_at(lambda s: tuple(getattr(s, k) for k in keys), state, tuple(updates[k] for k in keys))
+
+
+def _cells_of(box) -> tuple[slice, ...]:
+    """The index of a box's cells."""
+    return tuple(slice(lo, hi) for lo, hi in box)
+
+
+def _faces_of(box, axis: int) -> tuple[slice, ...]:
+    """The index of a box's faces along `axis` (in the face array of that axis: one more)."""
+    return tuple(slice(lo, hi + 1) if a == axis else slice(lo, hi) for a, (lo, hi) in enumerate(box))
+
+
+def _cut(v, index: tuple[slice, ...]):
+    """A coefficient (a scalar, or an array broadcasting to the grid or a face array) at `index`:
+    broadcast axes (length 1) are kept whole."""
+    if isinstance(v, float) or jnp.ndim(v) == 0:
+        return v
+    return v[tuple(slice(None) if n == 1 else sl for n, sl in zip(jnp.shape(v), index))]
+
+
+def _zero_layer(pml, box, dtype, grid_shape) -> LayerFields:
+    """A box's fields at rest (`LayerFields`)."""
+    shape = tuple(hi - lo for lo, hi in box)
+    faces = lambda axis: tuple(n + 1 if a == axis else n for a, n in enumerate(shape))
+    rad = pml.radial
+    ring = rad is not None and len(box) == 2 and box[1][1] == grid_shape[1]
+    return LayerFields(
+        parts=tuple(jnp.zeros(shape, dtype) for _ in box),
+        fluxes=tuple(jnp.zeros(faces(axis), dtype) for axis in range(len(box))),
+        c_r=jnp.zeros((shape[0], rad.width), dtype) if ring else None,
+    )
+
+
+def _layer_step(lat: Lattice, box, f: LayerFields, grads) -> tuple[LayerFields, Float[Array, "*box"]]:
+    """One step of the split-field form on one box: ``w = a_face w + b_face g`` (g: the box's
+    face gradients, one array per axis), ``P_axis = a_cell P_axis + b_cell K div_axis w`` (plus
+    the rz ring correction C on the r_hi rings), keep; returns the new fields and P = sum of parts."""
+    pml = lat.pml
+    assert pml is not None
+    cells = _cells_of(box)
+    new_w = []
+    for axis, w in enumerate(f.fluxes):
+        a, b = pml.factors(axis, "face")
+        at = _faces_of(box, axis)
+        new_w.append(_cut(a, at) * w + _cut(b, at) * grads[axis])
+    c_r = f.c_r
+    parts = []
+    for axis, part in enumerate(f.parts):
+        div = _box_divergence(lat, new_w[axis], axis, cells)
+        if axis == 1 and f.c_r is not None:  # cylindrical stretching of the ring metric in the r_hi layer
+            rad = pml.radial
+            assert rad is not None
+            wy, old, n = new_w[1], f.fluxes[1], rad.width
+            w_sum = wy[:, -n:] + wy[:, -n - 1 : -1] + old[:, -n:] + old[:, -n - 1 : -1]
+            c_r = rad.decay * f.c_r + rad.drive * w_sum
+            # zero-padded to full width, not added in place: XLA fuses the pad into the update
+            div = div + jnp.pad(c_r, ((0, 0), (div.shape[1] - n, 0)))
+        a, b = pml.factors(axis, "cell")
+        parts.append(_cut(a, cells) * part + _cut(b, cells) * (_cut(lat.K, cells) * div))
+    if lat.keep is not None:
+        keep = _cut(lat.keep, cells)
+        parts = [keep * pa for pa in parts]
+    p_box = parts[0]
+    for pa in parts[1:]:
+        p_box = p_box + pa
+    return LayerFields(parts=tuple(parts), fluxes=tuple(new_w), c_r=c_r), p_box
+
+
+def _box_gradients(q, box, faces) -> list:
+    """`operators.face_gradient` (standard stencil) on a box's faces along each axis: b (q_hi -
+    q_lo) from the box's cells and a one-cell halo, zero beyond the window (`faces`: the face
+    conductances or masks per axis, None where unit)."""
+    idx, pad = [], []
+    for (lo, hi), n in zip(box, q.shape):
+        idx.append(slice(max(lo - 1, 0), min(hi + 1, n)))
+        pad.append((1 if lo == 0 else 0, 1 if hi == n else 0))
+    qh = q[tuple(idx)]
+    if any(p != (0, 0) for p in pad):
+        qh = jnp.pad(qh, pad)
+    inner = slice(1, -1)
+    out = []
+    for axis, b in enumerate(faces):
+        g = _along(qh, axis, slice(1, None), inner) - _along(qh, axis, slice(None, -1), inner)
+        out.append(g if b is None else _cut(b, _faces_of(box, axis)) * g)
+    return out
+
+
+def _box_divergence(lat: Lattice, g, axis: int, cells):
+    """`operators.divergence` of a box's face values `g` along `axis` (the box's cell factors)."""
+    g_hi = _along(g, axis, slice(1, None))
+    g_lo = _along(g, axis, slice(None, -1))
+    a_hi, a_lo = _cell_factors(lat, axis)
+    if a_hi is not None:
+        g_hi = _cut(a_hi, cells) * g_hi
+        g_lo = _cut(a_lo, cells) * g_lo
+    if axis == 1 and lat.metric is not None:
+        g_hi = _cut(lat.metric.hi, cells) * g_hi
+        g_lo = _cut(lat.metric.lo, cells) * g_lo
+    return g_hi - g_lo
 
 
 def _relaxed_operand(lat: Lattice, relax_q, p_eff, p, p_prev):

@@ -3,9 +3,9 @@
 XLA's CPU loop for the 5-point stencil runs at ~0.4x the speed of a vectorised numba loop and
 on one core. These kernels advance a chunk of steps per call with temporal blocking and a
 pipeline of threads (all cores), for the leapfrog (homogeneous, conservative with coefficient
-maps, speed-zero, sponge, soft cells, absorption) and the split-field PML step, both with humid
-air's relaxation (`Medium(air=...)`: two memory fields), with sources, probes, phasors and field
-statistics inside the loop. The JAX loop stays the reference (tests
+maps, speed-zero, sponge, soft cells, absorption) with the split-field PML on the layer's cells
+only (`difflattice_layered`), with humid air's relaxation (`Medium(air=...)`: two memory
+fields), with sources, probes, phasors and field statistics inside the loop. The JAX loop stays the reference (tests
 compare the two), the path for GPUs, and the path of derivatives: a native run's JVP is the JAX
 loop's, so `jax.grad` through it gives JAX's gradients; `adjoint="lattice"` runs its forward and
 backward passes (the adjoint wave equation) on these kernels instead.

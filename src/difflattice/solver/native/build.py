@@ -1,13 +1,18 @@
 """Compile the native kernels for the machine they run on, cache the library, register its XLA
 FFI targets.
 
-The C++ source ships as package data (`lattice.cc`). At first use it is compiled with the C++
+The C++ source ships as package data (`lattice.cc` and the headers it includes, one translation
+unit). At first use it is compiled with the C++
 compiler found (`$CXX`, else `c++`, `g++`, `clang++`) for this processor (`-march=native`: not
 portable, hence compiled where it runs) against XLA's FFI headers from the installed jaxlib, and
 cached in ``$DIFFLATTICE_NATIVE_CACHE`` (default ``~/.cache/difflattice/native``) under a hash of
 the source, the flags, the compiler, jaxlib and the processor, so a later process loads it in
 milliseconds. Without a compiler (or with ``DIFFLATTICE_NATIVE=0``) `load()` returns the reason
 and the solver runs its JAX loop; the reason is printed once per process, on one line.
+
+The build (~20-60 s, once per machine and version) prints a line to stderr when it starts and
+when it ends; ``python -m difflattice.solver.native.build`` runs it ahead of time (after an
+install, in an image build) and prints the cached library's path.
 """
 
 from __future__ import annotations
@@ -21,13 +26,14 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
 SOURCE = Path(__file__).with_name("lattice.cc")
 TARGETS = {
     "difflattice_leapfrog": "DifflatticeLeapfrog",
-    "difflattice_staggered": "DifflatticeStaggered",
+    "difflattice_layered": "DifflatticeLayered",
     "difflattice_adjoint_chunk": "DifflatticeAdjointChunk",
 }
 COMPILE_TIMEOUT_S = 300
@@ -141,6 +147,7 @@ def _load() -> Library | str:
     key = hashlib.sha256()
     for part in (
         SOURCE.read_bytes(),
+        *(h.read_bytes() for h in sorted(SOURCE.parent.glob("*.h"))),  # its headers (one translation unit)
         " ".join(_flags(include_dir, True)).encode(),
         _compiler_version(cxx).encode(),
         jaxlib.__version__.encode(),
@@ -153,7 +160,19 @@ def _load() -> Library | str:
     if failed.exists():
         return failed.read_text().strip() + f" (delete {failed.parent} to retry)"
     if not path.exists():
+        # the one slow start of a machine: say so while it happens (stderr, so piped outputs stay clean)
+        print(
+            f"difflattice: compiling the native CPU kernels for this machine with {Path(cxx).name} "
+            f"(once per machine and version, ~20-60 s; cached in {path.parent}) ...",
+            file=sys.stderr,
+            flush=True,
+        )
+        t0 = time.perf_counter()
         err = _compile(cxx, path, include_dir)
+        if err is None:
+            print(
+                f"difflattice: native kernels compiled in {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True
+            )
         if err is not None:
             reason = f"compiling {SOURCE.name} with {cxx} failed: {err}"
             try:
@@ -168,3 +187,19 @@ def _load() -> Library | str:
     except (OSError, AttributeError, ValueError) as e:
         return f"loading {path} failed: {e}"
     return Library(path, handle)
+
+
+def main(argv=None) -> int:
+    """Build the kernels ahead of time (e.g. right after installing, or in an image build):
+    ``python -m difflattice.solver.native.build``. Prints the library's path, or the reason it
+    is not available (exit status 1)."""
+    del argv
+    lib = load()
+    if isinstance(lib, str):
+        return 1
+    print(lib.path)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

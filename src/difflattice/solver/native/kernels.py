@@ -57,12 +57,7 @@ KNOWN_STATE_FIELDS = frozenset(
         "n",
         "p",
         "p_prev",
-        "px",
-        "py",
-        "wx",
-        "wy",
-        "src_acc",
-        "c_r",
+        "layers",
         "phasor_re",
         "phasor_im",
         "p_max",
@@ -282,6 +277,10 @@ class _Chunk:
                 as_dt(None if rad is None else rad.decay.reshape(-1)),
                 as_dt(None if rad is None else rad.drive.reshape(-1)),
             ]
+            assert pml is not None
+            self.boxes = jnp.asarray(
+                np.array([[r0, r1, c0, c1] for (r0, r1), (c0, c1) in pml.boxes], np.int32).reshape(-1, 4)
+            )
         srcs = stepper.sources
         self.src_cells = (
             _cells(jnp.concatenate([_cells(s.cells) for s in srcs])) if srcs else jnp.zeros((0, 2), jnp.int32)
@@ -329,116 +328,66 @@ class _Chunk:
 
     def advance(self, st: State, length: int):
         """`length` steps from `st`; returns the new state and the probes (length, n) or None."""
+        assert isinstance(st, (LeapfrogState, StaggeredState))  # unsupported() refuses other states
         vals, cos, sin = self.tables(st.n, length)
         stats = self._stats_in(st)
         n0 = jnp.asarray(st.n, jnp.int32)
         rec_shape = jax.ShapeDtypeStruct((length, self.n_probes), self.dt)
         stat_shapes = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in stats]
-        if isinstance(st, LeapfrogState):
-            # air absorption: the memory fields and coefficients, optional arguments after the others
-            # (a lossless call passes none: the kernels' lossless path)
-            rq = [] if st.relax_q is None else [*st.relax_q, self.relax]
-            args = [
-                st.p,
-                st.p_prev,
-                *self.coef,
-                self.sponge,
-                *self.metric,
-                self.src_cells,
-                self.src_hard,
-                vals,
-                self.rec_cells,
-                jnp.zeros((0, 2), jnp.int32),
-                self.ph_cells,
-                cos,
-                sin,
-                *stats,
-                n0,
-                *rq,
-            ]
-            field = jax.ShapeDtypeStruct(self.shape, self.dt)
-            rq_shapes = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in rq[:2]]
-            out = jax.ffi.ffi_call(
-                "difflattice_leapfrog",
-                [field, field, rec_shape, *stat_shapes, *rq_shapes],
-                input_output_aliases={0: 0, 1: 1, 18: 3, 19: 4, 20: 5, 21: 6, 22: 7, **({24: 8, 25: 9} if rq else {})},
-                vmap_method="sequential",
-            )(
-                *args,
-                n_steps=np.int64(length),
-                combine=np.int64(0),
-                stencil=np.int64(self.stepper.lattice.stencil == "isotropic"),
-                bands=self.bands,
-                **self.attrs,
-            )
-            p, p_prev, rec, *stats_out = out[:8]
-            st = eqx.tree_at(lambda s: (s.p, s.p_prev), st, (p, p_prev))
-            if rq:
-                st = eqx.tree_at(lambda s: s.relax_q, st, tuple(out[8:]))
-        else:
-            assert isinstance(st, StaggeredState)  # unsupported() refuses the other stepper's state
-            acc = self._acc_in(st)
-            p_prev = _absent(self.dt) if st.p_prev is None else st.p_prev
-            c_r = _absent(self.dt) if st.c_r is None else st.c_r
-            # air absorption: the memory fields and coefficients, optional arguments after the others
-            # (a lossless call passes none: the kernels' lossless path)
-            rq = [] if st.relax_q is None else [*st.relax_q, self.relax]
-            args = [
-                st.px,
-                st.py,
-                st.wx,
-                st.wy,
-                p_prev,
-                *self.coef,
-                *self.metric,
-                *self.pml,
-                self.src_cells,
-                self.src_hard,
-                vals,
-                acc,
-                self.rec_cells,
-                self.ph_cells,
-                cos,
-                sin,
-                *stats,
-                n0,
-                c_r,
-                *self.radial,
-                *rq,
-            ]
-            fields = (st.px, st.py, st.wx, st.wy, p_prev, acc)
-            shapes = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in fields]
-            out = jax.ffi.ffi_call(
-                "difflattice_staggered",
-                [
-                    *shapes,
-                    rec_shape,
-                    *stat_shapes,
-                    jax.ShapeDtypeStruct(c_r.shape, c_r.dtype),
-                    *(jax.ShapeDtypeStruct(a.shape, a.dtype) for a in rq[:2]),
-                ],
-                input_output_aliases={
-                    **{0: 0, 1: 1, 2: 2, 3: 3, 4: 4, 23: 5, 28: 7, 29: 8, 30: 9, 31: 10, 32: 11, 34: 12},
-                    **({37: 13, 38: 14} if rq else {}),
-                },
-                vmap_method="sequential",
-            )(
-                *args,
-                n_steps=np.int64(length),
-                stencil=np.int64(self.stepper.lattice.stencil == "isotropic"),
-                **self.attrs,
-            )
-            px, py, wx, wy, p_prev, acc, rec, *stats_out, c_r = out[:13]
-            has_acc, has_prev, new_acc = bool(st.src_acc), st.p_prev is not None, self._acc_out(st, acc)
-            if st.c_r is not None:
-                st = eqx.tree_at(lambda s: s.c_r, st, c_r)
-            st = eqx.tree_at(lambda s: (s.px, s.py, s.wx, s.wy), st, (px, py, wx, wy))
-            if has_acc:
-                st = eqx.tree_at(lambda s: s.src_acc, st, new_acc)
-            if has_prev:
-                st = eqx.tree_at(lambda s: s.p_prev, st, p_prev)
-            if rq:
-                st = eqx.tree_at(lambda s: s.relax_q, st, tuple(out[13:]))
+        # air absorption: the memory fields and coefficients, optional arguments after the others
+        # (a lossless call passes none: the kernels' lossless path)
+        rq = [] if st.relax_q is None else [*st.relax_q, self.relax]
+        args = [
+            st.p,
+            st.p_prev,
+            *self.coef,
+            self.sponge,
+            *self.metric,
+            self.src_cells,
+            self.src_hard,
+            vals,
+            self.rec_cells,
+            jnp.zeros((0, 2), jnp.int32),
+            self.ph_cells,
+            cos,
+            sin,
+            *stats,
+            n0,
+        ]
+        field = jax.ShapeDtypeStruct(self.shape, self.dt)
+        shapes = [field, field, rec_shape, *stat_shapes]
+        aliases = {0: 0, 1: 1, 18: 3, 19: 4, 20: 5, 21: 6, 22: 7}
+        target = "difflattice_leapfrog"
+        layered = False
+        if isinstance(
+            st, StaggeredState
+        ):  # PML layers: the boxes' fields packed (parts, faces, ring corrections), then the factors
+            packed = _pack_layers(st.layers, self.dt)
+            args += [*packed, self.boxes, *self.pml, *self.radial]
+            shapes += [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in packed]
+            aliases.update({24: 8, 25: 9, 26: 10})
+            target = "difflattice_layered"
+            layered = True
+        base_in, base_out = len(args), len(shapes)
+        if rq:
+            aliases.update({base_in: base_out, base_in + 1: base_out + 1})
+            shapes += [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in rq[:2]]
+        out = jax.ffi.ffi_call(target, shapes, input_output_aliases=aliases, vmap_method="sequential")(
+            *args,
+            *rq,
+            n_steps=np.int64(length),
+            combine=np.int64(0),
+            stencil=np.int64(self.stepper.lattice.stencil == "isotropic"),
+            bands=np.int64(0) if layered else self.bands,
+            **self.attrs,
+        )
+        p, p_prev, rec, *stats_out = out[:8]
+        st = eqx.tree_at(lambda s: (s.p, s.p_prev), st, (p, p_prev))
+        if layered:
+            assert isinstance(st, StaggeredState)
+            st = eqx.tree_at(lambda s: s.layers, st, _unpack_layers(st.layers, out[8:11]))
+        if rq:
+            st = eqx.tree_at(lambda s: s.relax_q, st, tuple(out[base_out : base_out + 2]))
         names = ("phasor_re", "phasor_im", "p_max", "p_sq", "arrival")
         present = tuple(k for k in names if getattr(st, k) is not None)
         if present:
@@ -538,27 +487,37 @@ class _Chunk:
         )
         return out[0], out[1], out[2], tuple(out[3:])
 
-    def _acc_in(self, st: StaggeredState):
-        """The soft sources' running sums, one slot per source cell (hard cells: unused zeros)."""
-        parts, i_soft = [], 0
-        sums = st.src_acc or ()
-        for s in self.stepper.sources:
-            if s.injection != "hard":  # soft and velocity sources add: a running sum each
-                parts.append(jnp.asarray(sums[i_soft], self.dt))
-                i_soft += 1
-            else:
-                parts.append(jnp.zeros(s.n_cells, self.dt))
-        return jnp.concatenate(parts) if parts else jnp.zeros((0,), self.dt)
 
-    def _acc_out(self, st: StaggeredState, acc):
-        if st.src_acc is None:
-            return None
-        out, start = [], 0
-        for s in self.stepper.sources:
-            if s.injection != "hard":
-                out.append(acc[start : start + s.n_cells])
-            start += s.n_cells
-        return tuple(out)
+def _pack_layers(layers, dt):
+    """The layer boxes' fields as the kernel's three flat arrays: parts (px, py per box), faces
+    (wx, wy per box), ring corrections (the boxes that have one)."""
+    flat = lambda xs: jnp.concatenate([x.reshape(-1) for x in xs]) if xs else jnp.zeros((0,), dt)
+    return (
+        flat([x for f in layers for x in f.parts]),
+        flat([x for f in layers for x in f.fluxes]),
+        flat([f.c_r for f in layers if f.c_r is not None]),
+    )
+
+
+def _unpack_layers(layers, packed):
+    """`_pack_layers` undone: new `LayerFields` shaped like `layers` from the kernel's arrays."""
+    offsets = [0, 0, 0]
+
+    def take(k, like):
+        n = int(np.prod(like.shape))
+        v = packed[k][offsets[k] : offsets[k] + n].reshape(like.shape)
+        offsets[k] += n
+        return v
+
+    out = []
+    for f in layers:
+        parts = tuple(take(0, x) for x in f.parts)
+        fluxes = tuple(take(1, x) for x in f.fluxes)
+        c_r = None if f.c_r is None else take(2, f.c_r)
+        out.append(
+            eqx.tree_at(lambda g: (g.parts, g.fluxes, g.c_r), f, (parts, fluxes, c_r), is_leaf=lambda x: x is None)
+        )
+    return tuple(out)
 
 
 # ------------------------------------------------------------------------------------------
@@ -608,8 +567,9 @@ def _loop_jvp(primals, tangents, *, n_steps, chunk, checkpoint, unroll, threads,
 def schedule(stepper: Stepper) -> tuple[int, int, bool]:
     """(threads, levels, bands) of the kernels for this stepper's grid."""
     nx, ny = stepper.grid.shape
-    extra = 0 if stepper.lattice.relax is None else (3 if stepper.staggered else 2)  # Q_O, Q_N (+ P(n-1))
-    levels = _levels(ny, jnp.dtype(stepper.grid.jnp_dtype).itemsize, stepper.staggered, extra)
+    extra = 0 if stepper.lattice.relax is None else 2  # Q_O, Q_N
+    # PML layers: the leapfrog's rows (the layer's fields are a few columns of most rows)
+    levels = _levels(ny, jnp.dtype(stepper.grid.jnp_dtype).itemsize, False, extra)
     bands = _bands(stepper)
     return _threads(nx, 0 if bands else levels), levels, bands
 

@@ -1,0 +1,259 @@
+// PML layers: the split-field form on the layer's boxes, row by row inside the leapfrog's pipeline
+// (part of the native kernels: included by lattice.cc, one translation unit)
+#pragma once
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <limits>
+#include <optional>
+#include <vector>
+
+#include "stencil.h"
+
+namespace dl {
+
+// ----------------------------------------------------------------------------------------------
+// PML layers (stepper._step_layers): the leapfrog runs on every row; the split-field form runs on
+// the layer's boxes only (coefficients.layer_boxes: rows [r0, r1) x columns [c0, c1), disjoint),
+// whose cells take the sum of their parts:
+//   wx = axf wx + bxf (b_x (q_i - q_{i-1}))      (the box's faces along x, its outer two included)
+//   wy = ayf wy + byf (b_y (q_j - q_{j-1}))
+//   px = axc px + bxc (K (wx_{i+1} - wx_i)),  py = ayc py + byc (K ((mh wy_{j+1} - ml wy_j) + C));
+//   keep px, py;  P = px + py
+// with the rz r_hi layer's ring correction C = decay C + drive (the ring's two y faces, new and
+// old) on the outer w columns. Row i of a step updates the box's x face i + 1 (and face r0 at its
+// first row) from q rows i, i + 1, its y faces and parts of row i: the pipeline's order for the
+// leapfrog (step L + 1 takes row i after step L finished row i + 1) keeps one copy of each.
+
+// a coefficient's row i as a plain pointer: its own row, or a buffer holding its one value
+template <typename T>
+struct RowBuf {
+  std::vector<T> v;
+  T value = T(0);
+  bool filled = false;
+  const T* get(const Coef<T>& c, int64_t i, int64_t n) {
+    if (!c.in_register()) return c.row(i);
+    const T x = c.value(i);
+    if (!filled || !(x == value) || int64_t(v.size()) < n) {
+      v.assign(n, x);
+      value = x;
+      filled = true;
+    }
+    return v.data();
+  }
+};
+
+template <typename T>
+struct LayerBox {
+  int64_t r0, r1, c0, c1;
+  T *px, *py;  // (r1 - r0, c1 - c0)
+  T* wx;       // (r1 - r0 + 1, c1 - c0): x faces r0 .. r1
+  T* wy;       // (r1 - r0, c1 - c0 + 1): y faces c0 .. c1 of each row
+  T* cr;       // (r1 - r0, w): the ring correction on columns [ny - w, ny), or nullptr
+};
+
+template <typename T>
+struct LayerArgs {
+  std::vector<LayerBox<T>> boxes;
+  std::vector<std::vector<int>> of_row;  // the boxes holding each row (at most three)
+  std::vector<char> whole_row;           // rows every column of which lies in a box
+  Coef<T> axc, bxc, axf, bxf;            // one value per row: (nx, 1), (nx + 1, 1)
+  Coef<T> ayc, byc, ayf, byf;            // one vector for all rows: (1, ny), (1, ny + 1)
+  const T *rad_decay = nullptr, *rad_drive = nullptr;
+  int64_t w = 0;
+  bool iso_faces = false;  // the isotropic stencil with face-conductance arrays: by as a full array
+  std::vector<T> by_full;
+};
+
+
+// per-thread scratch of the layer rows
+template <typename T>
+struct LayerScratch {
+  RowBuf<T> k, bxl, bxh, by, keep, ml, mh;
+  std::vector<T> ones, old, d, P, e;
+  explicit LayerScratch(int64_t ny, int64_t w)
+      : ones(ny + 2, T(1)), old(w + 1, T(0)), d(ny + 2, T(0)), P(ny + 2, T(0)), e(ny + 1, T(0)) {}
+};
+
+// the isotropic stencil's filter weights across x faces (rz: the ring areas (j + 1, j) / (j + 1/2);
+// 0 past the row's ends: a mirror)
+// (with face arrays: the ring boundaries' areas eh = j + 1 and 1 / (j + 1/2), 1 on a plane grid)
+template <typename T>
+struct IsoWeights {
+  std::vector<T> rl, rh, eh, inva;
+  IsoWeights(int64_t ny, bool ring) : rl(ny, T(0)), rh(ny, T(0)), eh(ny, T(1)), inva(ny, T(1)) {
+    for (int64_t j = 0; j < ny; ++j) {
+      rl[j] = j == 0 ? T(0) : (ring ? T(double(j) / (double(j) + 0.5)) : T(1));
+      rh[j] = j + 1 == ny ? T(0) : (ring ? T((double(j) + 1.0) / (double(j) + 0.5)) : T(1));
+      if (ring) {
+        eh[j] = T(double(j) + 1.0);
+        inva[j] = T(1.0 / (double(j) + 0.5));
+      }
+    }
+  }
+};
+
+// x face f (the box's face kf) from q rows lo, hi: w = A w + B (b (hi - lo)), or with the
+// isotropic stencil the difference filtered across the face ([1, 10, 1] / 12, uniform faces)
+template <typename T>
+void layer_x_face(const LeapfrogArgs<T>& a, const LayerArgs<T>& la, const IsoWeights<T>& iw, const LayerBox<T>& b,
+                  int64_t kf, int64_t f, const T* __restrict lo, const T* __restrict hi, LayerScratch<T>& S) {
+  const int64_t ny = a.ny, c0 = b.c0, nc = b.c1 - b.c0;
+  T* __restrict w = b.wx + kf * nc;
+  const T A = la.axf.present() ? la.axf.at(f, 0) : T(1), B = la.bxf.present() ? la.bxf.at(f, 0) : T(1);
+  if (la.iso_faces) {  // operators._across_faces: b d + (edge differences) / 12, edges weighted min(b, b')
+    T* __restrict d = S.d.data() + 1;
+    T* __restrict e = S.e.data();  // e[j]: the edge between columns j - 1 and j (0 at the window's ends)
+    const int64_t j0 = std::max<int64_t>(c0 - 1, 0), j1 = std::min<int64_t>(b.c1 + 1, ny);
+    for (int64_t j = j0; j < j1; ++j) d[j] = hi[j] - lo[j];
+    const T* __restrict bb = a.bx.present() ? S.bxl.get(a.bx, f, ny) : S.ones.data();
+    for (int64_t j = c0; j <= b.c1; ++j) {
+      if (j == 0 || j == ny) {
+        e[j] = T(0);
+      } else {
+        const T m = bb[j - 1] < bb[j] ? bb[j - 1] : bb[j];
+        e[j] = (d[j] - d[j - 1]) * m * iw.eh[j - 1];
+      }
+    }
+    constexpr T w12 = T(1.0 / 12.0);
+    for (int64_t k = 0; k < nc; ++k) {
+      const int64_t j = c0 + k;
+      w[k] = A * w[k] + B * (bb[j] * d[j] + (e[j + 1] - e[j]) * iw.inva[j] * w12);
+    }
+    return;
+  }
+  if (a.iso) {
+    T* __restrict d = S.d.data() + 1;  // d[-1] = d[ny] = 0
+    const int64_t j0 = std::max<int64_t>(c0 - 1, 0), j1 = std::min<int64_t>(b.c1 + 1, ny);
+    for (int64_t j = j0; j < j1; ++j) d[j] = hi[j] - lo[j];
+    const T bb = a.bx.present() ? a.bx.at(f, 0) : T(1);  // uniform faces: the window's mask
+    const T* __restrict rl = iw.rl.data();
+    const T* __restrict rh = iw.rh.data();
+    constexpr T w12 = T(1.0 / 12.0);
+#pragma GCC ivdep
+    for (int64_t k = 0; k < nc; ++k) {
+      const int64_t j = c0 + k;
+      const T g = d[j];
+      w[k] = A * w[k] + B * (bb * (g + (rh[j] * (d[j + 1] - g) - rl[j] * (g - d[j - 1])) * w12));
+    }
+    return;
+  }
+  const T* __restrict bb = a.bx.present() ? S.bxl.get(a.bx, f, ny) : S.ones.data();
+#pragma GCC ivdep
+  for (int64_t k = 0; k < nc; ++k) {
+    const int64_t j = c0 + k;
+    w[k] = A * w[k] + B * (bb[j] * (hi[j] - lo[j]));
+  }
+}
+
+// the y faces c0 .. c1 of row i (box row kr) from the q row q (zero beyond the window), and the
+// rz ring correction of the row
+template <typename T>
+void layer_y_faces(const LeapfrogArgs<T>& a, const LayerArgs<T>& la, const LayerBox<T>& b, int64_t kr, int64_t i,
+                   const T* __restrict q, const T* qm, const T* qp, LayerScratch<T>& S) {
+  const int64_t ny = a.ny, c0 = b.c0, nc = b.c1 - b.c0;
+  T* __restrict w = b.wy + kr * (nc + 1);
+  const int64_t w_r = b.cr ? la.w : 0;
+  T* old = S.old.data();
+  if (w_r) std::copy(w + nc - w_r, w + nc + 1, old);  // the outer rings' faces before the update
+  const T* __restrict bb = a.by.present() ? S.by.get(a.by, i, ny + 1) : S.ones.data();
+  const T* __restrict ayf = la.ayf.present() ? la.ayf.row(0) : S.ones.data();
+  const T* __restrict byf = la.byf.present() ? la.byf.row(0) : S.ones.data();
+  if (la.iso_faces) {  // from the differences of rows i - 1, i, i + 1 and their by rows (iso_y_face)
+    const int64_t n1 = ny + 1;
+    const T* b0 = la.by_full.data() + i * n1;
+    const T* bm = i > 0 ? b0 - n1 : b0;
+    const T* bp = i + 1 < a.nx ? b0 + n1 : b0;
+    const T am = i > 0 ? T(1) : T(0), ap = i + 1 < a.nx ? T(1) : T(0);
+    auto diff = [&](const T* r, int64_t f) { return (f < ny ? r[f] : T(0)) - (f > 0 ? r[f - 1] : T(0)); };
+    for (int64_t k = 0; k <= nc; ++k) {
+      const int64_t f = c0 + k;
+      w[k] = ayf[f] * w[k] + byf[f] * iso_y_face(diff(qm, f), diff(q, f), diff(qp, f), bm[f], b0[f], bp[f], am, ap);
+    }
+  } else {
+    // the window's outer faces (zero beyond the row) apart, so the loop has no branch
+    const int64_t kb = c0 == 0 ? 1 : 0, ke = b.c1 == ny ? nc : nc + 1;
+    if (kb) w[0] = ayf[0] * w[0] + byf[0] * (bb[0] * (q[0] - T(0)));
+    if (ke == nc) w[nc] = ayf[ny] * w[nc] + byf[ny] * (bb[ny] * (T(0) - q[ny - 1]));
+    const T* __restrict qf = q + c0;
+    const T* __restrict af = ayf + c0;
+    const T* __restrict bf = byf + c0;
+    const T* __restrict cf = bb + c0;
+#pragma GCC ivdep
+    for (int64_t k = kb; k < ke; ++k) w[k] = af[k] * w[k] + bf[k] * (cf[k] * (qf[k] - qf[k - 1]));
+  }
+  if (w_r) {
+    T* c = b.cr + kr * w_r;
+    for (int64_t k = 0; k < w_r; ++k) {
+      const int64_t kk = nc - w_r + k;  // the box's face of ring ny - w + k
+      const T sum = ((w[kk + 1] + w[kk]) + old[k + 1]) + old[k];
+      c[k] = la.rad_decay[k] * c[k] + la.rad_drive[k] * sum;
+    }
+  }
+}
+
+// row i of box b at one step: its faces from the q rows of the previous step (qm, q0, qp: rows
+// i - 1, i, i + 1, zero beyond the window), its parts, and P = px + py into the new row `out`
+template <typename T>
+void layer_row(const LeapfrogArgs<T>& a, const LayerArgs<T>& la, const IsoWeights<T>& iw, const LayerBox<T>& b,
+               int64_t i, const T* qm, const T* q0, const T* qp, T* out, LayerScratch<T>& S) {
+  const int64_t ny = a.ny, c0 = b.c0, nc = b.c1 - b.c0, kr = i - b.r0;
+  if (i == b.r0) layer_x_face(a, la, iw, b, 0, i, qm, q0, S);
+  layer_x_face(a, la, iw, b, kr + 1, i + 1, q0, qp, S);
+  if (a.iso && !la.iso_faces) {  // the y faces from P = q0 filtered across them (am, ap = 0 at the first / last row)
+    T* __restrict P = S.P.data();
+    const T am = i > 0 ? T(1) : T(0), ap = i + 1 < a.nx ? T(1) : T(0);
+    constexpr T w12 = T(1.0 / 12.0);
+    const int64_t j0 = std::max<int64_t>(c0 - 1, 0), j1 = std::min<int64_t>(b.c1 + 1, ny);
+    for (int64_t j = j0; j < j1; ++j) P[j] = q0[j] + (ap * (qp[j] - q0[j]) - am * (q0[j] - qm[j])) * w12;
+    layer_y_faces(a, la, b, kr, i, P, qm, qp, S);
+  } else {
+    layer_y_faces(a, la, b, kr, i, q0, qm, qp, S);
+  }
+  T* __restrict x = b.px + kr * nc;
+  T* __restrict y = b.py + kr * nc;
+  const T* __restrict wlo = b.wx + kr * nc;
+  const T* __restrict whi = wlo + nc;
+  const T* __restrict wy = b.wy + kr * (nc + 1);
+  const T* __restrict kk = S.k.get(a.K, i, ny) + c0;
+  const T Ax = la.axc.present() ? la.axc.at(i, 0) : T(1), Bx = la.bxc.present() ? la.bxc.at(i, 0) : T(1);
+  const T* __restrict ayc = (la.ayc.present() ? la.ayc.row(0) : S.ones.data()) + c0;
+  const T* __restrict byc = (la.byc.present() ? la.byc.row(0) : S.ones.data()) + c0;
+  const T* __restrict kp = (a.keep.present() ? S.keep.get(a.keep, i, ny) : S.ones.data()) + c0;  // 1 x is x
+  T* __restrict o = out + c0;
+  // one pass: px, py (keep), P = px + py
+  if (a.my_lo.present()) {  // rz: (m_hi w_(j+1) - m_lo w_j) (+ C on the ring columns)
+    const T* __restrict ml = S.ml.get(a.my_lo, i, ny) + c0;
+    const T* __restrict mh = S.mh.get(a.my_hi, i, ny) + c0;
+    const int64_t w_r = b.cr ? la.w : 0, k_r = nc - w_r;
+#pragma GCC ivdep
+    for (int64_t k = 0; k < k_r; ++k) {
+      const T xv = kp[k] * (Ax * x[k] + Bx * (kk[k] * (whi[k] - wlo[k])));
+      const T yv = kp[k] * (ayc[k] * y[k] + byc[k] * (kk[k] * (mh[k] * wy[k + 1] - ml[k] * wy[k])));
+      x[k] = xv;
+      y[k] = yv;
+      o[k] = xv + yv;
+    }
+    const T* c = b.cr ? b.cr + kr * w_r - k_r : nullptr;
+    for (int64_t k = k_r; k < nc; ++k) {
+      const T xv = kp[k] * (Ax * x[k] + Bx * (kk[k] * (whi[k] - wlo[k])));
+      const T yv = kp[k] * (ayc[k] * y[k] + byc[k] * (kk[k] * ((mh[k] * wy[k + 1] - ml[k] * wy[k]) + c[k])));
+      x[k] = xv;
+      y[k] = yv;
+      o[k] = xv + yv;
+    }
+  } else {
+#pragma GCC ivdep
+    for (int64_t k = 0; k < nc; ++k) {
+      const T xv = kp[k] * (Ax * x[k] + Bx * (kk[k] * (whi[k] - wlo[k])));
+      const T yv = kp[k] * (ayc[k] * y[k] + byc[k] * (kk[k] * (wy[k + 1] - wy[k])));
+      x[k] = xv;
+      y[k] = yv;
+      o[k] = xv + yv;
+    }
+  }
+}
+
+}  // namespace dl

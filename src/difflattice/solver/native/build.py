@@ -11,7 +11,7 @@ milliseconds. Without a compiler (or with ``DIFFLATTICE_NATIVE=0``) `load()` ret
 and the solver runs its JAX loop; the reason is printed once per process, on one line.
 
 The build (~20-60 s, once per machine and version) prints a line to stderr when it starts and
-when it ends; ``python -m difflattice.solver.native.build`` runs it ahead of time (after an
+when it ends; ``python -m difflattice.solver.native`` runs it ahead of time (after an
 install, in an image build) and prints the cached library's path.
 """
 
@@ -191,7 +191,7 @@ def _load() -> Library | str:
 
 def main(argv=None) -> int:
     """Build the kernels ahead of time (e.g. right after installing, or in an image build):
-    ``python -m difflattice.solver.native.build``. Prints the library's path, or the reason it
+    ``python -m difflattice.solver.native``. Prints the library's path, or the reason it
     is not available (exit status 1)."""
     del argv
     lib = load()

@@ -47,11 +47,10 @@ def _simulate(args) -> int:
         return 2
     scene = load_scene_at(args.scene, args.cells_per_wavelength)
     print(scene.describe_air())
-    if scene.kind.ndim == 3:
-        return _simulate_3d(args, scene)
     if args.render_every is not None:
         scene.output["render_every_cells"] = args.render_every
-    sr = run_scene(scene, progress=not args.quiet)
+    available = None if args.max_memory_gib is None else int(args.max_memory_gib * 2**30)
+    sr = run_scene(scene, progress=not args.quiet, available_bytes=available, mlups=args.assume_mlups)
     files = write_outputs(
         sr,
         args.out,
@@ -59,6 +58,8 @@ def _simulate(args) -> int:
         animation="none" if args.no_animation else args.animation,
         data_format=args.format,
     )
+    if scene.kind.ndim == 3:
+        return _report_3d(args, sr, files)
     s = sr.summary
     r = s["run"]
     print(
@@ -90,19 +91,15 @@ def _throughput(run: dict) -> str:
     return f"{run['mlups']:.0f} MLUPS incl. compile"
 
 
-def _simulate_3d(args, scene) -> int:
-    """A 3-D scene: estimate (printed, refused if it would not fit), run, A-scans and images."""
-    from .apps.scenes3d import run_scene3d, write_outputs3d
+def _report_3d(args, sr, files: dict) -> int:
+    """A 3-D run's console lines: time against the estimate, peak memory, the A-scans."""
     from .solver.estimate import format_bytes
 
-    available = None if args.max_memory_gib is None else int(args.max_memory_gib * 2**30)
-    sr = run_scene3d(scene, available_bytes=available, mlups=args.assume_mlups, quiet=args.quiet)
-    files = write_outputs3d(sr, args.out, data_format=args.format)
     s = sr.summary
     r, est, mem = s["run"], s["estimate"], s["memory"]
     peak = mem.get("device_peak_bytes", mem["host_peak_rss_bytes"])
     print(
-        f"{scene.path}: {r['n_steps']} steps on {' x '.join(map(str, s['grid']['shape']))} cells "
+        f"{sr.scene.path}: {r['n_steps']} steps on {' x '.join(map(str, s['grid']['shape']))} cells "
         f"({s['grid']['cells_per_wavelength']:g} cells per wavelength) in {r['wall_time_s']:.2f} s "
         f"({_throughput(r)}; estimated {est['time_s']:.3g} s); peak memory {format_bytes(peak)} "
         f"(estimated {format_bytes(est['memory_bytes'])} + runtime); expected phase error "

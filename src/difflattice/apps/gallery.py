@@ -300,7 +300,8 @@ def render_scene(
     """Render one scene file into ``out_dir`` (its own folder); returns its gallery entry with
     file paths relative to ``out_dir``'s parent."""
     from ..lattice.medium import ResolutionWarning
-    from .scene_run import run_scene, write_outputs
+    from ..scene.model import SceneError
+    from .scene_run import SceneRun, run_scene, write_outputs
 
     path, out = Path(path), Path(out_dir)
     name = path.stem
@@ -310,6 +311,8 @@ def render_scene(
         if scale < 1:  # a deliberately coarse preview (its label says so): no resolution warnings
             warnings.simplefilter("ignore", ResolutionWarning)
         sr = run_scene(scene, progress=progress)
+    if not isinstance(sr, SceneRun):  # the gallery's figures are plane and rz scenes
+        raise SceneError(f"{path}: the gallery renders plane and rz scenes; run a 3-D scene with difflattice simulate")
     t_sim = time.perf_counter() - t0
     wanted = sorted(sr.moments) or [sr.summary["run"]["n_steps"]]
     quick = scale < 1

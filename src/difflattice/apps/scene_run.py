@@ -1,6 +1,7 @@
 """Run a scene end to end: simulate with a progress bar, derive observables, write outputs.
 
-The CLI's `simulate` is a thin layer over `run_scene` + `write_outputs`.
+The CLI's `simulate` is a thin layer over `run_scene` + `write_outputs`, one entry for every lattice
+kind (3-D runs are `scene3d_run`'s).
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ import platform
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import equinox as eqx
 import jax
@@ -24,9 +25,12 @@ from ..observe.analytic import phase_error_rad
 from ..observe.farfield import far_field, level_db
 from ..observe.farfield_rz import CylinderSurface
 from ..observe.observables import lobe_metrics
-from ..scene.model import Scene, SceneError
+from ..scene.model import Scene
 from ..solver.loop import INSTABILITY_MESSAGE, Result, run
 from ..solver.stepper import State, Stepper
+
+if TYPE_CHECKING:  # a plane or rz run never imports the 3-D runner
+    from .scene3d_run import SceneRun3D
 
 
 @dataclass
@@ -153,9 +157,24 @@ def run_in_pieces(
     return merged, snaps, snap_steps, timing, kept
 
 
-def run_scene(scene: Scene, *, progress: bool = True) -> SceneRun:
-    if scene.kind.ndim == 3:  # 3-D scenes have their own run and outputs (A-scans, slices, projections)
-        raise SceneError(f'{scene.path}: [grid.kind] = "3d": run it with apps.scenes3d.run_scene3d')
+def run_scene(
+    scene: Scene, *, progress: bool = True, available_bytes: int | None = None, mlups: float | None = None
+) -> SceneRun | SceneRun3D:
+    """Run a scene of any lattice kind: the one entry (`write_outputs` writes what it returns).
+
+    Plane and rz scenes run in pieces (progress bar, field moments, snapshots; `SceneRun`); 3-D
+    scenes print their estimate first and run with A-scans of the receiving transducers
+    (`scene3d_run.run_scene3d`: `available_bytes` and `mlups` are the estimate's memory limit and
+    assumed throughput; `SceneRun3D`). Every scene is estimated before any grid-sized array."""
+    if scene.kind.ndim == 3:
+        from .scene3d_run import run_scene3d
+
+        return run_scene3d(scene, available_bytes=available_bytes, mlups=mlups, quiet=not progress)
+    return _run_plane(scene, progress=progress)
+
+
+def _run_plane(scene: Scene, *, progress: bool) -> SceneRun:
+    """A plane or rz scene's run (see `run_scene`)."""
     built = scene.build()
     grid, medium, sources, sensors, edges, n_steps = built[:6]
     stepper = Stepper.build(grid, medium, sources, sensors, edges)
@@ -261,7 +280,7 @@ def _mirror_rz(field):
 
 
 def write_outputs(
-    sr: SceneRun,
+    sr: SceneRun | SceneRun3D,
     out_dir: str | Path,
     *,
     animate: bool = True,
@@ -279,7 +298,12 @@ def write_outputs(
     lobe.png, probes.png, and for snapshots frames/frame_NNNN.png (unless `frames` is False) and
     an animation (`animation`: "gif", "mp4" or "none"; `animate=False` is "none"). `frames` and
     `animation` default to the scene's `[output]` section. Field images render every
-    `sr.render_every`-th cell."""
+    `sr.render_every`-th cell. A 3-D run (`SceneRun3D`) writes its own set
+    (`scene3d_run.write_outputs3d`: A-scans, echo labels, slices and projections)."""
+    if not isinstance(sr, SceneRun):
+        from .scene3d_run import write_outputs3d
+
+        return write_outputs3d(sr, out_dir, data_format=data_format)
     from ..scene.model import ANIMATION_KINDS
     from . import datafiles
 

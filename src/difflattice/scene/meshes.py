@@ -51,9 +51,9 @@ def _weld(segments: np.ndarray, tol: float) -> np.ndarray:
     return pts[reps].reshape(segments.shape)
 
 
-def load_closed_mesh(path: str | Path, unit: str = "mm") -> tuple[np.ndarray, np.ndarray]:
-    """(vertices in metres (n, 3), faces (m, 3)) of a watertight mesh file; ValueError naming the
-    problem (unknown unit, unreadable file, no triangles, open edges) otherwise."""
+def _read_watertight(path: str | Path, unit: str, inside: str) -> Any:
+    """The trimesh of a watertight mesh file; ValueError naming the problem (unknown unit,
+    unreadable file, no triangles, open edges: `inside` says what has no inside then)."""
     import trimesh
 
     if unit not in UNITS_M:
@@ -66,7 +66,14 @@ def load_closed_mesh(path: str | Path, unit: str = "mm") -> tuple[np.ndarray, np
     if len(mesh.faces) == 0:
         raise ValueError(f"{p} holds no triangles")
     if not mesh.is_watertight:
-        raise ValueError(f"{p} is not watertight (open edges): it has no inside; close the mesh")
+        raise ValueError(f"{p} is not watertight (open edges): {inside} has no inside; close the mesh")
+    return mesh
+
+
+def load_closed_mesh(path: str | Path, unit: str = "mm") -> tuple[np.ndarray, np.ndarray]:
+    """(vertices in metres (n, 3), faces (m, 3)) of a watertight mesh file; ValueError naming the
+    problem (unknown unit, unreadable file, no triangles, open edges) otherwise."""
+    mesh = _read_watertight(path, unit, "it")
     return np.asarray(mesh.vertices, float) * UNITS_M[unit], np.asarray(mesh.faces, np.int64)
 
 
@@ -80,17 +87,8 @@ def mesh_outlines(
     from shapely.geometry import LineString, box
     from shapely.ops import polygonize, unary_union
 
-    if unit not in UNITS_M:
-        raise ValueError(f"unit = {unit!r}; allowed: {', '.join(UNITS_M)}")
     p = Path(path)
-    try:
-        mesh: Any = trimesh.load(p, force="mesh")
-    except (OSError, ValueError) as err:
-        raise ValueError(f"cannot read the mesh file {p}: {err}") from None
-    if len(mesh.faces) == 0:
-        raise ValueError(f"{p} holds no triangles")
-    if not mesh.is_watertight:
-        raise ValueError(f"{p} is not watertight (open edges): its section has no inside; close the mesh")
+    mesh = _read_watertight(p, unit, "its section")
     # a half-plane through the axis at a small angle, so it passes through no vertex of a mesh
     # revolved in equal steps from phi = 0 (its section radius differs by 1 - cos(1e-7) ~ 5e-15)
     phi = 1e-7 if axisymmetric else 0.0

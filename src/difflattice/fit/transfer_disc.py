@@ -28,6 +28,7 @@ its face through its centre).
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Literal, cast
 
@@ -291,49 +292,28 @@ def disc_transfer(
       `lobe_angle_deg` and `lobe_range_m`: exact at any range, and the lattice's dispersion acts
       only over the gap;
     - wavefront at distance `wave_z_m`, positions `wave_x_m` (p(x) = p(|x|)): `wave_method`
-      "transform" (the same integral; default) or "lattice" (the simulated field on the scan
-      line itself, `observe.farfield_rz.scan_line`: the lattice's 0.2 % slower axial waves add
-      ~1.8 deg over 16.5 mm at 20 cells per wavelength, ten times the rig's phase noise);
-    - `surface_order`: 4 (default, see `surface_pairs`) or 2 (the surface's own cell pairs).
-    """
-    import time
-
-    import jax
+      "transform" (the same integral; default) or "lattice" (the field on the scan line itself:
+      its 0.2 % slower axial waves add ~1.8 deg over 16.5 mm at 20 cells per wavelength);
+    - `surface_order`: 4 (default, see `surface_pairs`) or 2 (the surface's own cell pairs)."""
     import jax.numpy as jnp
 
     from ..air import density_kg_m3
     from ..lattice.coefficients import Edges
     from ..lattice.grid import make_grid
     from ..lattice.medium import Medium
-    from ..observe.farfield_rz import field_at_rz, scan_line
-    from ..solver.loop import check_finite, simulate
+    from ..observe.farfield_rz import scan_line
+    from ..solver.loop import simulate
     from ..solver.sensors import Sensors
     from ..solver.sources import ToneBurst, disc_housing, disc_transducer
     from .transfer import _source_spectrum
 
-    if wave_method not in ("transform", "lattice"):
-        raise ValueError(f"wave_method = {wave_method!r}; allowed: 'transform', 'lattice'")
-    if surface_gap < 1:
-        raise ValueError(f"surface_gap = {surface_gap} must be >= 1 cell (the surface must not cut the source cells)")
-    if lobe_angle_deg is None and wave_x_m is None:
-        raise ValueError(
-            "nothing to compute: give lobe angles and a range, wavefront positions and a distance, or both"
-        )
-    if lobe_angle_deg is not None:
-        lobe_points(lobe_angle_deg, lobe_range_m)  # checks the range
-    z_line = float(wave_z_m) if wave_z_m is not None else math.nan
-    if wave_x_m is not None and not z_line > 0:
-        raise ValueError(f"wave_z_m = {wave_z_m} must be > 0 m (in front of the face)")
+    z_line = _checked_request(wave_method, surface_gap, lobe_angle_deg, lobe_range_m, wave_x_m, wave_z_m)
     dx = c_m_s / (frequency_hz * cells_per_wavelength)
     layout = _housing_layout(baffle, n_rings, dx, surface_gap, pml_cells, can_depth_m, can_wall_m)
     surf, zf = layout.surface, layout.face_row
     z_face = zf * dx  # the face plane in grid coordinates, m (0: the baffle)
-    margin = 4
-    nz = surf.iz1 + 2 + margin + pml_cells
-    nr = surf.jr + 2 + margin + pml_cells
-    if wave_x_m is not None and wave_method == "lattice":
-        nz = max(nz, int(math.ceil((z_face + z_line) / dx)) + 3 + margin + pml_cells)
-        nr = max(nr, int(math.ceil(np.max(np.abs(wave_x_m)) / dx)) + 3 + margin + pml_cells)
+    lattice_x = wave_x_m if wave_method == "lattice" else None
+    nz, nr = _grid_shape(surf, pml_cells, dx, z_face + z_line, lattice_x)
     grid = make_grid(
         frequency_hz=frequency_hz,
         cells_per_wavelength=cells_per_wavelength,
@@ -368,66 +348,126 @@ def disc_transfer(
         r = simulate(grid, medium, src, sensors, n_steps=n_steps, edges=edges, throw=False)
         return r.phasors, r.peak_history
 
-    run = jax.jit(jax.vmap(one))
-    eye = np.eye(n_rings)
     b = n_rings if batch is None else max(1, int(batch))
     t0 = time.perf_counter()
-    parts = []
-    for s in range(0, n_rings, b):
-        ph_s, peaks = run(jnp.asarray(eye[s : s + b], grid.jnp_dtype))
-        check_finite(peaks)
-        parts.append(np.asarray(ph_s))
-    ph = np.concatenate(parts)
+    ph = _batched_responses(one, n_rings, b, grid.jnp_dtype)
     sim_s = time.perf_counter() - t0
     ph = ph / _source_spectrum(sig, grid, n_steps)
     pairs = np.asarray(surface_pairs(ph[:, :m_surf], surface_order))  # host: the far fields in NumPy
-    k = 2 * math.pi / cells_per_wavelength  # continuum wavenumber, radians per cell
-    r_src = surf.jr + 1.0  # outermost surface radius, cells
     lobe = wave = None
     if lobe_angle_deg is not None:
-        rho, z = lobe_points(lobe_angle_deg, lobe_range_m)
-        front = z >= -1e-12 * np.max(np.hypot(rho, z))  # 0 behind the baffle; its plane (90 deg) is the grazing limit
-        if baffle != "rigid":  # no baffle: the field reaches round the housing
-            front = np.ones_like(front)
-        lobe = np.zeros((len(rho), n_rings), complex)
-        if front.any():
-            zz = z[front] if baffle != "rigid" else np.maximum(z[front], 0.0)
-            pts = np.stack([z_face + zz, rho[front]], 1) / dx
-            n_phi = 2 * int(math.ceil(k * r_src + 32))  # far points: the phase varies by k r' sin t over the ring
-            lobe[front] = np.asarray(field_at_rz(pairs, surf, grid, pts, dispersion="continuum", n_phi=n_phi)).T
+        lobe = _lobe_matrix(pairs, surf, grid, lobe_angle_deg, lobe_range_m, z_face, baffle, n_rings)
     if wave_x_m is not None:
-        x = np.asarray(wave_x_m, float)
         if sampler is not None:
             wave = np.asarray(sampler(jnp.asarray(ph[:, m_surf:]))).T
         else:
-            pts = np.stack([np.full_like(x, z_face + z_line), np.abs(x)], 1) / dx
-            d_min = max((z_face + z_line) / dx - surf.iz1 - 1, 1.0)
-            n_phi = 2 * int(math.ceil(k * r_src + 12 * r_src / d_min + 32))  # near: also the 1/R peak of width ~ d / r'
-            wave = np.asarray(field_at_rz(pairs, surf, grid, pts, dispersion="continuum", n_phi=n_phi)).T
-    info = {
-        "method": "rz lattice, one response per ring (vmap)",
-        "grid_shape": [nz, nr],
-        "n_steps": n_steps,
-        "simulation_s": sim_s,
-        "cells_per_wavelength": cells_per_wavelength,
-        "dx_m": dx,
-        "dt_s": grid.dt_s,
-        "surface_gap_cells": surface_gap,
-        "surface_order": surface_order,
-        "wave_method": wave_method,
-        "farfield_dispersion": "continuum",
-        "n_rings": n_rings,
-        "batch": b,
-        "baffle": baffle,
-        "can_depth_m": layout.depth_m if baffle == "can" else None,
-        "can_wall_m": can_wall_m if baffle == "can" else None,
-        "face_row": zf,
-        "stencil": stencil,
-        "courant": grid.courant,
-    }
+            wave = _wave_matrix(pairs, surf, grid, np.asarray(wave_x_m, float), z_face + z_line)
+    request = dict(surface_gap_cells=surface_gap, surface_order=surface_order, wave_method=wave_method)
+    request |= dict(n_rings=n_rings, batch=b, baffle=baffle, stencil=stencil, face_row=zf)
+    request |= dict(can_depth_m=layout.depth_m if baffle == "can" else None)
+    request |= dict(can_wall_m=can_wall_m if baffle == "can" else None)
+    info = _transfer_info(grid, (nz, nr), n_steps, sim_s, request)
     return DiscTransfer(
         grid=grid, n_cells=n_rings, ring_edges_m=ring_edges(n_rings, dx, "face"), lobe=lobe, wave=wave, info=info
     )
+
+
+def _transfer_info(grid, shape: tuple[int, int], n_steps: int, sim_s: float, request: dict) -> dict:
+    """The transfer's record: the lattice it ran on, its cost and what was asked."""
+    return {
+        "method": "rz lattice, one response per ring (vmap)",
+        "grid_shape": list(shape),
+        "n_steps": n_steps,
+        "simulation_s": sim_s,
+        "cells_per_wavelength": grid.cells_per_wavelength,
+        "dx_m": grid.dx_m,
+        "dt_s": grid.dt_s,
+        "farfield_dispersion": "continuum",
+        "courant": grid.courant,
+    } | request
+
+
+def _grid_shape(surf, pml_cells: int, dx: float, z_line_m: float, lattice_wave_x_m) -> tuple[int, int]:
+    """(nz, nr): the Kirchhoff-Helmholtz cylinder, a 4-cell margin and the PML; with a wavefront
+    sampled on the lattice itself (`lattice_wave_x_m`), its scan line at `z_line_m` too."""
+    margin = 4
+    nz = surf.iz1 + 2 + margin + pml_cells
+    nr = surf.jr + 2 + margin + pml_cells
+    if lattice_wave_x_m is not None:
+        nz = max(nz, int(math.ceil(z_line_m / dx)) + 3 + margin + pml_cells)
+        nr = max(nr, int(math.ceil(np.max(np.abs(lattice_wave_x_m)) / dx)) + 3 + margin + pml_cells)
+    return nz, nr
+
+
+def _checked_request(wave_method: str, surface_gap: int, lobe_angle_deg, lobe_range_m, wave_x_m, wave_z_m) -> float:
+    """Check what `disc_transfer` is asked for; returns the wavefront's distance (m; NaN: none)."""
+    if wave_method not in ("transform", "lattice"):
+        raise ValueError(f"wave_method = {wave_method!r}; allowed: 'transform', 'lattice'")
+    if surface_gap < 1:
+        raise ValueError(f"surface_gap = {surface_gap} must be >= 1 cell (the surface must not cut the source cells)")
+    if lobe_angle_deg is None and wave_x_m is None:
+        raise ValueError(
+            "nothing to compute: give lobe angles and a range, wavefront positions and a distance, or both"
+        )
+    if lobe_angle_deg is not None:
+        lobe_points(lobe_angle_deg, lobe_range_m)  # checks the range
+    z_line = float(wave_z_m) if wave_z_m is not None else math.nan
+    if wave_x_m is not None and not z_line > 0:
+        raise ValueError(f"wave_z_m = {wave_z_m} must be > 0 m (in front of the face)")
+    return z_line
+
+
+def _batched_responses(one, n_rings: int, batch: int, dtype) -> np.ndarray:
+    """Every ring's phasors (n_rings, m): `one` (one-hot ring weights -> phasors, peak history)
+    vmapped `batch` rings at a time, each batch checked for instability."""
+    import jax
+    import jax.numpy as jnp
+
+    from ..solver.loop import check_finite
+
+    run = jax.jit(jax.vmap(one))
+    eye = np.eye(n_rings)
+    parts = []
+    for s in range(0, n_rings, batch):
+        ph_s, peaks = run(jnp.asarray(eye[s : s + batch], dtype))
+        check_finite(peaks)
+        parts.append(np.asarray(ph_s))
+    return np.concatenate(parts)
+
+
+def _lobe_matrix(pairs, surf, grid, lobe_angle_deg, lobe_range_m, z_face: float, baffle: str, n_rings: int):
+    """(n_angles, n_rings) far field of each ring by the Kirchhoff-Helmholtz integral over the
+    surface (continuum wavenumber); 0 behind a rigid baffle."""
+    from ..observe.farfield_rz import field_at_rz
+
+    dx = grid.dx_m
+    k = 2 * math.pi / grid.cells_per_wavelength  # continuum wavenumber, radians per cell
+    r_src = surf.jr + 1.0  # outermost surface radius, cells
+    rho, z = lobe_points(lobe_angle_deg, lobe_range_m)
+    front = z >= -1e-12 * np.max(np.hypot(rho, z))  # 0 behind the baffle; its plane (90 deg) is the grazing limit
+    if baffle != "rigid":  # no baffle: the field reaches round the housing
+        front = np.ones_like(front)
+    lobe = np.zeros((len(rho), n_rings), complex)
+    if front.any():
+        zz = z[front] if baffle != "rigid" else np.maximum(z[front], 0.0)
+        pts = np.stack([z_face + zz, rho[front]], 1) / dx
+        n_phi = 2 * int(math.ceil(k * r_src + 32))  # far points: the phase varies by k r' sin t over the ring
+        lobe[front] = np.asarray(field_at_rz(pairs, surf, grid, pts, dispersion="continuum", n_phi=n_phi)).T
+    return lobe
+
+
+def _wave_matrix(pairs, surf, grid, x: np.ndarray, z_m: float):
+    """(n_points, n_rings) field of each ring on the scan line at `z_m` (grid coordinates, m),
+    positions `x` (p(x) = p(|x|)), by the same integral (near points: also the 1/R peak)."""
+    from ..observe.farfield_rz import field_at_rz
+
+    dx = grid.dx_m
+    k = 2 * math.pi / grid.cells_per_wavelength
+    r_src = surf.jr + 1.0
+    pts = np.stack([np.full_like(x, z_m), np.abs(x)], 1) / dx
+    d_min = max(z_m / dx - surf.iz1 - 1, 1.0)
+    n_phi = 2 * int(math.ceil(k * r_src + 12 * r_src / d_min + 32))  # near: also the 1/R peak of width ~ d / r'
+    return np.asarray(field_at_rz(pairs, surf, grid, pts, dispersion="continuum", n_phi=n_phi)).T
 
 
 def disc_field_figure(fitted, transfer: DiscTransfer, path):

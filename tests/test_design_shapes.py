@@ -80,9 +80,13 @@ def test_reflector_gradients_match_finite_differences(reflector):
 
 
 def test_reflector_optimisation_improves_gain(reflector):
-    """BFGS on (focal length, aperture) for on-axis gain over the bare transducer: from -1.74 dB by
-    at least +6 dB in 8 steps (measured: +5.77 dB, i.e. +7.51 dB, at step 8; the first step only
-    accepts the start point)."""
+    """BFGS on (focal length, aperture) for on-axis gain over the bare transducer: from -0.20 dB by
+    at least +6 dB in 8 steps (measured: +6.45 dB at step 8, +6.65 dB; the first step only accepts
+    the start point). The start was -1.74 dB before the PML moved into its layers (session 12):
+    the whole-grid split-field form applied the fractional speed-zero walls' `keep` to the split
+    parts, which is not the leapfrog's arithmetic, so the same walls acted differently with PML
+    edges than with rigid ones; now the interior is the leapfrog whatever the edges
+    (tests/core/test_pml_layers.py::test_fractional_speed_zero_walls_do_not_depend_on_the_edges)."""
     res = optimise(
         reflector,
         ReflectorParams(0.014, 0.024, 0.0018),
@@ -91,7 +95,7 @@ def test_reflector_optimisation_improves_gain(reflector):
         max_steps=8,
         progress=False,
     )
-    assert res.metrics_start["on_axis_db"] == pytest.approx(-1.742, abs=0.01)
+    assert res.metrics_start["on_axis_db"] == pytest.approx(-0.203, abs=0.01)
     assert res.metrics_best["on_axis_db"] > res.metrics_start["on_axis_db"] + 6.0
     REFL_LIMITS.check(res.best)
 

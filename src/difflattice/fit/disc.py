@@ -52,6 +52,7 @@ import numpy as np
 
 from ..transforms import logit
 from .family import ModelFamily
+from .programs import small_jit
 
 DiscProfile = Literal["uniform", "free", "smooth", "rim_taper"]
 DISC_PROFILES = ("uniform", "free", "smooth", "rim_taper")
@@ -87,7 +88,7 @@ def _clip01(x):
     return jnp.where(x < 0, 0.0, jnp.where(x > 1, 1.0, x))
 
 
-@jax.jit  # one program (called eagerly by the fit's bookkeeping, its ~40 operations ran one by one)
+@small_jit  # one program (called eagerly by the fit's bookkeeping, its ~40 operations ran one by one)
 def rim_fraction(edges_m, radius_m):
     """Per-ring factors that make a disc of radius `radius_m` out of whole rings with the exact
     area AND the exact second moment integral r^2 dA of the partial rim: the rim ring m (the one

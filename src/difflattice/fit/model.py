@@ -21,7 +21,6 @@ import math
 from dataclasses import dataclass
 from typing import ClassVar, Literal
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -29,6 +28,7 @@ from jaxtyping import Array
 
 from ..transforms import logit
 from .family import ModelFamily
+from .programs import small_jit
 
 
 def device_array(x) -> Array:
@@ -282,7 +282,7 @@ def soft_floor_db(level_db, floor_db):
     return xp.logaddexp(level_db * (math.log(10) / 10), floor_db * (math.log(10) / 10)) * (10 / math.log(10))
 
 
-@eqx.filter_jit
+@small_jit
 def physical_of(spec: ModelSpec, params: dict) -> dict:
     """`spec.physical(params)` as one program (called outside a program, each of its ~15
     operations would compile a program of its own in a fresh process)."""

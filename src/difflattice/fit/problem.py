@@ -16,6 +16,7 @@ import numpy as np
 from ..transforms import logit
 from .data import LobeData, WaveData
 from .model import ModelSpec, device_array, lobe_model_db, soft_floor_db, wave_model_phase
+from .programs import small_jit
 from .transfer import Transfer
 
 if TYPE_CHECKING:
@@ -127,13 +128,13 @@ def build_problem(
     )
 
 
-@eqx.filter_jit
+@small_jit
 def _cost(problem: Problem, params: dict):
     r = problem.residuals(params)
     return jnp.sum(r * r)
 
 
-@eqx.filter_jit
+@small_jit
 def _residuals(problem: Problem, params: dict):
     return problem.residuals(params)
 
@@ -196,4 +197,4 @@ def _model_curves(problem: Problem, params: dict):
     return lobe, wave
 
 
-_models = eqx.filter_jit(_model_curves)  # as one program
+_models = small_jit(_model_curves)  # as one program

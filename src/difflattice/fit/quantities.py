@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import math
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -14,6 +13,7 @@ from jax.flatten_util import ravel_pytree
 
 from .estimates import coefficient_unit
 from .model import ModelSpec, device_array, physical_of
+from .programs import small_jit
 from .result import FitResult, _flat_jacobian
 
 NUISANCE = ("gain_db", "phase0_deg")
@@ -62,17 +62,17 @@ def quantities(spec: ModelSpec, params: dict):
     return jnp.concatenate(parts), names, units
 
 
-_quantities = eqx.filter_jit(quantities)
+_quantities = small_jit(quantities)
 """`quantities` as one compiled program (called eagerly, its ~40 operations each ran as its own)."""
 
 
-@eqx.filter_jit
+@small_jit
 def _quantity_jacobian(spec: ModelSpec, params: dict):
     jac = jax.jacfwd(lambda p: quantities(spec, p)[0])(params)
     return _flat_jacobian(jac, params)
 
 
-@eqx.filter_jit
+@small_jit
 def _quantities_and_jacobian(spec: ModelSpec, params: dict):
     """(values, names, units, d values / d raw parameters) as one program (two would each be
     traced, lowered and read from the cache in every new process)."""
@@ -125,7 +125,7 @@ def _per_cell(ospec: ModelSpec, p: dict, y_nom, y_other, key: str):
     return jnp.interp(y_nom, y_other, v)
 
 
-@eqx.filter_jit
+@small_jit
 def _per_cell_raw(ospec: ModelSpec, params: dict, y_nom, y_other, key: str):
     """`_per_cell` and its Jacobian w.r.t. the raw parameters (flat), as one compiled program."""
     jac = jax.jacfwd(lambda p: _per_cell(ospec, p, y_nom, y_other, key))(params)

@@ -133,9 +133,12 @@ def _summary(r: FitResult) -> dict:
 
 
 def _flat(params: dict) -> np.ndarray:
-    from jax.flatten_util import ravel_pytree
+    """The parameters as one vector, in `ravel_pytree`'s order (the leaves' order), built on the
+    host (no eager XLA programs in a fresh process)."""
+    from jax.tree_util import tree_leaves
 
-    return np.asarray(ravel_pytree(params)[0])
+    leaves = [np.ravel(np.asarray(x)) for x in tree_leaves(params)]
+    return np.concatenate(leaves) if leaves else np.zeros(0)
 
 
 def aperture_arrays(fitted: FitResult, budget) -> dict:

@@ -7,7 +7,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -23,6 +22,7 @@ from .goodness import (
 from .model import ModelSpec, soft_floor_db
 from .options import CONVERGENCE_WINDOW, STAGE_NAMES, FitOptions
 from .problem import Problem, _model_curves, _residuals
+from .programs import small_jit
 
 
 @dataclass(frozen=True)
@@ -130,7 +130,7 @@ def _flat_jacobian(jac: dict, params: dict) -> jnp.ndarray:
     return jnp.concatenate(cols, axis=1)
 
 
-@eqx.filter_jit
+@small_jit
 def _jacobian(problem: Problem, fixed: dict, params: dict):
     """Jacobian of the residuals w.r.t. the free parameters, (m, n) in `ravel_pytree` order."""
     jac = jax.jacfwd(lambda p: problem.residuals({**fixed, **p}))(params)
@@ -142,10 +142,10 @@ def _physical_jacobian_of(spec: ModelSpec, params: dict):
     return _flat_jacobian(jac, params)
 
 
-_physical_jacobian = eqx.filter_jit(_physical_jacobian_of)
+_physical_jacobian = small_jit(_physical_jacobian_of)
 
 
-@eqx.filter_jit
+@small_jit
 def _result_arrays(problem: Problem, params: dict) -> dict:
     """What `_result` reports beyond the residuals and their Jacobian, as one program (five
     programs' tracing, lowering and cache reads would be Python work in every new process):
@@ -419,7 +419,7 @@ def _physical_labels(spec: ModelSpec) -> list[str]:
     )
 
 
-@eqx.filter_jit
+@small_jit
 def _physical_array(spec: ModelSpec, params: dict):
     return _physical_values(spec, params)
 

@@ -52,6 +52,7 @@ from .data import LobeData, WaveData
 from .model import ModelSpec, device_array
 from .options import CONVERGENCE_WINDOW, SOLVERS, STAGE_NAMES, FitOptions, Loss, Solver
 from .problem import Problem, _cost_aux, _residual_aux, _residuals, build_problem, initial_params
+from .programs import small_jit
 from .result import (
     FitResult,
     FitTrace,
@@ -105,14 +106,14 @@ def _solver_fn(solver):
 _SOLVER_OPTIONS = MappingProxyType({"jac": "bwd"})
 
 
-@eqx.filter_jit
+@small_jit
 def _init_state(solver, y, args):
     fn = _solver_fn(solver)
     f_struct, aux_struct = jax.eval_shape(lambda: fn(y, args))
     return solver.init(fn, y, args, _SOLVER_OPTIONS, f_struct, aux_struct, frozenset())
 
 
-@eqx.filter_jit
+@small_jit
 def _step(solver, y, state, args):
     """One optimistix step; returns the accepted point, the state, optimistix's verdict and the
     residuals at the accepted point (for our convergence test and the trace)."""

@@ -301,6 +301,14 @@ def _edge(v, axis: int, hi: bool):
     return _along(v, axis, slice(-1, None) if hi else slice(None, 1))
 
 
+def _device(x, dtype):
+    """`x` as a device array of `dtype`; a concrete value is converted on the host (in a fresh
+    process each eager conversion would be an XLA program of its own to trace, lower and load)."""
+    if isinstance(x, jax.core.Tracer):
+        return jnp.asarray(x, dtype)
+    return jnp.asarray(np.asarray(x, dtype=np.dtype(dtype)))
+
+
 def _checked_inputs(grid: Grid, medium: Medium, edges: Edges):
     """(edges for the grid's rank, lattice speed c, density rho), after refusing what does not fit
     the grid (a boundary model, shapes, the stability limit, the isotropic stencil's needs)."""
@@ -314,8 +322,8 @@ def _checked_inputs(grid: Grid, medium: Medium, edges: Edges):
         )
     dtype = grid.jnp_dtype
     shape = tuple(grid.shape)
-    c = jnp.asarray(grid.speed_to_lattice(medium.sound_speed_m_s), dtype)
-    rho = jnp.asarray(medium.density_kg_m3, dtype)
+    c = _device(grid.speed_to_lattice(medium.sound_speed_m_s), dtype)
+    rho = _device(medium.density_kg_m3, dtype)
     for name, arr in (("sound_speed_m_s", c), ("density_kg_m3", rho), ("rigid", medium.rigid), ("soft", medium.soft)):
         if arr is not None and jnp.ndim(arr) != 0 and tuple(jnp.shape(arr)) != shape:
             raise ValueError(f"medium.{name} has shape {jnp.shape(arr)}, expected the grid shape {shape}")
@@ -342,7 +350,7 @@ def _materials(medium: Medium, c, rho, shape: tuple[int, ...], dtype) -> dict:
     soft = None if medium.soft is None else jnp.clip(jnp.asarray(medium.soft, dtype), 0, 1)
     homogeneous = jnp.ndim(c) == 0 and jnp.ndim(rho) == 0 and rigid is None and soft is None
 
-    K = c**2
+    K = c**2 if isinstance(c, jax.core.Tracer) else _device(np.asarray(c) ** 2, dtype)
     q_scale = bx = by = bz = None
     a = {"ax_lo": None, "ax_hi": None, "ay_lo": None, "ay_hi": None}
     keep = None
@@ -531,7 +539,7 @@ def absorbing_courant(
 def _check_absorbing_speed(c, relax: AirRelaxation, grid: Grid) -> None:
     """Refuse a grid whose fastest speed, raised by the absorption's stiffening, passes the limit."""
     try:
-        cmax = float(jnp.max(c))
+        cmax = float(np.max(np.asarray(c)))  # on the host: no eager XLA program for a number
         factor = float(relax.stiffening)
     except Exception:  # traced: the caller bounds it
         return
@@ -615,7 +623,7 @@ def speed_limit(lat: Lattice, kind: LatticeKind | GridKind) -> float:
 
 def _check_speed(c, kind: LatticeKind | GridKind = "2d", stencil: StencilKind = "standard", why: str = "") -> None:
     try:
-        cmax = float(jnp.max(c))
+        cmax = float(np.max(np.asarray(c)))  # on the host: no eager XLA program for a number
     except Exception:  # traced: checked at run time by the solver
         return
     try:

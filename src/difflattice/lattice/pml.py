@@ -89,8 +89,9 @@ def pml_factors(grid: Grid, edges: Edges, dtype) -> PML:
             av = (1 - sigma / 2) / (1 + sigma / 2)
             bv = 1 / (1 + sigma / 2)
             shape = _axis_shape(axis, ndim)
-            out[f"a{key}_{where}"] = jnp.asarray(av.reshape(shape), dtype)
-            out[f"b{key}_{where}"] = jnp.asarray(bv.reshape(shape), dtype)
+            # converted on the host: an eager conversion is an XLA program per array in a new process
+            out[f"a{key}_{where}"] = jnp.asarray(np.asarray(av.reshape(shape), dtype=np.dtype(dtype)))
+            out[f"b{key}_{where}"] = jnp.asarray(np.asarray(bv.reshape(shape), dtype=np.dtype(dtype)))
     radial = _radial_pml(ny, L, m, smax, dtype) if grid.kind.ring_metric and edges.y_hi == "pml" else None
     return PML(**out, radial=radial, boxes=layer_boxes(tuple(grid.shape), edges))
 

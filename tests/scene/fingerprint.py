@@ -1,7 +1,7 @@
 """Fingerprints of built scenes: what `Scene.build()` gives for a scene file at a cheap
 resolution (grid, medium maps, sources, sensors, edges, far-field surface, run length), as plain
-JSON data. Written with the scene code before the typed scene spec (`python -m` this file with
-that code first on the path prints them) and compared by tests/test_scene_spec.py, so a
+JSON data. Written with the scene code before the typed scene spec (running this file with
+that code first on the path prints them; x64 on, as in the tests) and compared by tests/test_scene_spec.py, so a
 refactor of the scene spec must build the same arrays.
 
 Integer arrays (cells) and every scalar are kept exactly; float arrays as their shape and three
@@ -189,7 +189,12 @@ def build(name: str):
 
 
 if __name__ == "__main__":
+    import jax
+
     import difflattice
+
+    jax.config.update("jax_enable_x64", True)  # as tests/conftest.py sets it for the tests
+    jax.config.update("jax_numpy_rank_promotion", "raise")
 
     print(f"# difflattice from {Path(difflattice.__file__).parent}", file=sys.stderr)
     print(json.dumps({n: fingerprint(build(n)) for n in (sys.argv[1:] or scene_names())}, indent=None))

@@ -106,7 +106,8 @@ class Spec:
             return ", ".join(repr(c) for c in self.choices if c not in self.unavailable)
         if self.union is not None:
             u = self.union()
-            return f"{u.noun} tables (same keys)" if self.kind == "list" else f"a {u.noun} table (same keys)"
+            article = "an" if u.noun[:1] in "aeiou" else "a"
+            return f"{u.noun} tables (same keys)" if self.kind == "list" else f"{article} {u.noun} table (same keys)"
         lo = f"> {_num(self.gt)}" if self.gt is not None else f">= {_num(self.ge)}" if self.ge is not None else ""
         hi = f"< {_num(self.lt)}" if self.lt is not None else f"<= {_num(self.le)}" if self.le is not None else ""
         unit = f" {self.unit}" if self.unit else ""

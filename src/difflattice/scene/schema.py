@@ -296,6 +296,20 @@ class ObjectSection(Section):
     SECTION: ClassVar[str] = "objects"
     shape: str = setting(
         kind="str",
+        choices=(
+            "segment",
+            "box",
+            "circle",
+            "polygon",
+            "polyline",
+            "mesh",
+            "sphere",
+            "cylinder",
+            "halfspace",
+            "slab",
+            "union",
+            "intersection",
+        ),
         doc="2d/rz: segment, box, circle, polygon, polyline or mesh; 3d: box, sphere, cylinder, halfspace, slab, "
         "union, intersection or mesh",
     )

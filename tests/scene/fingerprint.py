@@ -1,17 +1,18 @@
 """Fingerprints of built scenes: what `Scene.build()` gives for a scene file at a cheap
 resolution (grid, medium maps, sources, sensors, edges, far-field surface, run length), as plain
-JSON data. Written with the scene code before the typed scene spec (running this file with
-that code first on the path prints them; x64 on, as in the tests) and compared by tests/test_scene_spec.py, so a
-refactor of the scene spec must build the same arrays.
+JSON data. Written with the scene code before the typed scene spec (running this file with that
+code first on the path prints them; x64 on, as in the tests) and compared by
+tests/test_scene_spec.py, so a refactor of the scene spec must build the same arrays.
 
-Integer arrays (cells) and every scalar are kept exactly; float arrays as their shape and three
-sums (plain, squared, and weighted by a fixed sequence), compared to a relative 1e-6: a moved cell
-or a changed weight changes them by far more, while the last-bit differences of another CPU's
-floating point (the medium maps are rasterised by XLA) do not."""
+Integer arrays (cells) are kept exactly (their sha256), and so is every scalar; float arrays as
+their shape and three sums (plain, squared, and weighted by a fixed sequence), compared to a
+relative 1e-6: a moved cell or a changed weight changes them by far more, while the last-bit
+differences of another CPU's floating point (the medium maps are rasterised by XLA) do not."""
 
 from __future__ import annotations
 
 import glob
+import hashlib
 import json
 import sys
 import tomllib
@@ -126,7 +127,7 @@ def _fp(a) -> object:
         return [_fp(v) for v in a]
     x = np.asarray(a)
     if x.dtype.kind in "iub":
-        return {"shape": list(x.shape), "int": x.astype(np.int64).ravel().tolist()}
+        return {"shape": list(x.shape), "sha256": hashlib.sha256(x.astype("<i8").tobytes()).hexdigest()}
     x = x.astype(np.float64).ravel()
     w = np.sin(0.7 * np.arange(x.size) + 0.3)
     return {"shape": list(np.shape(a)), "sums": [float(x.sum()), float((x * x).sum()), float((x * w).sum())]}

@@ -7,7 +7,9 @@ Usage (from the repository root):
 
 The part between the markers ``<!-- BEGIN GENERATED: schema -->`` and ``<!-- END GENERATED:
 schema -->`` is `difflattice.scene.schema_markdown()` (every section and key, from the typed
-declarations in `difflattice/scene/schema.py`) followed by the materials table
+declarations in `difflattice/scene/schema.py`: one table per section, and for the tagged unions
+`[[transducers]]` and `[[objects]]` one table of the keys they all have followed by one table per
+transducer type and object shape with its own keys) followed by the materials table
 (`difflattice.lattice.medium.MATERIALS`); the rest of the page is written by hand.
 """
 

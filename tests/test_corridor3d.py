@@ -20,11 +20,11 @@ SCENES = Path(__file__).resolve().parents[1] / "data" / "scenes"
 
 def _grid(scene, cpw=None):
     g = scene.grid
-    cpw = cpw or g["cells_per_wavelength"]
-    dx = 343.21 / (g["frequency_hz"] * cpw)
-    shape = tuple(int(round(s / dx)) for s in g["size_m"])
+    cpw = cpw or g.cells_per_wavelength
+    dx = 343.21 / (g.frequency_hz * cpw)
+    shape = tuple(int(round(s / dx)) for s in g.size_m)
     return make_grid(
-        frequency_hz=g["frequency_hz"],
+        frequency_hz=g.frequency_hz,
         cells_per_wavelength=cpw,
         c_max_m_s=343.21,
         shape=shape,
@@ -96,7 +96,7 @@ def test_full_corridor_is_room_scale_and_fits():
     estimate under 12 GB (measured peak of the short one: 2.0 GiB for 6.1 M cells)."""
     scene = load_scene(SCENES / "corridor3d.toml")
     g = scene.grid
-    assert max(g["size_m"]) >= 2.0 and g["frequency_hz"] >= 40e3
+    assert max(g.size_m) >= 2.0 and g.frequency_hz >= 40e3
     grid = _grid(scene)
     assert 20e6 < math.prod(grid.shape) < 21e6
-    assert scene.run["duration_s"] / grid.dt_s == pytest.approx(3657, abs=5)
+    assert scene.run.duration_s / grid.dt_s == pytest.approx(3657, abs=5)

@@ -19,11 +19,10 @@ from difflattice.apps.gallery import (  # noqa: E402
     COMPARISONS,
     load_scaled_scene,
     render_gallery,
-    scale_scene_data,
     scene_description,
     scene_files,
 )
-from difflattice.scene import load_scene  # noqa: E402
+from difflattice.scene import load_scene, parse_scene  # noqa: E402
 
 SCALE = 0.25  # 5 cells per wavelength: a coarse look, about 4 s per scene on 2 cores
 
@@ -57,38 +56,40 @@ def test_scene_files_are_documented_and_valid():
         desc = scene_description(f)
         assert desc and desc[0].startswith("Paper Fig."), f"{f.name}: must start with a comment naming the figure"
         s = load_scene(f)
-        assert s.grid["frequency_hz"] == 50e3 and s.grid["cells_per_wavelength"] == 20
-        assert s.medium["temperature_c"] == 20
-        assert s.edges["kind"] == "pml"
+        assert s.grid.frequency_hz == 50e3 and s.grid.cells_per_wavelength == 20
+        assert s.medium.air_temperature_c == 20
+        assert s.edges.kind == "pml"
         if f.stem[:5] in ("fig06", "fig07", "fig08", "fig09", "fig10"):
-            assert s.medium["boundary_model"] == "speed_zero"
-            assert all(t["cycles"] == (10 if f.stem.startswith("fig10") else 5) for t in s.transducers)
-    assert load_scene(scene_files()[0].parent / "fig04b_wall_rigid.toml").objects[0]["material"] == "rigid"
+            assert s.medium.boundary_model == "speed_zero"
+            assert all(t.cycles == (10 if f.stem.startswith("fig10") else 5) for t in s.transducers)
+    assert load_scene(scene_files()[0].parent / "fig04b_wall_rigid.toml").objects[0].material_name == "rigid"
 
 
 def test_scaling_keeps_physical_sizes():
     f = next(p for p in scene_files() if p.stem == "fig03_nearfield")
     full, coarse = load_scene(f), load_scaled_scene(f, 0.5)
-    assert coarse.grid["cells_per_wavelength"] == 10
-    assert coarse.grid["size_m"] == full.grid["size_m"]
-    assert coarse.run["n_steps"] == round(full.run["n_steps"] * 0.5)
-    assert coarse.sensors["snapshot_every_steps"] == round(full.sensors["snapshot_every_steps"] * 0.5)
-    assert coarse.edges["thickness_cells"] == 10
+    assert coarse.grid.cells_per_wavelength == 10
+    assert coarse.grid.size_m == full.grid.size_m
+    assert coarse.run.n_steps == round(full.run.n_steps * 0.5)
+    assert coarse.sensors.snapshot_every_steps == round(full.sensors.snapshot_every_steps * 0.5)
+    assert coarse.edges.thickness_cells == 10
     # the per-cell lags are resampled onto the coarser line (52 cells), same end values
-    lags = coarse.transducers[0]["lags_s"]
+    lags = coarse.transducers[0].lags_s
     assert len(lags) == 52
-    assert lags[0] == pytest.approx(full.transducers[0]["lags_s"][0]) and lags[26] == 0.0
+    assert lags[0] == pytest.approx(full.transducers[0].lags_s[0]) and lags[26] == 0.0
     grid, _, sources, *_ = coarse.build()
     assert sources[0].n_cells == 52
     # a grid given in cells scales too; scale 1 is an unchanged copy
     d = {"grid": {"frequency_hz": 5e4, "shape": [840, 630]}, "transducers": [{"centre_m": [0.01, 0.1], "n_cells": 104}]}
-    s = scale_scene_data(d, 0.25)
-    assert s["grid"]["shape"] == [210, 158] and s["transducers"][0]["n_cells"] == 26
+    scene = parse_scene(d)
+    s = scene.scaled(0.25)
+    assert s.grid.shape == (210, 158) and s.transducers[0].n_cells == 26
     # moments in steps scale with the grid, moments in seconds stay
     d2 = d | {"output": {"show_steps": [1030, 1300], "show_times_s": [1e-4]}}
-    assert scale_scene_data(d2, 0.25)["output"] == {"show_steps": [258, 325], "show_times_s": [1e-4]}
-    assert d["grid"]["shape"] == [840, 630]
-    assert scale_scene_data(d, 1.0) == d
+    o = parse_scene(d2).scaled(0.25).output
+    assert (o.show_steps, o.show_times_s) == ((258, 325), (1e-4,))
+    assert scene.grid.shape == (840, 630)
+    assert scene.scaled(1.0) == scene
 
 
 def test_unknown_scene_name_is_refused(tmp_path):
@@ -112,7 +113,7 @@ def test_gallery_renders_every_scene(gallery):
         nx, ny = summ["grid"]["shape"]
         # figure.png: one 600-pixel panel per moment of the scene's [output] show_steps (else the
         # last step), 600 * ny / nx + 105 pixels high; each moment also has its own image
-        shown = load_scene(e["scene_file"]).output["show_steps"]
+        shown = load_scene(e["scene_file"]).output.show_steps
         n_panels = len(shown) or 1
         assert e["shown_steps"] == ([round(s * SCALE) for s in shown] or [e["n_steps"]])
         assert len(list(d.glob("moment_*.png"))) == len(shown)
@@ -203,11 +204,11 @@ def test_a_scene_at_another_resolution_keeps_metres_and_scales_cells():
     from pathlib import Path
 
     scene = load_scene(Path(__file__).resolve().parents[1] / "data" / "scenes" / "fig02_polaroid.toml")
-    fine = scene.at_resolution(2 * scene.grid["cells_per_wavelength"])
-    assert fine.grid["cells_per_wavelength"] == 2 * scene.grid["cells_per_wavelength"]
-    assert fine.grid["shape"] == [2 * n for n in scene.grid["shape"]]
-    assert fine.transducers[0]["n_cells"] == 2 * scene.transducers[0]["n_cells"]
-    assert fine.edges["thickness_cells"] == 2 * scene.edges["thickness_cells"]
-    assert fine.run["n_steps"] == 2 * scene.run["n_steps"]
-    assert fine.transducers[0]["centre_m"] == scene.transducers[0]["centre_m"]
-    assert scene.at_resolution(scene.grid["cells_per_wavelength"]).grid == scene.grid
+    fine = scene.at_resolution(2 * scene.grid.cells_per_wavelength)
+    assert fine.grid.cells_per_wavelength == 2 * scene.grid.cells_per_wavelength
+    assert fine.grid.shape == tuple(2 * n for n in scene.grid.shape)
+    assert fine.transducers[0].n_cells == 2 * scene.transducers[0].n_cells
+    assert fine.edges.thickness_cells == 2 * scene.edges.thickness_cells
+    assert fine.run.n_steps == 2 * scene.run.n_steps
+    assert fine.transducers[0].centre_m == scene.transducers[0].centre_m
+    assert scene.at_resolution(scene.grid.cells_per_wavelength).grid == scene.grid

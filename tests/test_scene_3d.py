@@ -248,11 +248,10 @@ def _build_in_a_fresh_process(path: Path, cpw: float | None) -> subprocess.Popen
         "import sys, tomllib, warnings\n"
         "warnings.simplefilter('ignore')\n"
         "from difflattice.scene import parse_scene\n"
-        "from difflattice.apps.gallery import scale_scene_data\n"
         "from difflattice.solver.stepper import Stepper\n"
         f"d = tomllib.loads(open({str(path)!r}).read())\n"
-        f"d = scale_scene_data(d, {cpw} / d['grid'].get('cells_per_wavelength', 20.0)) if {cpw!r} else d\n"
-        "b = parse_scene(d, 'x').build()\n"
+        "s = parse_scene(d, 'x')\n"
+        f"b = (s.at_resolution({cpw}) if {cpw!r} else s).build()\n"
         "st = Stepper.build(b.grid, b.medium, b.sources, b.sensors, b.edges)\n"
         "print(st.grid.kind, st.init().pressure.ndim)\n"
         "print(' '.join(sorted(m for m in sys.modules if m.startswith('difflattice'))))\n"
@@ -285,8 +284,19 @@ def test_a_2d_scene_builds_nothing_3d_and_a_3d_scene_nothing_2d():
 @pytest.mark.parametrize(
     "edit, match",
     [
-        (lambda d: d["objects"][0].update(shape="circle"), r"objects\[0\]\.shape.*allowed on a 3d grid"),
-        (lambda d: d["transducers"][0].update(type="line"), r"transducers\[0\]\.type"),
+        (
+            lambda d: d["objects"].__setitem__(0, {"shape": "circle", "centre_m": [0.02, 0.01], "radius_m": 0.002}),
+            r"objects\[0\]\.shape.*allowed on a 3d grid",
+        ),
+        (lambda d: d["objects"][0].update(shape="circle"), r"objects\[0\]\.point_m\] is a key of halfspace and slab"),
+        (
+            lambda d: (
+                [d["transducers"][0].pop(k) for k in ("axis", "receive", "gate_start_s") if k in d["transducers"][0]]
+                + [d["transducers"][0].update(type="line")]
+            ),
+            r"transducers\[0\]\.type",
+        ),
+        (lambda d: d["transducers"][0].update(type="line"), r"transducers\[0\]\.axis\] is a key of disc transducers"),
         (lambda d: d["transducers"][0].update(centre_m=[0.008, 0.0125]), r"transducers\[0\]\.centre_m"),
         (lambda d: d["transducers"][0].update(weights=[1.0, 0.5]), r"transducers\[0\]\.weights.*ring_edges_m"),
         (lambda d: d["transducers"][0].update(baffle="rigid"), r"transducers\[0\]\.baffle"),
@@ -306,6 +316,11 @@ def test_3d_mismatches_are_refused_naming_the_key(edit, match):
 
 def test_3d_keys_on_a_2d_scene_are_refused():
     d = tomllib.loads((SCENES / "fig02_polaroid.toml").read_text())
+    d["transducers"][0]["axis"] = [1.0, 0.0, 0.0]
+    with pytest.raises(SceneError, match=r"transducers\[0\]\.axis\] is a key of disc transducers, not line ones"):
+        parse_scene(d, "bad").build()
+    # a disc's 3-D key on an rz disc: refused by the build, naming the grid kind
+    d = tomllib.loads((SCENES / "disc_piston_rz.toml").read_text())
     d["transducers"][0]["axis"] = [1.0, 0.0, 0.0]
     with pytest.raises(SceneError, match=r"transducers\[0\]\.axis.*3d"):
         parse_scene(d, "bad").build()

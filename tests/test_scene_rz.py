@@ -55,7 +55,11 @@ def test_rz_scene_gives_the_circular_piston_lobe():
 @pytest.mark.parametrize(
     "edit, match",
     [
-        (lambda d: d["transducers"][0].update(type="line"), r"transducers\[0\]\.type"),
+        (
+            lambda d: (d["transducers"][0].update(type="line"), d["transducers"][0].pop("baffle")),
+            r"transducers\[0\]\.type",
+        ),
+        (lambda d: d["transducers"][0].update(type="line"), r"transducers\[0\]\.baffle\] is a key of disc transducers"),
         (lambda d: d["edges"].update(x_lo="pml"), r"edges\.x_lo"),
         (lambda d: d["transducers"][0].update(centre_m=[0.0, 0.01]), r"centre_m"),
         (lambda d: d["grid"].update(kind="3x"), r"grid\.kind"),

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import io
 import os
 import sys
@@ -48,7 +49,9 @@ def _simulate(args) -> int:
     scene = load_scene_at(args.scene, args.cells_per_wavelength)
     print(scene.describe_air())
     if args.render_every is not None:
-        scene.output["render_every_cells"] = args.render_every
+        scene = dataclasses.replace(
+            scene, output=dataclasses.replace(scene.output, render_every_cells=args.render_every)
+        )
     available = None if args.max_memory_gib is None else int(args.max_memory_gib * 2**30)
     sr = run_scene(scene, progress=not args.quiet, available_bytes=available, mlups=args.assume_mlups)
     files = write_outputs(

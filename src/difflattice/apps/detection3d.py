@@ -18,25 +18,25 @@ def detection_map(path, poses, out_dir, *, quiet: bool = True) -> dict[str, Any]
     axis turned by yaw from +x towards +y, height kept) each surface's first-echo level (dB re the
     transmit peak), its error against the lattice delay, and which thresholds it clears.
     Writes OUT/detection_map.json and detection_map.png; returns the map."""
-    import copy
     import json
-    import tomllib
+    from dataclasses import replace
     from pathlib import Path
 
-    from ..scene.model import parse_scene
+    from ..scene.model import SceneError, load_scene
+    from ..scene.schema import DiscTransducer
     from .scene3d_run import run_scene3d, write_outputs3d
 
-    base = tomllib.loads(Path(path).read_text())
+    base = load_scene(path)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     rows = []
     for i, (x_m, y_m, yaw_deg) in enumerate(poses):
-        data = copy.deepcopy(base)
-        t = data["transducers"][0]
-        t["centre_m"] = [float(x_m), float(y_m), float(t["centre_m"][2])]
+        t = base.transducers[0]
+        if not isinstance(t, DiscTransducer):
+            raise SceneError(f"{path}: [transducers[0].type] = {t.type!r}: a 3-D pulse-echo scene has a disc")
         a = math.radians(float(yaw_deg))
-        t["axis"] = [math.cos(a), math.sin(a), 0.0]
-        scene = parse_scene(data, str(path))
+        t = replace(t, centre_m=(float(x_m), float(y_m), float(t.centre_m[2])), axis=(math.cos(a), math.sin(a), 0.0))
+        scene = replace(base, transducers=(t, *base.transducers[1:]))
         sr = run_scene3d(scene, quiet=quiet)
         write_outputs3d(sr, out / f"pose{i}")
         table = json.loads((out / f"pose{i}" / "echoes.json").read_text())

@@ -36,8 +36,8 @@ def surfaces(scene, grid, centre_m=None) -> list[dict[str, Any]]:
     from ..scene.objects import shape3d
 
     t = scene.transducers[0]
-    c = np.asarray(t["centre_m"] if centre_m is None else centre_m, float)
-    radius = 0.5 * float(t.get("diameter_m") or 0.0)
+    c = np.asarray(t.centre_m if centre_m is None else centre_m, float)
+    radius = 0.5 * float(t.diameter_m or 0.0)
     out: list[dict[str, Any]] = []
     shapes = []
     for i, o in enumerate(scene.objects):
@@ -53,7 +53,7 @@ def surfaces(scene, grid, centre_m=None) -> list[dict[str, Any]]:
 
         point = nearest(c)
         d = float(np.linalg.norm(point - c))
-        name = str(o.get("name") or f"{o['shape']} {i}")
+        name = str(o.name or f"{o.shape} {i}")
         shapes.append(shape)
         out.append(
             {
@@ -64,7 +64,7 @@ def surfaces(scene, grid, centre_m=None) -> list[dict[str, Any]]:
                 "nearest": nearest,
             }
         )
-    sides = {k for k in ("x_lo", "x_hi", "y_lo", "y_hi", "z_lo", "z_hi") if scene.edges.get(k) == "rigid"}
+    sides = {k for k in ("x_lo", "x_hi", "y_lo", "y_hi", "z_lo", "z_hi") if getattr(scene.edges, k) == "rigid"}
     lo = -0.5 * grid.dx_m
     for axis, n in enumerate(grid.shape):
         hi = (n - 0.5) * grid.dx_m
@@ -102,11 +102,11 @@ def _on_plane(x, *, axis: int, plane: float) -> np.ndarray:
 def _rigid_planes(scene, grid, centre_m=None) -> list[tuple[np.ndarray, np.ndarray]]:
     """The transducer's images in the rigid window sides: (its centre mirrored, the side's axis)."""
     t = scene.transducers[0]
-    c = np.asarray(t["centre_m"] if centre_m is None else centre_m, float)
+    c = np.asarray(t.centre_m if centre_m is None else centre_m, float)
     out = []
     for axis, n in enumerate(grid.shape):
         for side, plane in (("lo", -0.5 * grid.dx_m), ("hi", (n - 0.5) * grid.dx_m)):
-            if scene.edges.get(f"{'xyz'[axis]}_{side}") == "rigid":
+            if getattr(scene.edges, f"{'xyz'[axis]}_{side}") == "rigid":
                 image = c.copy()
                 image[axis] = 2 * plane - c[axis]
                 out.append((image, c))

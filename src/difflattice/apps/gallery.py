@@ -30,8 +30,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ..scene.resolution import scale_scene_data
-
 
 def _default_scenes_dir() -> Path:
     """The repository's data/scenes when running from a checkout, else the copy installed with
@@ -127,17 +125,10 @@ def describe_scene(path: str | Path) -> dict:
 
 
 def load_scaled_scene(path: str | Path, scale: float = 1.0):
-    """Read a scene file, scale it (see `scale_scene_data`) and validate it into a `Scene`."""
-    from ..scene.model import SceneError, parse_scene
+    """Read a scene file into a `Scene` with its grid `scale` times as fine (`Scene.scaled`)."""
+    from ..scene.model import load_scene
 
-    path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except OSError as e:
-        raise SceneError(f"{path}: cannot read the scene file ({e.strerror})") from None
-    except tomllib.TOMLDecodeError as e:
-        raise SceneError(f"{path}: not valid TOML: {e}") from None
-    return parse_scene(scale_scene_data(data, scale), str(path))
+    return load_scene(path).scaled(scale)
 
 
 # ------------------------------------------------------------------------------------------

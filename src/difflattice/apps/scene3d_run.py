@@ -73,7 +73,7 @@ def run_scene3d(
     from ..solver.stepper import Stepper
 
     if scene.kind.ndim != 3:
-        raise SceneError(f'{scene.path}: [grid.kind] = {scene.grid["kind"]!r}; run_scene3d runs kind = "3d" scenes')
+        raise SceneError(f'{scene.path}: [grid.kind] = {scene.grid.kind!r}; run_scene3d runs kind = "3d" scenes')
     t0 = time.perf_counter()
     built = scene.build(available_bytes=available_bytes)
     grid, n_steps = built.grid, built.n_steps
@@ -321,7 +321,7 @@ def _write_a_scans(sr: SceneRun3D, out: Path, arrays: dict) -> dict:
     for n in names:
         arrays[f"a_scan_{n}"] = sr.a_scans[n][1]
     t_rx = sr.scene.transducers[0]
-    if sr.built.receivers and t_rx.get("signal", "burst") == "burst":
+    if sr.built.receivers and t_rx.signal == "burst":
         from . import echoes3d
 
         r = sr.built.receivers[0]
@@ -333,7 +333,7 @@ def _write_a_scans(sr: SceneRun3D, out: Path, arrays: dict) -> dict:
             a,
             sr.scene,
             g,
-            cycles=float(t_rx.get("cycles") or 3.0),
+            cycles=float(t_rx.cycles),
             gate_start_step=r.gate_start_step,
             centre_m=centre * g.dx_m,
         )

@@ -178,7 +178,7 @@ def _run_plane(scene: Scene, *, progress: bool) -> SceneRun:
     built = scene.build()
     grid, medium, sources, sensors, edges, n_steps = built[:6]
     stepper = Stepper.build(grid, medium, sources, sensors, edges)
-    checkpoint = None if scene.run["checkpoint"] == "none" else "sqrt"
+    checkpoint = None if scene.run.checkpoint == "none" else "sqrt"
     t0 = time.perf_counter()
     every = built.render_every
     result, snaps, snap_steps, timing, moments = run_in_pieces(
@@ -233,26 +233,26 @@ def _run_plane(scene: Scene, *, progress: bool) -> SceneRun:
     lobe = None
     contour, ff = built.contour, scene.farfield
     if contour is not None and ff is not None:  # a contour is built exactly when the scene has [farfield]
-        a0, a1, da = ff["angles_deg"]
+        a0, a1, da = ff.angles_deg
         angles = np.arange(a0, a1 + da / 2, da)
-        disp = {} if ff["dispersion"] is None else {"dispersion": ff["dispersion"]}
+        disp = {} if ff.dispersion is None else {"dispersion": ff.dispersion}
         if isinstance(contour, CylinderSurface):  # an rz grid
             p = _lobe_rz(
                 result.phasors,
                 contour,
                 grid,
                 angles,
-                ff["range_m"],
-                scene.transducers[built.farfield_source]["centre_m"][0],
+                ff.range_m,
+                scene.transducers[built.farfield_source].centre_m[0],
                 **disp,
             )
         else:
             src = sources[built.farfield_source]
             centre = tuple(src.cells_array.mean(0))
-            p = far_field(result.phasors, contour, grid, np.asarray(angles), ff["range_m"], centre, **disp)
+            p = far_field(result.phasors, contour, grid, np.asarray(angles), ff.range_m, centre, **disp)
         lv = np.asarray(level_db(p, floor_db=-100))
         lobe = (angles, lv)
-        summary["farfield"] = {"range_m": ff["range_m"], "dispersion": ff["dispersion"], **lobe_metrics(angles, lv)}
+        summary["farfield"] = {"range_m": ff.range_m, "dispersion": ff.dispersion, **lobe_metrics(angles, lv)}
     summary["output"] = {
         "render_every_cells": every,
         "pixels_per_wavelength": grid.cells_per_wavelength / every,
@@ -308,11 +308,10 @@ def write_outputs(
     from . import datafiles
 
     datafiles.check_format(data_format)
-    out_cfg = getattr(sr.scene, "output", None) or {}
     if frames is None:
-        frames = out_cfg.get("frames", True)
+        frames = sr.scene.output.frames
     if animation is None:
-        animation = out_cfg.get("animation", "gif")
+        animation = sr.scene.output.animation
     if animation not in ANIMATION_KINDS:
         raise ValueError(f"animation = {animation!r}; allowed: {', '.join(ANIMATION_KINDS)}")
     if not animate:

@@ -40,7 +40,7 @@ from ..lattice.grid import Grid
 from ..lattice.kinds import KINDS
 from ..lattice.medium import Medium
 from ..scene.model import BuiltScene, Scene, SceneError, load_scene, parse_scene, shape3d
-from ..scene.schema import ARRAY_SECTIONS, SECTIONS
+from ..scene.schema import ARRAY_SECTIONS, SECTIONS, HalfspaceObject
 from ..solver.loop import simulate
 from ..solver.sensors import Sensors, received_signal
 from ..solver.sources import PointSources, ring_table
@@ -335,25 +335,25 @@ def _scene3d(scene: Scene, built: BuiltScene, name: str, data: dict) -> Scene3D:
         raise SceneError(f"{p}: [transducers] a pulse-echo scene has one disc transducer with receive = true")
     g = built.grid
     t = scene.transducers[0]
-    centre = tuple(float(v) / g.dx_m for v in t["centre_m"])
-    axis = tuple(float(v) for v in (t["axis"] or (1.0, 0.0, 0.0)))
+    centre = tuple(float(v) / g.dx_m for v in t.centre_m)
+    axis = tuple(float(v) for v in (getattr(t, "axis", None) or (1.0, 0.0, 0.0)))
     solids = [shape3d(p, f"objects[{i}]", o) for i, o in enumerate(scene.objects)]
     obstacle = None if not solids else solids[0] if len(solids) == 1 else Union3D(tuple(solids))
-    radius_m = 0.5 * t["diameter_m"] if t["diameter_m"] is not None else None
-    meta: dict[str, Any] = {"diameter_m": t["diameter_m"], "file": p}
+    radius_m = 0.5 * t.diameter_m if t.diameter_m is not None else None
+    meta: dict[str, Any] = {"diameter_m": t.diameter_m, "file": p}
     if radius_m is not None:
         meta["radius_cells"] = radius_m / g.dx_m
     objs = scene.objects
-    if len(objs) == 1 and objs[0]["shape"] == "halfspace":
+    if len(objs) == 1 and isinstance(objs[0], HalfspaceObject):
         o = objs[0]
-        point = tuple(float(v) / g.dx_m for v in o["point_m"])
-        n = np.asarray(o["normal"], float)
+        point = tuple(float(v) / g.dx_m for v in o.point_m)
+        n = np.asarray(o.normal, float)
         meta.update(
             wall_point_cells=point,
             wall_normal=tuple(float(v) for v in n / np.linalg.norm(n)),
             angle_deg=math.degrees(math.atan2(abs(n[1]), -n[0])),
             distance_cells=point[0] - centre[0],
-            rasterise=scene.medium["rasterise"],
+            rasterise=scene.medium.rasterise,
         )
     return Scene3D(
         name,

@@ -28,6 +28,7 @@ from .core import (
     specs,
 )
 from .render import HelpFormatter, Parser, add_options, keys_help, markdown_table, markdown_tables, option_type
+from .unions import TaggedUnion
 
 __all__ = [
     "REQUIRED",
@@ -37,6 +38,7 @@ __all__ = [
     "Parser",
     "Section",
     "Spec",
+    "TaggedUnion",
     "add_options",
     "as_dict",
     "keys_help",

@@ -55,7 +55,9 @@ class Spec:
     `unavailable`: declared choices this version refuses, with the reason. `warn`: pairs
     (predicate, message) checked on a legal value; the message may use `{value}`. `nullable`:
     None (key absent) is allowed; true when the default is None. `doc`: the meaning (one
-    sentence, no unit); `fix`: what to do about a bad value. `name` is set from the field."""
+    sentence, no unit); `fix`: what to do about a bad value. `union`: for a "table" key or a list
+    with items "table", a function giving the `unions.TaggedUnion` whose tables it holds (parsed
+    into its sections). `name` is set from the field."""
 
     kind: str
     default: Any = REQUIRED
@@ -71,13 +73,18 @@ class Spec:
     items: str | None = None
     warn: tuple[tuple[Callable[[Any], bool], str], ...] = ()
     nullable: bool = False
+    union: Callable[[], Any] | None = None
     name: str = ""
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
             raise ValueError(f"Spec kind {self.kind!r}; allowed: {', '.join(KINDS)}")
-        if self.kind == "list" and self.items not in ("number", "int", "str", "range", "any"):
-            raise ValueError(f"a list Spec needs items = 'number', 'int', 'str', 'range' or 'any', got {self.items!r}")
+        if self.kind == "list" and self.items not in ("number", "int", "str", "range", "any", "table"):
+            raise ValueError(
+                f"a list Spec needs items = 'number', 'int', 'str', 'range', 'table' or 'any', got {self.items!r}"
+            )
+        if (self.items == "table") != (self.union is not None) and self.kind != "table":
+            raise ValueError("a list of tables needs union = (a function giving the TaggedUnion of its tables)")
 
     # -- description ----------------------------------------------------------------------------
     @property
@@ -88,6 +95,7 @@ class Spec:
                 "int": "list of integers",
                 "str": "list of strings",
                 "range": "list of [lo, hi] pairs",
+                "table": "list of tables",
                 "any": "list",
             }[self.items or ""]
         return {"number": "number", "int": "integer", "bool": "boolean", "str": "string", "table": "table"}[self.kind]
@@ -96,6 +104,10 @@ class Spec:
         """The allowed values in words, e.g. `> 0 m`, `0 < x <= 180 deg`, `'l2', 'huber'`."""
         if self.choices is not None:
             return ", ".join(repr(c) for c in self.choices if c not in self.unavailable)
+        if self.union is not None:
+            u = self.union()
+            article = "an" if u.noun[:1] in "aeiou" else "a"
+            return f"{u.noun} tables (same keys)" if self.kind == "list" else f"{article} {u.noun} table (same keys)"
         lo = f"> {_num(self.gt)}" if self.gt is not None else f">= {_num(self.ge)}" if self.ge is not None else ""
         hi = f"< {_num(self.lt)}" if self.lt is not None else f"<= {_num(self.le)}" if self.le is not None else ""
         unit = f" {self.unit}" if self.unit else ""
@@ -126,12 +138,26 @@ class Spec:
                 raise _Invalid(f"must be a {self.type_name}, got {_show(value)}")
             return tuple(self._item(v, i) for i, v in enumerate(value))
         if self.kind == "table":
+            if self.union is not None:
+                return self._section(value)
             if not isinstance(value, dict):
                 raise _Invalid(f"must be a table, got {_show(value)}")
             return value
         return self._scalar(value, self.kind)
 
+    def _section(self, v: Any) -> Any:
+        """A table of this key's union as its section (a dict is parsed; a section is kept)."""
+        assert self.union is not None
+        u = self.union()
+        if isinstance(v, dict):
+            return u.parse(v, where=f"{u.section}")
+        if not isinstance(v, u.variants):
+            raise _Invalid(f"must be a {u.noun} table, got {_show(v)}")
+        return v
+
     def _item(self, v: Any, i: int) -> Any:
+        if self.items == "table":
+            return self._section(v)
         if self.items == "any":
             return tuple(v) if isinstance(v, list) else v
         if self.items == "range":
@@ -275,7 +301,7 @@ def parse_section(
                 raise ConfigError(message(file, f"{where}.{name}", s, f"is required: {s.doc}"))
             continue
         try:
-            values[name] = s.check(table[name])
+            values[name] = s.check(_nested(s, table[name], file, f"{where}.{name}"))
         except _Invalid as e:
             raise ConfigError(message(file, f"{where}.{name}", s, e.problem)) from None
         notes += [message(file, f"{where}.{name}", None, m) for m in s.warnings_for(values[name])]
@@ -284,6 +310,19 @@ def parse_section(
         for n in notes:
             warnings.warn(n, ConfigWarning, stacklevel=2)
     return obj
+
+
+def _nested(s: Spec, value: Any, file: str | Path | None, where: str) -> Any:
+    """A key's value with the tables of its union parsed into sections, each error naming its
+    place (`objects[0].cut`, `objects[1].parts[2]`); other values as they are."""
+    if s.union is None or value is None:
+        return value
+    u = s.union()
+    if s.kind == "table":
+        return u.parse(value, file=file, where=where) if isinstance(value, dict) else value
+    if not isinstance(value, (list, tuple)):
+        return value
+    return [u.parse(v, file=file, where=f"{where}[{j}]") if isinstance(v, dict) else v for j, v in enumerate(value)]
 
 
 def as_dict(obj: Any) -> Any:

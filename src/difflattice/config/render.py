@@ -27,9 +27,11 @@ def _doc_first_paragraph(cls: type) -> str:
     return " ".join(doc.split("\n\n")[0].split())
 
 
-def markdown_table(cls: type, *, heading: str | None = None, level: int = 3) -> str:
+def markdown_table(cls: type, *, heading: str | None = None, level: int = 3, skip: Iterable[str] = ()) -> str:
     """One section's keys as a Markdown table (key, type, default, unit, allowed, meaning), under
-    a heading `[section]` (or `heading`) and the first paragraph of the class docstring."""
+    a heading `[section]` (or `heading`) and the first paragraph of the class docstring; the keys
+    in `skip` are left out (e.g. a union variant's shared keys, tabled once for all)."""
+    skip = set(skip)
     title = heading if heading is not None else f"`[{getattr(cls, 'SECTION', '')}]`"
     lines = [f"{'#' * level} {title}", ""]
     intro = _doc_first_paragraph(cls)
@@ -37,6 +39,8 @@ def markdown_table(cls: type, *, heading: str | None = None, level: int = 3) -> 
         lines += [intro, ""]
     lines += ["| key | type | default | unit | allowed | meaning |", "|---|---|---|---|---|---|"]
     for s in specs(cls):
+        if s.name in skip:
+            continue
         allowed = s.allowed()
         if s.unit and allowed.endswith(" " + s.unit):
             allowed = allowed[: -len(s.unit) - 1]

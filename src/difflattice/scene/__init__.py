@@ -1,10 +1,10 @@
 """Scenes: a typed description of a whole simulation and its TOML file format.
 
-`load_scene(path)` validates a file into a `Scene`; `Scene.build()` turns it into the solver's
-objects."""
+`load_scene(path)` validates a file into a `Scene` (a frozen spec of typed sections; transducers
+and objects are tagged unions: `type` / `shape` picks the class, `scene.schema`);
+`Scene.build()` turns it into the solver's objects."""
 
 from .model import (
-    SCHEMA,
     BuiltScene,
     Receiver,
     Scene,
@@ -15,10 +15,23 @@ from .model import (
     render_stride,
     schema_markdown,
 )
-from .schema import ConfigError
+from .schema import (
+    OBJECT,
+    TRANSDUCER,
+    ConfigError,
+    DiscTransducer,
+    LineTransducer,
+    Object,
+    Transducer,
+)
 
 __all__ = [
-    "SCHEMA",
+    "OBJECT",
+    "TRANSDUCER",
+    "DiscTransducer",
+    "LineTransducer",
+    "Object",
+    "Transducer",
     "BuiltScene",
     "ConfigError",
     "Receiver",

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, NamedTuple, NoReturn
 
 import numpy as np
 
-from .schema import ConfigError, fail, validate_section
+from .schema import ConfigError, fail, parse_table
 
 if TYPE_CHECKING:
     from ..lattice.coefficients import Edges
@@ -19,6 +19,7 @@ if TYPE_CHECKING:
     from ..solver.sensors import Sensors
     from ..solver.sources import PointSources, Signal
     from .model import Scene
+    from .schema import TransducerSection
 
 
 class Receiver(NamedTuple):
@@ -67,8 +68,10 @@ def _fail(path, key, msg) -> NoReturn:
     fail(path, key, msg, SceneError)
 
 
-def _validate_table(path, section: str, table: dict, where: str) -> dict:
-    return validate_section(path, section, table, where, SceneError)
+def _parse_table(path, section: str, table, where: str):
+    """One table of the scene file as its typed section (`schema.parse_table`), errors as
+    `SceneError`."""
+    return parse_table(path, section, table, where, SceneError)
 
 
 class SceneTooLargeError(SceneError):
@@ -87,37 +90,29 @@ _SIDES_3D = _SIDES_2D + ("z_lo", "z_hi")
 
 
 _TRANSDUCER_KEYS_3D = ("axis", "ring_edges_m", "fit_report", "gate_start_s")
+"""Keys of a disc transducer that only a 3-D grid uses."""
 
 
-_OBJECT_KEYS_3D = ("size_m", "angles_deg", "axis", "length_m", "point_m", "normal", "parts")
-
-
-def _signal(path, where: str, t: dict, grid: Grid) -> Signal:
+def _signal(path, where: str, t: TransducerSection, grid: Grid) -> Signal:
     from ..solver.sources import ContinuousWave, ToneBurst
 
-    f = t["frequency_hz"] or grid.frequency_hz
+    f = t.frequency_hz or grid.frequency_hz
     try:
-        if t["signal"] == "burst":
-            return ToneBurst(f, t["cycles"], t["window"], t["amplitude_pa"])
-        return ContinuousWave(f, t["ramp_cycles"], t["amplitude_pa"])
+        if t.signal == "burst":
+            return ToneBurst(f, t.cycles, t.window, t.amplitude_pa)
+        return ContinuousWave(f, t.ramp_cycles, t.amplitude_pa)
     except (ValueError, TypeError) as err:
         _fail(path, where, str(err))
 
 
 def _n_steps(scene: Scene, grid: Grid) -> int:
     p, r = scene.path, scene.run
-    if (r["n_steps"] is None) == (r["duration_s"] is None):
+    if (r.n_steps is None) == (r.duration_s is None):
         _fail(p, "run", "give exactly one of n_steps or duration_s (s)")
-    n_steps = r["n_steps"] if r["n_steps"] is not None else int(math.ceil(grid.s_to_steps(r["duration_s"])))
+    n_steps = r.n_steps if r.n_steps is not None else int(math.ceil(grid.s_to_steps(r.duration_s)))
     if n_steps < 1:
         _fail(p, "run", f"n_steps = {n_steps} must be >= 1")
     return n_steps
-
-
-def _raw_item(raw: dict, section: str, i: int) -> dict:
-    items = raw.get(section) or []
-    item = items[i] if i < len(items) else {}
-    return item if isinstance(item, dict) else {}
 
 
 def _points(path, key: str, points, ndim: int) -> np.ndarray:

@@ -9,7 +9,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .common import _fail, _material, _raw_item
+from .common import _fail, _material
+from .schema import DiscTransducer
 
 if TYPE_CHECKING:
     from ..lattice.grid import Grid, StencilKind
@@ -24,22 +25,24 @@ def _materials(scene: Scene) -> tuple[Material, list[Material]]:
 
     p, med = scene.path, scene.medium
     if scene.air is not None:
-        if med["background"] != "air":
-            _fail(p, "air", f"describes the air, but [medium] background = {med['background']!r}: remove [air]")
-        if "temperature_c" in scene.raw.get("medium", {}):
+        if med.background != "air":
+            _fail(p, "air", f"describes the air, but [medium] background = {med.background!r}: remove [air]")
+        if med.temperature_c is not None:
             _fail(p, "medium.temperature_c", "is given twice: [air] temperature_c sets it; remove this one")
         a = scene.air
-        bg = air(a["temperature_c"], a["pressure_pa"], a["humidity_pct"])
-    elif med["background"] == "air":
-        bg = air(med["temperature_c"])
+        bg = air(a.temperature_c, a.pressure_pa, a.humidity_pct)
+    elif med.background == "air":
+        bg = air(med.air_temperature_c)
     else:
-        bg = _material(p, "medium.background", med["background"], material)
+        bg = _material(p, "medium.background", med.background, material)
     if bg.kind != "fluid":
         _fail(p, "medium.background", f"must be a fluid material, got {bg.name} ({bg.kind})")
-    mats = [bg] + [_material(p, f"objects[{i}].material", o["material"], material) for i, o in enumerate(scene.objects)]
-    if med["boundary_model"] == "speed_zero":
+    mats = [bg] + [
+        _material(p, f"objects[{i}].material", o.material_name, material) for i, o in enumerate(scene.objects)
+    ]
+    if med.boundary_model == "speed_zero":
         for i, m in enumerate(mats[1:]):
-            given = "material" in _raw_item(scene.raw, "objects", i)
+            given = scene.objects[i].material is not None
             if m.kind == "fluid" or (given and m.kind == "rigid"):
                 warnings.warn(
                     f"{p}: [objects[{i}].material] = {m.name!r} is ignored under "
@@ -65,29 +68,30 @@ def _make_grid(scene: Scene, mats: list[Material]) -> Grid:
     p, g = scene.path, scene.grid
     kind = scene.kind
     ndim = kind.ndim
-    if (g["size_m"] is None) == (g["shape"] is None):
+    if (g.size_m is None) == (g.shape is None):
         axes = ", ".join(kind.axis_names)
         _fail(p, "grid", f"give exactly one of size_m = [{axes}] (m) or shape = [{axes}] (cells)")
     for key in ("size_m", "shape"):
-        if g[key] is not None and len(g[key]) != ndim:
-            _fail(p, f"grid.{key}", f"= {list(g[key])}: a {kind} grid needs {ndim} entries")
-        for i, v in enumerate(g[key] or ()):
+        value = getattr(g, key)
+        if value is not None and len(value) != ndim:
+            _fail(p, f"grid.{key}", f"= {list(value)}: a {kind} grid needs {ndim} entries")
+        for i, v in enumerate(value or ()):
             if not v > 0:
-                _fail(p, f"grid.{key}", f"= {list(g[key])}: entry {i} ({kind.axis_names[i]}) must be > 0")
-    if g["size_m"] is not None:  # each size must span cells at this resolution (make_grid would clamp it)
+                _fail(p, f"grid.{key}", f"= {list(value)}: entry {i} ({kind.axis_names[i]}) must be > 0")
+    if g.size_m is not None:  # each size must span cells at this resolution (make_grid would clamp it)
         dx = None
         try:
             fastest_c = max(m.speed_m_s for m in mats if m.kind == "fluid")
-            dx = fastest_c / (g["frequency_hz"] * g["cells_per_wavelength"])
+            dx = fastest_c / (g.frequency_hz * g.cells_per_wavelength)
         except ValueError:
             pass
         if dx is not None:
-            small = [s for s in g["size_m"] if round(s / dx) < 3]
+            small = [s for s in g.size_m if round(s / dx) < 3]
             if small:
                 _fail(
                     p,
                     "grid.size_m",
-                    f"= {list(g['size_m'])} m: {small[0]:g} m is fewer than 3 cells of {dx * 1e3:.3g} mm at this "
+                    f"= {list(g.size_m)} m: {small[0]:g} m is fewer than 3 cells of {dx * 1e3:.3g} mm at this "
                     "resolution; give each size in metres, at least a few wavelengths plus the edge layers",
                 )
     air_cond = scene.air_conditions()
@@ -96,22 +100,22 @@ def _make_grid(scene: Scene, mats: list[Material]) -> Grid:
     # kernels run the isotropic stencil on uniform faces only); 3-D scenes default to the 19-point
     # isotropic stencil (`kinds.Volume`)
     in_air = not scene.objects and all(
-        t.get("type") != "disc" or t.get("baffle", "rigid") == "rigid" for t in scene.transducers
+        not isinstance(t, DiscTransducer) or t.rz_baffle() == "rigid" for t in scene.transducers
     )
-    stencil: StencilKind = g["stencil"] or ("isotropic" if kind.ring_metric and in_air else kind.default_stencil)
+    stencil: StencilKind = g.stencil or ("isotropic" if kind.ring_metric and in_air else kind.default_stencil)
     try:
         kind.check_stencil(stencil)
     except ValueError as err:
         _fail(p, "grid.stencil", str(err))
     default = kind.default_courant_for(stencil)
-    courant = default if g["courant"] is None else float(g["courant"])
+    courant = default if g.courant is None else float(g.courant)
     limit = kind.stability_limit(stencil)
     if air_cond is not None:  # absorption stiffens the step: its own, lower limit (docs/air.md)
         from ..lattice.coefficients import absorbing_courant
 
         fast = max(m.speed_m_s for m in mats if m.kind == "fluid")
-        c_air = absorbing_courant(g["frequency_hz"], g["cells_per_wavelength"], fast, air_cond, kind, stencil)
-        if g["courant"] is None:
+        c_air = absorbing_courant(g.frequency_hz, g.cells_per_wavelength, fast, air_cond, kind, stencil)
+        if g.courant is None:
             courant = min(courant, c_air)
         elif courant > c_air / 0.9999:
             _fail(
@@ -132,13 +136,13 @@ def _make_grid(scene: Scene, mats: list[Material]) -> Grid:
     fastest = max(fluids, key=lambda m: m.speed_m_s)
     try:
         grid = make_grid(
-            frequency_hz=g["frequency_hz"],
-            cells_per_wavelength=g["cells_per_wavelength"],
+            frequency_hz=g.frequency_hz,
+            cells_per_wavelength=g.cells_per_wavelength,
             c_max_m_s=fastest.speed_m_s,
-            shape=tuple(g["shape"]) if g["shape"] else None,
-            size_m=tuple(g["size_m"]) if g["size_m"] else None,
+            shape=tuple(g.shape) if g.shape else None,
+            size_m=tuple(g.size_m) if g.size_m else None,
             courant=courant,
-            dtype=g["dtype"],
+            dtype=g.dtype,
             kind=kind,
             stencil=stencil,
         )
@@ -168,7 +172,7 @@ def _medium(scene: Scene, grid: Grid, bg: Material, mats: list[Material], occupa
     from ..lattice.medium import Medium
 
     p, med = scene.path, scene.medium
-    speed_zero = med["boundary_model"] == "speed_zero"
+    speed_zero = med.boundary_model == "speed_zero"
     rigid, soft = list(extra_rigid), []
     speed = np.full(grid.shape, bg.speed_m_s)
     rho = np.full(grid.shape, bg.density_kg_m3)
@@ -195,8 +199,8 @@ def _medium(scene: Scene, grid: Grid, bg: Material, mats: list[Material], occupa
             density_kg_m3=jnp.asarray(rho, dt) if fluid_objects else bg.density_kg_m3,
             rigid=combined(rigid),
             soft=combined(soft),
-            boundary_model=med["boundary_model"],
-            absorption_db_per_m=float(med["absorption_db_per_m"]),
+            boundary_model=med.boundary_model,
+            absorption_db_per_m=float(med.absorption_db_per_m),
             air=scene.air_conditions(),
         )
     except ValueError as e:

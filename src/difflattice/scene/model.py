@@ -1,18 +1,19 @@
 """Scene files (TOML): a documented, validated description of a whole simulation.
 
-`load_scene(path)` reads and validates a file into a `Scene` (plain data, SI units);
+`load_scene(path)` reads and validates a file into a `Scene`: a frozen spec of typed sections
+(SI units), the transducers and objects tagged unions whose `type` / `shape` picks the class;
 `Scene.build()` turns it into the simulator's objects (grid, medium, sources, sensors, edges).
 Every key, its unit, default and allowed values are declared once in `scene/schema.py` (typed
 sections of `difflattice.config`; docs/scene-files.md is generated from them); an unknown key, a
-wrong type or a value out of range raises `SceneError` naming the file, the key and what is
-allowed.
+key of another transducer type or object shape, a wrong type or a value out of range raises
+`SceneError` naming the file, the key and the fix.
 """
 
 from __future__ import annotations
 
 import math
 import tomllib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -35,20 +36,34 @@ from .common import (
     SceneTooLargeError,
     _fail,
     _n_steps,
+    _parse_table,
     _points,
-    _raw_item,
     _signal,
-    _validate_table,
 )
 from .common import Receiver as Receiver  # re-exported: callers import it from here
 from .media import _make_grid, _materials, _medium
 from .objects import _shape
 from .objects import shape3d as shape3d  # re-exported: callers import it from here
-from .schema import ARRAY_SECTIONS, SCHEMA
+from .schema import (
+    ARRAY_SECTIONS,
+    OPTIONAL_SECTIONS,
+    SECTIONS,
+    AirSection,
+    DiscTransducer,
+    EdgesSection,
+    FarfieldSection,
+    GridSection,
+    MediumSection,
+    Object,
+    OutputSection,
+    RunSection,
+    SensorsSection,
+    Transducer,
+)
 from .schema import schema_markdown as _schema_markdown
 
 # Every key, its type, default, unit and allowed values: declared once in scene/schema.py
-# (SECTIONS); SCHEMA is a plain view of those declarations.
+# (SECTIONS).
 ANIMATION_KINDS = ("gif", "mp4", "none")
 
 PAPER_RENDER_EVERY = 3
@@ -71,60 +86,80 @@ def render_stride(cells_per_wavelength: float, override: int | None = None) -> i
     return max(1, int(cells_per_wavelength / MIN_PIXELS_PER_WAVELENGTH + 1e-9))
 
 
-@dataclass
+@dataclass(frozen=True)
 class Scene:
-    """A validated scene (SI units). Sections mirror the file; see `SCHEMA`."""
+    """A validated scene (SI units): one typed section per table of the file (`scene.schema`),
+    `transducers` and `objects` as tuples of the classes their `type` / `shape` names, `air` and
+    `farfield` None when the file leaves them out. Frozen: derive another scene with
+    `at_resolution`, `scaled` or `dataclasses.replace`. `path` names the file in messages."""
 
     path: str
-    grid: dict
-    medium: dict
-    edges: dict
-    transducers: list[dict]
-    objects: list[dict]
-    sensors: dict
-    farfield: dict | None
-    run: dict
-    output: dict = field(default_factory=dict)
-    raw: dict = field(default_factory=dict)
-    air: dict | None = None  # the optional [air] section (None: dry air at [medium] temperature_c, lossless)
+    grid: GridSection
+    medium: MediumSection = MediumSection()
+    edges: EdgesSection = EdgesSection()
+    transducers: tuple[Transducer, ...] = ()
+    objects: tuple[Object, ...] = ()
+    sensors: SensorsSection = SensorsSection()
+    farfield: FarfieldSection | None = None
+    run: RunSection = RunSection()
+    output: OutputSection = OutputSection()
+    air: AirSection | None = None  # None: dry air at [medium] temperature_c, lossless
 
     def air_conditions(self):
         """The scene's `AirConditions` when `[air]` asks for absorption, else None."""
-        if self.air is None or not self.air["absorption"]:
+        if self.air is None or not self.air.absorption:
             return None
         from ..lattice.medium import AirConditions
 
         a = self.air
-        return AirConditions(a["temperature_c"], a["humidity_pct"], a["pressure_pa"])
+        return AirConditions(a.temperature_c, a.humidity_pct, a.pressure_pa)
 
     def describe_air(self) -> str:
         """One line naming the air the scene simulates (printed by `difflattice simulate`)."""
         from .. import air as air_model
 
-        f = self.grid["frequency_hz"]
+        f = self.grid.frequency_hz
         if self.air is None:
-            if self.medium["background"] != "air":
-                return f"background: {self.medium['background']} (no air)"
-            line = air_model.describe(self.medium["temperature_c"], 0.0)
+            if self.medium.background != "air":
+                return f"background: {self.medium.background} (no air)"
+            line = air_model.describe(self.medium.air_temperature_c, 0.0)
             return line + ", lossless (no [air] section: dry air, no absorption)"
         a = self.air
-        line = air_model.describe(a["temperature_c"], a["humidity_pct"], a["pressure_pa"], f)
-        return line + ("" if a["absorption"] else " -- not simulated ([air] absorption = false)")
+        line = air_model.describe(a.temperature_c, a.humidity_pct, a.pressure_pa, f)
+        return line + ("" if a.absorption else " -- not simulated ([air] absorption = false)")
+
+    def as_dict(self) -> dict:
+        """The scene as plain TOML-able tables (every key with its value, defaults included; keys
+        left None dropped): what a scene file holding exactly this scene would say."""
+        from ..config import as_dict
+
+        out: dict[str, Any] = {}
+        for name in SECTIONS:
+            v = getattr(self, name)
+            if v is not None and not (name in ARRAY_SECTIONS and not v):
+                out[name] = as_dict(v)
+        return out
 
     # ---------------------------------------------------------------------------------------
     def at_resolution(self, cells_per_wavelength: float) -> Scene:
         """This scene at `cells_per_wavelength` (cell and step counts scale, metres and seconds
-        stay: `scene.resolution`), validated again."""
-        from .resolution import scene_data_at
+        stay: `scene.resolution`), its sections checked again."""
+        from .resolution import scene_at
 
-        return parse_scene(scene_data_at(self.raw, cells_per_wavelength), self.path)
+        return scene_at(self, cells_per_wavelength)
+
+    def scaled(self, scale: float) -> Scene:
+        """This scene with a grid `scale` times as fine (`scene.resolution.scaled_scene`)."""
+        from .resolution import scaled_scene
+
+        return scaled_scene(self, scale)
 
     @property
     def kind(self) -> LatticeKind:
         """The scene's lattice kind (`[grid] kind`)."""
         from ..lattice.kinds import as_kind
 
-        return as_kind(self.grid["kind"])
+        return as_kind(self.grid.kind)
 
     def build(self, *, available_bytes: int | None = None) -> BuiltScene:
         """Build the solver's objects (`BuiltScene`) for `simulate`. Every scene is first
@@ -167,41 +202,43 @@ class Scene:
             grid,
             _n_steps(self, grid),
             available_bytes,
-            pml="pml" in {ed[k] for k in ("kind", *_SIDES_2D, "z_lo", "z_hi", "r_hi")},
+            pml="pml" in {getattr(ed, k) for k in ("kind", *_SIDES_2D, "z_lo", "z_hi", "r_hi")},
             heterogeneous=bool(self.objects),
-            n_probes=len(s["probes_m"] or ()),
-            field_stats=int(s["p_max"]) + int(s["p_rms"]) + int(s["arrival_threshold_pa"] is not None),
+            n_probes=len(s.probes_m or ()),
+            field_stats=int(s.p_max) + int(s.p_rms) + int(s.arrival_threshold_pa is not None),
         )
         for i, t in enumerate(self.transducers):
+            if not isinstance(t, DiscTransducer):
+                continue
             for k in _TRANSDUCER_KEYS_3D:
-                if t[k] is not None:
+                if getattr(t, k) is not None:
                     _fail(p, f"transducers[{i}].{k}", f'is for 3d grids ([grid] kind = "3d"), not {grid.kind}')
-            if t["receive"]:
+            if t.receive:
                 _fail(p, f"transducers[{i}].receive", f"is implemented for 3d grids, not {grid.kind}")
-        if self.sensors["snapshot_slices_m"] is not None:
+        if self.sensors.snapshot_slices_m is not None:
             _fail(p, "sensors.snapshot_slices_m", f"is for 3d grids (a {grid.kind} snapshot is the whole field)")
 
         occupancies = []
         for i, o in enumerate(self.objects):
             shape = _shape(p, f"objects[{i}]", o, geo, grid.kind.ring_metric)
             try:
-                occupancies.append(np.asarray(geo.rasterise(shape, grid, med["rasterise"])))
+                occupancies.append(np.asarray(geo.rasterise(shape, grid, med.rasterise)))
             except ValueError as e:
                 _fail(p, "medium.rasterise", str(e))
         housings = self._housings(grid)
         medium = _medium(self, grid, bg, mats, occupancies, housings, lambda occs: geo.union_occupancy(occs))
         edges = self._plane_edges(grid)
         sources = self._plane_sources(grid, edges)
-        probes = probe_cells(grid, _points(p, "sensors.probes_m", s["probes_m"], 2)) if s["probes_m"] else None
+        probes = probe_cells(grid, _points(p, "sensors.probes_m", s.probes_m, 2)) if s.probes_m else None
         contour, phasor_cells, ff_index = self._farfield_surface(grid, edges, sources, [*occupancies, *housings])
         try:
             sensors = Sensors(
                 probes=probes if probes is not None else _NO_CELLS,
                 phasor_cells=phasor_cells if phasor_cells is not None else _NO_CELLS,
-                p_max=s["p_max"],
-                p_rms=s["p_rms"],
-                arrival_threshold_pa=s["arrival_threshold_pa"],
-                snapshot_every=s["snapshot_every_steps"],
+                p_max=s.p_max,
+                p_rms=s.p_rms,
+                arrival_threshold_pa=s.arrival_threshold_pa,
+                snapshot_every=s.snapshot_every_steps,
             )
             sensors.check_inside(grid)
         except ValueError as err:
@@ -229,22 +266,22 @@ class Scene:
         housings = []
         for i, t in enumerate(self.transducers):
             if (
-                t["type"] == "disc"
+                isinstance(t, DiscTransducer)
                 and rz
-                and t["baffle"] != "rigid"
-                and t["diameter_m"] is not None
-                and not _soft_disc(self.raw, i, t)
+                and t.rz_baffle() != "rigid"
+                and t.diameter_m is not None
+                and not t.soft_rings
             ):
                 try:
                     housings.append(
                         np.asarray(
                             disc_housing(
                                 grid,
-                                radius_m=t["diameter_m"] / 2,
-                                z_m=t["centre_m"][0],
-                                baffle=t["baffle"],
-                                depth_m=t["can_depth_m"],
-                                wall_m=t["can_wall_m"],
+                                radius_m=t.diameter_m / 2,
+                                z_m=t.centre_m[0],
+                                baffle=t.rz_baffle(),
+                                depth_m=t.can_depth_m,
+                                wall_m=t.can_wall_m,
                             )
                         )
                     )
@@ -260,27 +297,29 @@ class Scene:
         try:
             if rz:
                 for side in _SIDES_2D:
-                    if ed[side] is not None:
+                    if getattr(ed, side) is not None:
                         _fail(
                             p,
                             f"edges.{side}",
                             "on an rz grid name the sides z_lo, z_hi and r_hi (the axis needs no edge)",
                         )
+                sides: dict[str, Any] = {s: (getattr(ed, s) or ed.kind) for s in ("z_lo", "z_hi", "r_hi")}
                 edges = Edges.axisymmetric(
-                    **{s: (ed[s] or ed["kind"]) for s in ("z_lo", "z_hi", "r_hi")},
-                    thickness_cells=ed["thickness_cells"],
+                    **sides,
+                    thickness_cells=ed.thickness_cells,
                 )
             else:
                 for side in ("z_lo", "z_hi", "r_hi"):
-                    if ed[side] is not None:
+                    if getattr(ed, side) is not None:
                         _fail(
                             p,
                             f"edges.{side}",
                             'is for rz and 3d grids ([grid] kind = "rz" or "3d"); a 2d grid has x_lo, x_hi, y_lo, y_hi',
                         )
+                sides = {s: (getattr(ed, s) or ed.kind) for s in _SIDES_2D}
                 edges = Edges(
-                    **{s: (ed[s] or ed["kind"]) for s in _SIDES_2D},
-                    thickness_cells=ed["thickness_cells"],
+                    **sides,
+                    thickness_cells=ed.thickness_cells,
                 )
             edges.check_kind(grid.kind)
         except ValueError as err:
@@ -290,8 +329,6 @@ class Scene:
 
     def _plane_sources(self, grid: Grid, edges: Edges) -> list[PointSources]:
         """The transducers of a plane (line) or rz (disc) scene."""
-        from ..solver.sources import disc_transducer, line_transducer
-
         p, rz = self.path, grid.kind.ring_metric
         sources = []
         if not self.transducers:
@@ -300,63 +337,17 @@ class Scene:
             where = f"transducers[{i}]"
             sig = _signal(p, where, t, grid)
             try:
-                if (t["type"] == "disc") != rz:
+                if isinstance(t, DiscTransducer) != bool(rz):
                     _fail(
                         p,
                         f"{where}.type",
-                        f"= {t['type']!r} does not fit a {grid.kind} grid: use type = "
+                        f"= {t.type!r} does not fit a {grid.kind} grid: use type = "
                         f"{'disc' if rz else 'line'} (or [grid] kind = {'2d' if rz else 'rz'})",
                     )
-                if rz:
-                    if t["baffle"] == "rigid" and edges.x_lo != "rigid":
-                        _fail(
-                            p,
-                            f"{where}.baffle",
-                            f"= 'rigid' needs the rigid baffle plane: set [edges] z_lo = "
-                            f'"rigid" (now {edges.x_lo!r}), or baffle = "none" / "can" for an unbaffled disc',
-                        )
-                    if t["diameter_m"] is None:
-                        _fail(p, f"{where}.diameter_m", "is required for a disc (its diameter, m)")
-                    if len(t["centre_m"]) != 2 or t["centre_m"][1] != 0:
-                        _fail(
-                            p, f"{where}.centre_m", f"= {list(t['centre_m'])}: a disc sits on the axis, give [z_m, 0]"
-                        )
-                    if _soft_disc(self.raw, i, t):
-                        if t["baffle"] != "none":
-                            _fail(
-                                p,
-                                f"{where}.injection",
-                                '= "soft" is a transparent ring disc (no housing): give baffle = "none"',
-                            )
-                        sources.append(_soft_ring_disc(grid, t["diameter_m"] / 2, t["centre_m"][0], sig))
-                        continue
-                    sources.append(
-                        disc_transducer(
-                            grid,
-                            radius_m=t["diameter_m"] / 2,
-                            z_m=t["centre_m"][0],
-                            signal=sig,
-                            weights=t["weights"],
-                            lags_s=t["lags_s"],
-                            baffle=t["baffle"],
-                        )
-                    )
+                if isinstance(t, DiscTransducer):
+                    sources.append(_rz_disc(p, where, t, grid, edges, sig))
                 else:
-                    if len(t["centre_m"]) != 2:
-                        _fail(p, f"{where}.centre_m", f"= {list(t['centre_m'])}: give [x_m, y_m] on a 2d grid")
-                    sources.append(
-                        line_transducer(
-                            grid,
-                            (t["centre_m"][0], t["centre_m"][1]),
-                            n_cells=t["n_cells"],
-                            diameter_m=t["diameter_m"],
-                            direction_deg=t["direction_deg"],
-                            signal=sig,
-                            weights=t["weights"],
-                            lags_s=t["lags_s"],
-                            injection=t["injection"],
-                        )
-                    )
+                    sources.append(_line(p, where, t, grid, sig))
             except (ValueError, TypeError) as err:
                 _fail(p, where, str(err))
 
@@ -376,22 +367,23 @@ class Scene:
         ff_index = 0
         if self.farfield is not None:
             ff = self.farfield
-            names = [t["name"] for t in self.transducers]
-            if ff["transducer"] is not None:
-                if ff["transducer"] not in names:
-                    _fail(p, "farfield.transducer", f"= {ff['transducer']!r}; known: {', '.join(names)}")
-                ff_index = names.index(ff["transducer"])
+            names = [t.name for t in self.transducers]
+            if ff.transducer is not None:
+                if ff.transducer not in names:
+                    _fail(p, "farfield.transducer", f"= {ff.transducer!r}; known: {', '.join(names)}")
+                ff_index = names.index(ff.transducer)
             # the surface encloses the transducer and every object (a surface through an object
             # would integrate a field that is not free space: a wrong lobe), or the scene is refused
             solids = [np.argwhere(np.asarray(o) > 0) for o in solids_occupancy]
             enclosed = np.concatenate([np.asarray(sources[ff_index].cells_array).reshape(-1, 2), *solids])
             if rz:
-                baffled = self.transducers[ff_index]["baffle"] == "rigid"
-                cyl = cylinder_around(enclosed, ff["gap_cells"], baffled=baffled)
+                t = self.transducers[ff_index]
+                baffled = isinstance(t, DiscTransducer) and t.rz_baffle() == "rigid"
+                cyl = cylinder_around(enclosed, ff.gap_cells, baffled=baffled)
                 contour, phasor_cells = cyl, cyl.cells
                 check = cyl.check_inside
             else:
-                box = box_around(enclosed, ff["gap_cells"])
+                box = box_around(enclosed, ff.gap_cells)
                 contour, phasor_cells = box, box.cells
                 check = box.check_inside
             L = edges.thickness_cells if edges.kinds() & {"pml", "sponge"} else 0
@@ -400,7 +392,7 @@ class Scene:
             except ValueError as err:
                 why = (
                     f"the far-field surface encloses the transducer and the {len(solids)} object(s) "
-                    f"{ff['gap_cells']} cells out (so that it crosses no object), and then: {err}. Fix: a larger "
+                    f"{ff.gap_cells} cells out (so that it crosses no object), and then: {err}. Fix: a larger "
                     "window ([grid] size_m or shape), a smaller gap_cells, or no [farfield] (record probes)"
                     if solids
                     else str(err)
@@ -415,11 +407,11 @@ class Scene:
         each must lie in 1..n_steps."""
         o = self.output
         steps = []
-        for i, v in enumerate(o["show_steps"]):
+        for i, v in enumerate(o.show_steps):
             if isinstance(v, bool) or not isinstance(v, int):
                 _fail(self.path, f"output.show_steps[{i}]", f"= {v!r} must be a whole number of steps")
             steps.append(v)
-        for i, v in enumerate(o["show_times_s"]):
+        for i, v in enumerate(o.show_times_s):
             if isinstance(v, bool) or not isinstance(v, (int, float)):
                 _fail(self.path, f"output.show_times_s[{i}]", f"= {v!r} must be a time in seconds")
             steps.append(int(round(grid.s_to_steps(float(v)))))
@@ -437,7 +429,7 @@ class Scene:
     def render_every(self, grid) -> int:
         """Render stride in cells: `[output] render_every_cells`, else `plots.render_stride`."""
         try:
-            return render_stride(grid.cells_per_wavelength, self.output["render_every_cells"])
+            return render_stride(grid.cells_per_wavelength, self.output.render_every_cells)
         except ValueError as e:
             _fail(self.path, "output.render_every_cells", str(e))
 
@@ -455,25 +447,28 @@ class Scene:
 
 
 def parse_scene(data: dict, path: str = "<scene>") -> Scene:
-    """Validate a scene given as a dict (e.g. parsed TOML)."""
-    allowed = set(SCHEMA)
+    """Validate a scene given as a dict (e.g. parsed TOML) into a `Scene`: each table checked
+    against its section's declaration (an array's tables against the class their `type` /
+    `shape` names); raises `SceneError` naming the file, the table, the key and the fix."""
+    if not isinstance(data, dict):
+        _fail(path, "scene", f"must be a table of sections, got {type(data).__name__}")
     for key in data:
-        if key not in allowed:
-            _fail(path, key, f"unknown section; allowed: {', '.join(SCHEMA)}")
+        if key not in SECTIONS:
+            _fail(path, key, f"unknown section; allowed: {', '.join(SECTIONS)}")
     if "grid" not in data:
         _fail(path, "grid", "section is required (frequency_hz, size_m or shape, ...)")
     sec: dict[str, Any] = {}
-    for name in SCHEMA:
+    for name in SECTIONS:
         if name in ARRAY_SECTIONS:
             items = data.get(name, [])
             if not isinstance(items, list):
                 _fail(path, name, f"must be an array of tables ([[{name}]]), got {type(items).__name__}")
-            sec[name] = [_validate_table(path, name, t, f"{name}[{i}]") for i, t in enumerate(items)]
-        elif name in ("farfield", "air"):  # optional sections
-            sec[name] = _validate_table(path, name, data[name], name) if name in data else None
+            sec[name] = tuple(_parse_table(path, name, t, f"{name}[{i}]") for i, t in enumerate(items))
+        elif name in OPTIONAL_SECTIONS:
+            sec[name] = _parse_table(path, name, data[name], name) if name in data else None
         else:
-            sec[name] = _validate_table(path, name, data.get(name, {}), name)
-    return Scene(path=str(path), raw=data, **sec)
+            sec[name] = _parse_table(path, name, data.get(name, {}), name)
+    return Scene(path=str(path), **sec)
 
 
 def load_scene(path: str | Path) -> Scene:
@@ -495,10 +490,61 @@ def schema_markdown() -> str:
     return _schema_markdown()
 
 
-def _soft_disc(raw: dict, i: int, t: dict) -> bool:
-    """An rz disc given `injection = "soft"` explicitly: a transparent disc of soft ring sources
-    (the design problems' source model) instead of the default velocity piston."""
-    return "injection" in _raw_item(raw, "transducers", i) and t["injection"] == "soft"
+def _line(p, where: str, t, grid: Grid, sig) -> PointSources:
+    """A plane scene's line transducer."""
+    from ..solver.sources import line_transducer
+
+    if len(t.centre_m) != 2:
+        _fail(p, f"{where}.centre_m", f"= {list(t.centre_m)}: give [x_m, y_m] on a 2d grid")
+    return line_transducer(
+        grid,
+        (t.centre_m[0], t.centre_m[1]),
+        n_cells=t.n_cells,
+        diameter_m=t.diameter_m,
+        direction_deg=t.direction_deg,
+        signal=sig,
+        weights=t.weights,
+        lags_s=t.lags_s,
+        injection=t.injection,
+    )
+
+
+def _rz_disc(p, where: str, t: DiscTransducer, grid: Grid, edges: Edges, sig) -> PointSources:
+    """An rz scene's disc: the velocity piston in its baffle, or (`injection = "soft"`) the
+    transparent soft ring disc."""
+    from ..solver.sources import disc_transducer
+
+    if t.rz_baffle() == "rigid" and edges.x_lo != "rigid":
+        _fail(
+            p,
+            f"{where}.baffle",
+            f"= 'rigid' needs the rigid baffle plane: set [edges] z_lo = "
+            f'"rigid" (now {edges.x_lo!r}), or baffle = "none" / "can" for an unbaffled disc',
+        )
+    if t.diameter_m is None:
+        _fail(p, f"{where}.diameter_m", "is required for a disc (its diameter, m)")
+    if len(t.centre_m) != 2 or t.centre_m[1] != 0:
+        _fail(p, f"{where}.centre_m", f"= {list(t.centre_m)}: a disc sits on the axis, give [z_m, 0]")
+    if t.injection == "hard":
+        _fail(
+            p,
+            f"{where}.injection",
+            '= "hard" is not an rz disc: leave injection out (the velocity piston) or give "soft" (a transparent '
+            'ring disc, with baffle = "none")',
+        )
+    if t.soft_rings:
+        if t.rz_baffle() != "none":
+            _fail(p, f"{where}.injection", '= "soft" is a transparent ring disc (no housing): give baffle = "none"')
+        return _soft_ring_disc(grid, t.diameter_m / 2, t.centre_m[0], sig)
+    return disc_transducer(
+        grid,
+        radius_m=t.diameter_m / 2,
+        z_m=t.centre_m[0],
+        signal=sig,
+        weights=t.weights,
+        lags_s=t.lags_s,
+        baffle=t.rz_baffle(),
+    )
 
 
 def _soft_ring_disc(grid: Grid, radius_m: float, z_m: float, signal) -> PointSources:

@@ -1,7 +1,8 @@
 """The scene file format's keys, declared once in the typed configuration layer
-(`difflattice.config`): one frozen dataclass per section. Validation (`validate_section`), the
-docs tables (`schema_markdown`, docs/scene-files.md) and `SCHEMA` (a plain view for older code)
-are all generated from these declarations.
+(`difflattice.config`): one frozen dataclass per section, and per transducer type and object
+shape (the tagged unions `TRANSDUCER`, on `type`, and `OBJECT`, on `shape`: each class declares
+only its own keys, the shared ones in a common base). Validation (`parse_table`) and the docs
+tables (`schema_markdown`, docs/scene-files.md) are generated from these declarations.
 
 Checks that need the simulator's objects (materials, stability limit, edge and boundary kinds,
 shapes) stay where those objects are built (`scene.model.Scene.build`), so their messages come
@@ -11,11 +12,25 @@ from the one place that knows the rule.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, ClassVar, NoReturn
+from typing import Any, ClassVar, Literal, NoReturn
 
 from ..config import REQUIRED, ConfigError, Section, markdown_table, parse_section, setting, specs
+from ..config.unions import TaggedUnion
 
-__all__ = ["ConfigError", "SECTIONS", "SCHEMA", "ARRAY_SECTIONS", "validate_section", "schema_markdown", "fail"]
+__all__ = [
+    "ARRAY_SECTIONS",
+    "OBJECT",
+    "SECTIONS",
+    "TRANSDUCER",
+    "ConfigError",
+    "DiscTransducer",
+    "LineTransducer",
+    "Object",
+    "Transducer",
+    "fail",
+    "parse_table",
+    "schema_markdown",
+]
 
 
 @dataclass(frozen=True)
@@ -58,8 +73,10 @@ class GridSection(Section):
         doc="fastest medium's speed in cells/step (default 0.707 in 2d and rz, at most 1/sqrt(2) = 0.7071; "
         "0.577 in 3d, at most 1/sqrt(3) = 0.5774)",
     )
-    dtype: str = setting("float32", kind="str", doc="float32 or float64")
-    stencil: str | None = setting(
+    dtype: Literal["float32", "float64"] = setting(
+        "float32", kind="str", choices=("float32", "float64"), doc="float32 or float64"
+    )
+    stencil: Literal["standard", "isotropic"] | None = setting(
         None,
         kind="str",
         choices=("standard", "isotropic"),
@@ -79,14 +96,30 @@ class MediumSection(Section):
 
     SECTION: ClassVar[str] = "medium"
     background: str = setting("air", kind="str", doc="material filling the window (see Materials)")
-    temperature_c: float = setting(
-        20.0, kind="number", gt=-273.15, unit="degC", doc="air temperature (speed of sound of air)"
+    temperature_c: float | None = setting(
+        None,
+        kind="number",
+        gt=-273.15,
+        unit="degC",
+        doc="air temperature (speed of sound of air; default 20 degC; with an [air] section give it there)",
     )
-    boundary_model: str = setting("conservative", kind="str", doc="conservative, paper or speed_zero")
+    boundary_model: Literal["conservative", "paper", "speed_zero"] = setting(
+        "conservative",
+        kind="str",
+        choices=("conservative", "paper", "speed_zero"),
+        doc="conservative, paper or speed_zero",
+    )
     absorption_db_per_m: float = setting(
         0.0, kind="number", ge=0, unit="dB/m", doc="air absorption at the drive frequency (f^2 law)"
     )
-    rasterise: str = setting("hard", kind="str", doc="hard or smooth object edges")
+    rasterise: Literal["hard", "smooth"] = setting(
+        "hard", kind="str", choices=("hard", "smooth"), doc="hard or smooth object edges"
+    )
+
+    @property
+    def air_temperature_c(self) -> float:
+        """The background air's temperature (`temperature_c`, default 20 degC)."""
+        return 20.0 if self.temperature_c is None else self.temperature_c
 
 
 @dataclass(frozen=True)
@@ -126,77 +159,99 @@ class EdgesSection(Section):
     thickness_cells: int = setting(20, kind="int", ge=1, unit="cells", doc="PML or sponge thickness")
 
 
+# ------------------------------------------------------------------------------------------
+# transducers: a tagged union on `type`
+
+
 @dataclass(frozen=True)
 class TransducerSection(Section):
-    """One transducer (`[[transducers]]`, one table each): a line (2d) or a disc (rz, 3d)."""
+    """The keys of every transducer (`[[transducers]]`, one table each); `type` picks the rest."""
 
     SECTION: ClassVar[str] = "transducers"
+    type: str = setting("line", kind="str", choices=("line", "disc"), doc="line or disc")
     name: str = setting("transducer", kind="str", doc="label")
-    type: str = setting(
-        "line",
-        kind="str",
-        choices=("line", "disc"),
-        doc="line (2d: a line of cells) or disc (rz: rings of cells; 3d: a flat disc at any position and "
-        "orientation, its cells weighted by the area they hold)",
-    )
     centre_m: tuple = setting(
         kind="list", items="number", unit="m", doc="[x, y] of the face centre (rz: [z, 0]; 3d: [x, y, z])"
     )
-    axis: tuple | None = setting(
-        None,
-        kind="list",
-        items="number",
-        doc="3d disc: the direction its face points to, [x, y, z] (any length; default [1, 0, 0])",
-    )
-    baffle: str = setting(
-        "rigid",
-        kind="str",
-        choices=("rigid", "none", "can"),
-        doc="rz disc: rigid (infinite baffle: the face on the rigid z_lo side, z = 0), none (a bare disc) or "
-        "can (a rigid can of depth can_depth_m behind the face); a 3d disc is bare (give a baffle as an object)",
-    )
-    can_depth_m: float | None = setting(None, kind="number", gt=0, unit="m", doc="disc with baffle = can: its depth")
-    can_wall_m: float = setting(0.0, kind="number", ge=0, unit="m", doc="disc with baffle = can: wall thickness")
-    n_cells: int | None = setting(None, kind="int", ge=1, doc="number of source cells (or give diameter_m)")
-    diameter_m: float | None = setting(
-        None, kind="number", gt=0, unit="m", doc="active diameter (n_cells = diameter / cell size)"
-    )
-    direction_deg: float = setting(0.0, kind="number", unit="deg", doc="facing direction (0 = +x, 90 = +y)")
     signal: str = setting("burst", kind="str", choices=("burst", "cw"), doc="burst or cw")
     frequency_hz: float | None = setting(
         None, kind="number", gt=0, unit="Hz", doc="drive frequency (default: the grid's)"
     )
     cycles: float = setting(5.0, kind="number", gt=0, unit="cycles", doc="burst length")
-    window: str = setting("hann", kind="str", doc="burst window: hann or rect")
+    window: Literal["hann", "rect"] = setting(
+        "hann", kind="str", choices=("hann", "rect"), doc="burst window: hann or rect"
+    )
     ramp_cycles: float = setting(3.0, kind="number", ge=0, unit="cycles", doc="cw switch-on ramp")
     amplitude_pa: float = setting(1.0, kind="number", unit="Pa", doc="source amplitude")
-    injection: str = setting(
-        "soft",
+
+
+@dataclass(frozen=True)
+class LineTransducer(TransducerSection):
+    """A line of source cells (`type = "line"`, the default; 2d grids)."""
+
+    type: str = setting("line", kind="str", choices=("line",), doc="line: a line of cells (2d grids)")
+    n_cells: int | None = setting(None, kind="int", ge=1, doc="number of source cells (or give diameter_m)")
+    diameter_m: float | None = setting(
+        None, kind="number", gt=0, unit="m", doc="active length (n_cells = diameter / cell size)"
+    )
+    direction_deg: float = setting(0.0, kind="number", unit="deg", doc="facing direction (0 = +x, 90 = +y)")
+    injection: Literal["soft", "hard"] = setting(
+        "soft", kind="str", choices=("soft", "hard"), doc="soft (add to P) or hard (set P)"
+    )
+    weights: tuple | None = setting(None, kind="list", items="number", doc="amplitude weight per cell (n_cells values)")
+    lags_s: tuple | None = setting(None, kind="list", items="number", unit="s", doc="delay per cell (n_cells values)")
+
+
+@dataclass(frozen=True)
+class DiscTransducer(TransducerSection):
+    """A disc (`type = "disc"`): on rz grids rings of cells round the axis, on 3d grids a flat disc
+    at any position and orientation, its cells weighted by the area they hold."""
+
+    type: str = setting("disc", kind="str", choices=("disc",), doc="disc: rz and 3d grids")
+    diameter_m: float | None = setting(
+        None, kind="number", gt=0, unit="m", doc="diameter (3d: or give ring_edges_m or fit_report)"
+    )
+    axis: tuple | None = setting(
+        None,
+        kind="list",
+        items="number",
+        doc="3d: the direction its face points to, [x, y, z] (any length; default [1, 0, 0])",
+    )
+    baffle: Literal["rigid", "none", "can"] | None = setting(
+        None,
         kind="str",
-        doc="soft (add to P) or hard (set P); an rz disc given injection = soft (with baffle = none) is a "
-        "transparent disc of soft ring sources (the design problems' source) instead of the velocity piston",
+        choices=("rigid", "none", "can"),
+        doc="rz: rigid (the default: an infinite baffle, the face on the rigid z_lo side, z = 0), none (a bare "
+        'disc) or can (a rigid can of depth can_depth_m behind the face); a 3d disc is bare (baffle = "none": '
+        "give a baffle as an object)",
+    )
+    can_depth_m: float | None = setting(None, kind="number", gt=0, unit="m", doc="baffle = can: its depth")
+    can_wall_m: float = setting(0.0, kind="number", ge=0, unit="m", doc="baffle = can: wall thickness")
+    injection: Literal["soft", "hard"] | None = setting(
+        None,
+        kind="str",
+        choices=("soft", "hard"),
+        doc="rz: leave out for the velocity piston, or soft (with baffle = none) for a transparent disc of soft "
+        "ring sources (the design problems' source); 3d: soft (add to P, the default) or hard (set P)",
     )
     weights: tuple | None = setting(
         None,
         kind="list",
         items="number",
-        doc="amplitude weights: per cell of a line (n_cells values), per ring of a disc (rz: rings one cell "
-        "wide; 3d: the rings of ring_edges_m)",
+        doc="amplitude weight per ring (rz: rings one cell wide; 3d: the rings of ring_edges_m)",
     )
-    lags_s: tuple | None = setting(
-        None, kind="list", items="number", unit="s", doc="delays, per cell (line) or per ring (disc), as weights"
-    )
+    lags_s: tuple | None = setting(None, kind="list", items="number", unit="s", doc="delay per ring, as weights")
     ring_edges_m: tuple | None = setting(
         None,
         kind="list",
         items="any",
         unit="m",
-        doc="3d disc: inner and outer radius of each ring, [[r0, r1], ...] (with weights and lags_s per ring)",
+        doc="3d: inner and outer radius of each ring, [[r0, r1], ...] (with weights and lags_s per ring)",
     )
     fit_report: str | None = setting(
         None,
         kind="str",
-        doc="3d disc: take the rings (edges, weights, lags) and the diameter from a disc fit's report.json "
+        doc="3d: take the rings (edges, weights, lags) and the diameter from a disc fit's report.json "
         "(path relative to the scene file)",
     )
     receive: bool = setting(
@@ -213,75 +268,232 @@ class TransducerSection(Section):
         doc="receive: the echo window starts here (before it: the transmit and its ring-down); marks the A-scan",
     )
 
+    def rz_baffle(self) -> Literal["rigid", "none", "can"]:
+        """The housing of this disc on an rz grid (`baffle`, default rigid)."""
+        return self.baffle or "rigid"
+
+    @property
+    def soft_rings(self) -> bool:
+        """An rz disc given `injection = "soft"`: a transparent disc of soft ring sources (the design
+        problems' source model) instead of the default velocity piston."""
+        return self.injection == "soft"
+
+
+Transducer = LineTransducer | DiscTransducer
+"""One `[[transducers]]` table: the class its `type` names."""
+TRANSDUCER = TaggedUnion("transducers", "type", (LineTransducer, DiscTransducer), default="line", noun="transducer")
+"""The transducer union: `type` (default line) picks the class."""
+
+
+# ------------------------------------------------------------------------------------------
+# objects: a tagged union on `shape`
+
 
 @dataclass(frozen=True)
 class ObjectSection(Section):
-    """One object (`[[objects]]`, one table each): a shape and its material."""
+    """The keys of every object (`[[objects]]`, one table each): a shape and its material."""
 
     SECTION: ClassVar[str] = "objects"
     shape: str = setting(
         kind="str",
+        choices=(
+            "segment",
+            "box",
+            "circle",
+            "polygon",
+            "polyline",
+            "mesh",
+            "sphere",
+            "cylinder",
+            "halfspace",
+            "slab",
+            "union",
+            "intersection",
+        ),
         doc="2d/rz: segment, box, circle, polygon, polyline or mesh; 3d: box, sphere, cylinder, halfspace, slab, "
         "union, intersection or mesh",
     )
-    file: str | None = setting(
-        None,
-        kind="str",
-        doc="mesh: a closed mesh file (STL, OBJ, ...) relative to the scene file; 2d takes its section at z = 0, "
-        "rz its section through the z axis (a body of revolution's profile), 3d the whole solid in grid "
-        "coordinates (inside by ray parity, exact distance near the surface)",
-    )
-    unit: str = setting("mm", kind="str", choices=("mm", "m", "um", "cm", "in"), doc="mesh: the file's length unit")
-    material: str = setting("rigid", kind="str", doc="material name (rigid, soft, pine, ...)")
+    material: str | None = setting(None, kind="str", doc="material name (rigid, the default; soft, pine, ...)")
     name: str | None = setting(None, kind="str", doc="label (3d pulse-echo runs: the echo table's surface name)")
-    a_m: tuple | None = setting(None, kind="list", items="number", unit="m", doc="segment start [x, y]")
-    b_m: tuple | None = setting(None, kind="list", items="number", unit="m", doc="segment end [x, y]")
-    thickness_m: float | None = setting(
-        None, kind="number", gt=0, unit="m", doc="wall thickness of segment/polyline (3d: of a slab)"
+    cut: Any = setting(
+        None, kind="table", union=lambda: OBJECT, doc="a shape (an object table) removed from this one, e.g. a gap"
     )
-    lo_m: tuple | None = setting(
-        None, kind="list", items="number", unit="m", doc="box lower-left corner [x, y] (3d: [x, y, z])"
+
+    @property
+    def material_name(self) -> str:
+        """The material (`material`, default rigid)."""
+        return self.material or "rigid"
+
+
+def _shape_tag(tag: str, doc: str) -> Any:
+    return setting(tag, kind="str", choices=(tag,), doc=doc)
+
+
+_GEOMETRY_FIX = "give it as the shape's table in docs/scene-files.md says"
+
+
+def _vec(doc: str, unit: str = "m", required: bool = False, **kw) -> Any:
+    return setting(
+        REQUIRED if required else None, kind="list", items="number", unit=unit, doc=doc, fix=_GEOMETRY_FIX, **kw
     )
-    hi_m: tuple | None = setting(
-        None, kind="list", items="number", unit="m", doc="box upper-right corner [x, y] (3d: [x, y, z])"
+
+
+def _num(doc: str, required: bool = True) -> Any:
+    return setting(REQUIRED if required else None, kind="number", gt=0, unit="m", doc=doc, fix=_GEOMETRY_FIX)
+
+
+@dataclass(frozen=True)
+class SegmentObject(ObjectSection):
+    """A straight wall of a thickness (2d, rz)."""
+
+    shape: str = _shape_tag("segment", "segment (2d, rz)")
+    a_m: tuple = _vec("start [x, y]", required=True)
+    b_m: tuple = _vec("end [x, y]", required=True)
+    thickness_m: float = _num("wall thickness")
+
+
+@dataclass(frozen=True)
+class BoxObject(ObjectSection):
+    """A box: by its corners lo_m and hi_m (2d, rz, 3d), or on 3d grids by centre_m and size_m,
+    turned by angles_deg."""
+
+    shape: str = _shape_tag("box", "box (2d, rz, 3d)")
+    lo_m: tuple | None = _vec("lower corner [x, y] (3d: [x, y, z])")
+    hi_m: tuple | None = _vec("upper corner [x, y] (3d: [x, y, z])")
+    centre_m: tuple | None = _vec("3d: centre [x, y, z] (with size_m)")
+    size_m: tuple | None = _vec("3d: edge lengths [x, y, z] (with centre_m)", gt=0)
+    angles_deg: tuple | None = _vec(
+        "3d: [yaw about z, pitch about the new y, roll about the new x] (default [0, 0, 0])", unit="deg"
     )
-    centre_m: tuple | None = setting(
-        None,
-        kind="list",
-        items="number",
-        unit="m",
-        doc="circle centre [x, y]; 3d: centre [x, y, z] of a sphere, cylinder or turned box",
-    )
-    radius_m: float | None = setting(None, kind="number", gt=0, unit="m", doc="circle, sphere or cylinder radius")
-    size_m: tuple | None = setting(
-        None, kind="list", items="number", gt=0, unit="m", doc="3d box: edge lengths [x, y, z] (with centre_m)"
-    )
-    angles_deg: tuple | None = setting(
-        None,
-        kind="list",
-        items="number",
-        unit="deg",
-        doc="3d box: [yaw about z, pitch about the new y, roll about the new x] (default [0, 0, 0])",
-    )
-    axis: tuple | None = setting(
-        None, kind="list", items="number", doc="3d cylinder: axis direction [x, y, z] (any length)"
-    )
-    length_m: float | None = setting(None, kind="number", gt=0, unit="m", doc="3d cylinder: length (capped ends)")
-    point_m: tuple | None = setting(
-        None, kind="list", items="number", unit="m", doc="3d halfspace or slab: a point [x, y, z] of its plane"
-    )
-    normal: tuple | None = setting(
-        None,
-        kind="list",
-        items="number",
-        doc="3d halfspace or slab: plane normal [x, y, z] (a halfspace is solid opposite to it)",
-    )
-    parts: tuple | None = setting(
-        None, kind="list", items="any", doc="3d union or intersection: the shapes, inline tables with these keys"
-    )
-    vertices_m: tuple | None = setting(None, kind="list", items="any", unit="m", doc="polygon vertices [[x, y], ...]")
-    points_m: tuple | None = setting(None, kind="list", items="any", unit="m", doc="polyline points [[x, y], ...]")
-    cut: dict | None = setting(None, kind="table", doc="a shape (same keys) removed from this one, e.g. a gap")
+
+
+@dataclass(frozen=True)
+class CircleObject(ObjectSection):
+    """A disc of the plane (2d, rz: a torus or a disc round the axis)."""
+
+    shape: str = _shape_tag("circle", "circle (2d, rz)")
+    centre_m: tuple = _vec("centre [x, y]", required=True)
+    radius_m: float = _num("radius")
+
+
+@dataclass(frozen=True)
+class PolygonObject(ObjectSection):
+    """A closed polygon (2d, rz)."""
+
+    shape: str = _shape_tag("polygon", "polygon (2d, rz)")
+    vertices_m: tuple = setting(kind="list", items="any", unit="m", doc="vertices [[x, y], ...]")
+
+
+@dataclass(frozen=True)
+class PolylineObject(ObjectSection):
+    """A wall of a thickness along a broken line (2d, rz)."""
+
+    shape: str = _shape_tag("polyline", "polyline (2d, rz)")
+    points_m: tuple = setting(kind="list", items="any", unit="m", doc="points [[x, y], ...]")
+    thickness_m: float = _num("wall thickness")
+
+
+@dataclass(frozen=True)
+class MeshObject(ObjectSection):
+    """A closed mesh file (STL, OBJ, ...): 2d takes its section at z = 0, rz its section through the
+    z axis (a body of revolution's profile), 3d the whole solid in grid coordinates (inside by ray
+    parity, exact distance near the surface)."""
+
+    shape: str = _shape_tag("mesh", "mesh (2d, rz, 3d)")
+    file: str = setting(kind="str", doc="the mesh file, relative to the scene file")
+    unit: str = setting("mm", kind="str", choices=("mm", "m", "um", "cm", "in"), doc="the file's length unit")
+
+
+@dataclass(frozen=True)
+class SphereObject(ObjectSection):
+    """A ball (3d)."""
+
+    shape: str = _shape_tag("sphere", "sphere (3d)")
+    centre_m: tuple = _vec("centre [x, y, z]", required=True)
+    radius_m: float = _num("radius")
+
+
+@dataclass(frozen=True)
+class CylinderObject(ObjectSection):
+    """A cylinder with capped ends (3d)."""
+
+    shape: str = _shape_tag("cylinder", "cylinder (3d)")
+    centre_m: tuple = _vec("centre [x, y, z]", required=True)
+    axis: tuple = _vec("axis direction [x, y, z] (any length)", unit="", required=True)
+    radius_m: float = _num("radius")
+    length_m: float = _num("length")
+
+
+@dataclass(frozen=True)
+class HalfspaceObject(ObjectSection):
+    """Everything on one side of a plane (3d): solid opposite to its normal."""
+
+    shape: str = _shape_tag("halfspace", "halfspace (3d)")
+    point_m: tuple = _vec("a point [x, y, z] of its plane", required=True)
+    normal: tuple = _vec("plane normal [x, y, z] (the solid lies opposite to it)", unit="", required=True)
+
+
+@dataclass(frozen=True)
+class SlabObject(ObjectSection):
+    """A plate of a thickness (3d)."""
+
+    shape: str = _shape_tag("slab", "slab (3d)")
+    point_m: tuple = _vec("a point [x, y, z] of its mid-plane", required=True)
+    normal: tuple = _vec("plane normal [x, y, z]", unit="", required=True)
+    thickness_m: float = _num("thickness")
+
+
+@dataclass(frozen=True)
+class UnionObject(ObjectSection):
+    """The union of shapes (3d)."""
+
+    shape: str = _shape_tag("union", "union (3d)")
+    parts: tuple = setting(kind="list", items="table", union=lambda: OBJECT, doc="the shapes, inline object tables")
+
+
+@dataclass(frozen=True)
+class IntersectionObject(ObjectSection):
+    """The intersection of shapes (3d)."""
+
+    shape: str = _shape_tag("intersection", "intersection (3d)")
+    parts: tuple = setting(kind="list", items="table", union=lambda: OBJECT, doc="the shapes, inline object tables")
+
+
+Object = (
+    SegmentObject
+    | BoxObject
+    | CircleObject
+    | PolygonObject
+    | PolylineObject
+    | MeshObject
+    | SphereObject
+    | CylinderObject
+    | HalfspaceObject
+    | SlabObject
+    | UnionObject
+    | IntersectionObject
+)
+"""One `[[objects]]` table: the class its `shape` names."""
+OBJECT: TaggedUnion = TaggedUnion(
+    "objects",
+    "shape",
+    (
+        SegmentObject,
+        BoxObject,
+        CircleObject,
+        PolygonObject,
+        PolylineObject,
+        MeshObject,
+        SphereObject,
+        CylinderObject,
+        HalfspaceObject,
+        SlabObject,
+        UnionObject,
+        IntersectionObject,
+    ),
+    noun="object",
+)
+"""The object union: `shape` (required) picks the class."""
 
 
 @dataclass(frozen=True)
@@ -380,55 +592,38 @@ class OutputSection(Section):
     )
 
 
-SECTIONS: dict[str, type] = {
-    c.SECTION: c
-    for c in (
-        GridSection,
-        MediumSection,
-        AirSection,
-        EdgesSection,
-        TransducerSection,
-        ObjectSection,
-        SensorsSection,
-        FarfieldSection,
-        RunSection,
-        OutputSection,
-    )
+SECTIONS: dict[str, type | TaggedUnion] = {
+    "grid": GridSection,
+    "medium": MediumSection,
+    "air": AirSection,
+    "edges": EdgesSection,
+    "transducers": TRANSDUCER,
+    "objects": OBJECT,
+    "sensors": SensorsSection,
+    "farfield": FarfieldSection,
+    "run": RunSection,
+    "output": OutputSection,
 }
-"""Scene file sections in file order: name -> declared section class."""
+"""Scene file sections in file order: name -> declared section class (or, for the arrays of
+tables, the tagged union whose `type` / `shape` picks the class)."""
 ARRAY_SECTIONS = ("transducers", "objects")
 """Sections written as arrays of tables (`[[transducers]]`)."""
-
-_TYPES = {"number": (int, float), "int": int, "bool": bool, "str": str, "list": list, "table": dict}
-SCHEMA: dict[str, dict[str, tuple]] = {
-    name: {
-        s.name: (
-            _TYPES[s.kind],
-            s.default if s.default is REQUIRED or not isinstance(s.default, tuple) else list(s.default),
-            s.doc + (f", {s.unit}" if s.unit else ""),
-        )
-        for s in specs(cls)
-    }
-    for name, cls in SECTIONS.items()
-}
-"""A plain view of the declarations: section -> key -> (type(s), default, description with unit)."""
+OPTIONAL_SECTIONS = ("air", "farfield")
+"""Sections that are None when the file leaves them out (the others take their defaults)."""
 
 
-def _plain(value: Any) -> Any:
-    if isinstance(value, tuple):
-        return [_plain(v) for v in value]
-    return value
-
-
-def validate_section(path, section: str, table: Any, where: str, error: type[ConfigError] = ConfigError) -> dict:
-    """Check one table of a scene file against its declaration; returns the values with defaults
-    filled (lists as lists). Raises `error` (one line: file, key, value, allowed, fix)."""
-    cls = SECTIONS[section]
+def parse_table(path, section: str, table: Any, where: str, error: type[ConfigError] = ConfigError) -> Any:
+    """One table of a scene file as its typed section (an array's table: the class its tag names).
+    Raises `error` (one line: file, key, value, allowed, fix)."""
+    decl = SECTIONS[section]
     try:
-        obj = parse_section(cls, table, file=path, where=where)
+        if isinstance(decl, TaggedUnion):
+            return decl.parse(table, file=path, where=where)
+        return parse_section(decl, table, file=path, where=where)
     except ConfigError as e:
+        if isinstance(e, error):
+            raise
         raise error(str(e)) from None
-    return {s.name: _plain(getattr(obj, s.name)) for s in specs(cls)}
 
 
 def fail(path, key, msg, error: type[ConfigError] = ConfigError) -> NoReturn:
@@ -437,9 +632,29 @@ def fail(path, key, msg, error: type[ConfigError] = ConfigError) -> NoReturn:
 
 
 def schema_markdown() -> str:
-    """The scene-file reference as Markdown tables (docs/scene-files.md), from the declarations."""
+    """The scene-file reference as Markdown tables (docs/scene-files.md), from the declarations:
+    one table per section, and per transducer type and object shape (its own keys; the keys every
+    transducer or object has in one table before them)."""
     out = []
-    for name, cls in SECTIONS.items():
-        head = f"`[[{name}]]`" if name in ARRAY_SECTIONS else f"`[{name}]`"
-        out.append(markdown_table(cls, heading=head))
+    for name, decl in SECTIONS.items():
+        if isinstance(decl, TaggedUnion):
+            base = decl.variants[0].__mro__[1]
+            tags = ", ".join(f"`{t}`" for t in decl.classes)
+            common = markdown_table(base, heading=f"`[[{name}]]`").rstrip("\n")
+            dflt = f' (default `"{decl.default}"`)' if decl.default else ""
+            out.append(
+                common.replace(
+                    "| key |",
+                    f"`{decl.tag}`{dflt} picks the {decl.noun}'s kind: {tags}; each has the keys of this table "
+                    f"and its own, below. A key of another kind is refused, naming the kinds it belongs to.\n\n| key |",
+                    1,
+                )
+                + "\n"
+            )
+            shared = {s.name for s in specs(base)} - {decl.tag}
+            for tag, cls in decl.classes.items():
+                out.append(markdown_table(cls, heading=f'`[[{name}]]` {decl.tag} = "{tag}"', level=4, skip=shared))
+        else:
+            head = f"`[{name}]`"
+            out.append(markdown_table(decl, heading=head))
     return "\n".join(out)

@@ -5,7 +5,7 @@
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -17,12 +17,12 @@ from .common import (
     _fail,
     _n_steps,
     _points,
-    _raw_item,
     _signal,
     _vector,
 )
 from .media import _make_grid, _materials, _medium
 from .objects import _rings_3d, _slice_planes, _union3d, shape3d
+from .schema import DiscTransducer
 
 if TYPE_CHECKING:
     from .model import Scene
@@ -45,7 +45,7 @@ def build_volume(self: Scene, available_bytes: int | None) -> BuiltScene:
             "is for 2d and rz scenes; on a 3d grid record probes (or use observe.farfield3d from Python)",
         )
     o = self.output
-    if o["show_steps"] or o["show_times_s"]:
+    if o.show_steps or o.show_times_s:
         _fail(
             p,
             "output.show_steps",
@@ -54,12 +54,12 @@ def build_volume(self: Scene, available_bytes: int | None) -> BuiltScene:
         )
 
     ed = self.edges
-    if ed["r_hi"] is not None:
+    if ed.r_hi is not None:
         _fail(p, "edges.r_hi", "is for rz grids; a 3d grid has x_lo, x_hi, y_lo, y_hi, z_lo, z_hi")
     try:
-        edges = Edges(**{s: (ed[s] or ed["kind"]) for s in _SIDES_3D}, thickness_cells=ed["thickness_cells"]).for_rank(
-            3
-        )
+        sides: dict[str, Any] = {s: (getattr(ed, s) or ed.kind) for s in _SIDES_3D}
+        edges = Edges(**sides, thickness_cells=ed.thickness_cells)
+        edges = edges.for_rank(3)
         edges.check_kind(grid.kind)
     except ValueError as err:
         _fail(p, "edges", str(err))
@@ -72,27 +72,27 @@ def build_volume(self: Scene, available_bytes: int | None) -> BuiltScene:
 
     # the estimate, before the medium maps (the largest arrays a build makes) exist
     shape = tuple(grid.shape)
-    n_snap = 0 if s["snapshot_every_steps"] is None else -(-n_steps // min(s["snapshot_every_steps"], n_steps))
+    n_snap = 0 if s.snapshot_every_steps is None else -(-n_steps // min(s.snapshot_every_steps, n_steps))
     nbytes = self._check_fits(
         grid,
         n_steps,
         available_bytes,
         pml=edges.uses_pml,
         heterogeneous=bool(self.objects),
-        soft=any(m.kind == "soft" for m in mats[1:]) or med["boundary_model"] == "speed_zero",
-        absorption=med["absorption_db_per_m"] > 0,
+        soft=any(m.kind == "soft" for m in mats[1:]) or med.boundary_model == "speed_zero",
+        absorption=med.absorption_db_per_m > 0,
         air_absorption=self.air_conditions() is not None,
         n_probes=n_cols,
         snapshot_cells=sum(math.prod(shape) // shape[a] for a, _ in planes),
         n_snapshots=n_snap,
-        field_stats=int(s["p_max"]) + int(s["p_rms"]) + int(s["arrival_threshold_pa"] is not None),
+        field_stats=int(s.p_max) + int(s.p_rms) + int(s.arrival_threshold_pa is not None),
     )
 
     occupancies = []
     for i, ob in enumerate(self.objects):
         solid = shape3d(p, f"objects[{i}]", ob)
         try:
-            occupancies.append(g3.rasterise3d(solid, grid, med["rasterise"]))
+            occupancies.append(g3.rasterise3d(solid, grid, med.rasterise))
         except ValueError as e:
             _fail(p, "medium.rasterise", str(e))
     medium = _medium(self, grid, bg, mats, occupancies, [], _union3d)
@@ -122,26 +122,24 @@ def _sources_3d(self: Scene, grid) -> list:
     sources = []
     for i, t in enumerate(self.transducers):
         where = f"transducers[{i}]"
-        if t["type"] != "disc":
-            _fail(p, f"{where}.type", f'= {t["type"]!r} is a 2d transducer: a 3d grid takes type = "disc"')
-        raw = _raw_item(self.raw, "transducers", i)
-        if "baffle" in raw and t["baffle"] != "none":
+        if not isinstance(t, DiscTransducer):
+            _fail(p, f"{where}.type", f'= {t.type!r} is a 2d transducer: a 3d grid takes type = "disc"')
+        if t.baffle is not None and t.baffle != "none":
             _fail(
                 p,
                 f"{where}.baffle",
-                f"= {t['baffle']!r}: a 3d disc is a bare source; give a baffle as an object (e.g. a box "
+                f"= {t.baffle!r}: a 3d disc is a bare source; give a baffle as an object (e.g. a box "
                 'behind the face) and baffle = "none"',
             )
-        if t["injection"] not in ("soft", "hard"):
-            _fail(p, f"{where}.injection", f"= {t['injection']!r}; allowed: soft, hard")
-        centre = _vector(p, f"{where}.centre_m", t["centre_m"])
-        axis = _vector(p, f"{where}.axis", t["axis"] if t["axis"] is not None else [1.0, 0.0, 0.0])
+        injection = t.injection or "soft"
+        centre = _vector(p, f"{where}.centre_m", t.centre_m)
+        axis = _vector(p, f"{where}.axis", t.axis if t.axis is not None else [1.0, 0.0, 0.0])
         rings, diameter = _rings_3d(self, where, t)
         sig = _signal(p, where, t, grid)
         try:
             sources.append(
                 disc_transducer_3d(
-                    grid, centre, axis, diameter_m=diameter, rings=rings, signal=sig, injection=t["injection"]
+                    grid, centre, axis, diameter_m=diameter, rings=rings, signal=sig, injection=injection
                 )
             )
         except (ValueError, TypeError) as err:
@@ -157,27 +155,27 @@ def _sensors_3d(self: Scene, grid, sources: list) -> tuple:
 
     p = self.path
     s = self.sensors
-    columns = [probe_cells(grid, _points(p, "sensors.probes_m", s["probes_m"], 3))] if s["probes_m"] else []
+    columns = [probe_cells(grid, _points(p, "sensors.probes_m", s.probes_m, 3))] if s.probes_m else []
     n_cols = sum(len(c) for c in columns)
     receivers = []
     for i, (t, src) in enumerate(zip(self.transducers, sources)):
-        if not t["receive"]:
-            if t["gate_start_s"] is not None:
+        if not isinstance(t, DiscTransducer) or not t.receive:
+            if isinstance(t, DiscTransducer) and t.gate_start_s is not None:
                 _fail(p, f"transducers[{i}].gate_start_s", "needs receive = true (the A-scan it gates)")
             continue
         cells = np.asarray(src.cells_array)
-        gate = 0 if t["gate_start_s"] is None else int(round(grid.s_to_steps(t["gate_start_s"])))
-        receivers.append(Receiver(t["name"], i, n_cols, n_cols + len(cells), gate))
+        gate = 0 if t.gate_start_s is None else int(round(grid.s_to_steps(t.gate_start_s)))
+        receivers.append(Receiver(t.name, i, n_cols, n_cols + len(cells), gate))
         columns.append(cells)
         n_cols += len(cells)
     planes = _slice_planes(self, grid, sources)
     try:
         sensors = Sensors(
             probes=np.concatenate(columns) if columns else _NO_CELLS,
-            p_max=s["p_max"],
-            p_rms=s["p_rms"],
-            arrival_threshold_pa=s["arrival_threshold_pa"],
-            snapshot_every=s["snapshot_every_steps"],
+            p_max=s.p_max,
+            p_rms=s.p_rms,
+            arrival_threshold_pa=s.arrival_threshold_pa,
+            snapshot_every=s.snapshot_every_steps,
             snapshot_slices=planes,
         )
         sensors.check_inside(grid)

@@ -68,6 +68,43 @@ class Result(eqx.Module):
         )
 
 
+class Joiner:
+    """Joins the `Result`s of consecutive pieces of one run (each started from the last one's
+    final state) into the run's `Result`: probes, peaks and snapshots concatenated, chunk steps
+    counted from the run's start, phasors and field statistics from the last final state (they
+    accumulate in the state). Host-side; keeps only the recorded series, not each piece's state.
+    `keep_snapshots=False` drops the pieces' snapshots (a caller that thins them as they arrive)."""
+
+    def __init__(self, keep_snapshots: bool = True):
+        self.keep_snapshots = keep_snapshots
+        self.done = 0
+        self.final: State | None = None
+        self.probes: list = []
+        self.peaks: list = []
+        self.snapshots: list = []
+        self.steps: list[int] = []
+
+    def add(self, piece: Result) -> None:
+        """Append the next piece (its steps follow the pieces added so far)."""
+        self.final = piece.final
+        if piece.probes is not None:
+            self.probes.append(piece.probes)
+        self.peaks.append(piece.peak_history)
+        if self.keep_snapshots and piece.snapshots is not None:
+            self.snapshots.append(piece.snapshots)
+        self.steps += [self.done + s for s in piece.chunk_steps]
+        self.done += piece.n_steps
+
+    def result(self) -> Result:
+        """The whole run's `Result` (at least one piece added)."""
+        if self.final is None:
+            raise ValueError("Joiner.result: no piece was added")
+        cat = lambda *a: jnp.concatenate(a, axis=0)
+        snaps = jax.tree_util.tree_map(cat, *self.snapshots) if self.snapshots else None
+        probes = cat(*self.probes) if self.probes else None
+        return Result.of_final(self.final, probes, cat(*self.peaks), snaps, self.done, self.steps)
+
+
 # ------------------------------------------------------------------------------------------
 # the time loop
 

@@ -212,6 +212,8 @@ def _run_plane(scene: Scene, *, progress: bool) -> SceneRun:
             "that did not compile (compile_s: the rest of the time less those steps at that rate)",
             "device": str(jax.devices()[0]),
             "machine": platform.machine(),
+            "backend": result.backend,
+            "backend_why_not": dict(result.backend_why_not),
         },
         "stability": {
             "finite": bool(np.all(np.isfinite(result.peak_history))),

@@ -21,10 +21,9 @@ from ..lattice.coefficients import Edges, speed_limit
 from ..lattice.grid import Grid
 from ..lattice.kinds import PLANE, VOLUME
 from ..lattice.medium import Medium
-from . import adjoint as adj
-from . import native
+from .backends import Request, choose
 from .estimate import preflight as _preflight
-from .scan import Checkpoint, Joiner, Result, chunking, run_jax
+from .scan import Checkpoint, Joiner, Result, chunking
 from .sensors import Sensors
 from .sources import PointSources
 from .stepper import State, Stepper
@@ -60,72 +59,15 @@ def run(
     `backend`: "jax" (this loop: the reference, and the path on GPUs), "native" (the C++ kernels
     of `difflattice.solver.native` on a CPU: raises if the scene or machine is not supported), or
     "auto" (native where supported, else jax). Derivatives of a native run are the JAX loop's,
-    except with adjoint="lattice", whose forward and backward runs are native where supported."""
+    except with adjoint="lattice", whose forward and backward runs are native where supported.
+    The chooser is `backends.choose`; `Result.backend` names the backend that ran and
+    `Result.backend_why_not` why each other one did not."""
     if not isinstance(n_steps, (int, np.integer)) or n_steps < 1:
         raise ValueError(f"n_steps = {n_steps!r} must be a positive integer")
     n_steps = int(n_steps)
     if adjoint not in ("autodiff", "lattice", "auto"):
         raise ValueError(f"adjoint = {adjoint!r}; allowed: 'autodiff', 'lattice', 'auto'")
-    if adjoint == "auto":  # the adjoint wave equation where it supports the run, else JAX's reverse mode
-        adjoint = "lattice" if adj.supports(stepper, state) is None and sharding is None else "autodiff"
-    # --- native CPU kernels (issue 15): the one dispatch hook ------------------------------
-    if backend != "jax":
-        result = native.dispatch(
-            stepper,
-            n_steps,
-            state=state,
-            checkpoint=checkpoint,
-            unroll=unroll,
-            sharding=sharding,
-            adjoint=adjoint,
-            backend=backend,
-        )
-        if result is not None:
-            return result
-    # ------------------------------------------------------------------------------------------
-    if adjoint != "autodiff":
-        reason = adj.supports(stepper, state)
-        if reason is None and sharding is None:
-            on_native = False
-            if backend != "jax":
-                why = native.why_not(stepper, state, sharding)
-                if why is not None and backend == "native":
-                    raise ValueError(
-                        f"backend='native' is not available for this run: {why} (use backend='auto' or 'jax')"
-                    )
-                on_native = why is None
-            return _run_lattice_adjoint(stepper, n_steps, checkpoint, on_native)
-        if adjoint == "lattice":
-            raise ValueError(
-                f"adjoint='lattice' does not support {reason or 'sharding'}: use adjoint='autodiff' "
-                "(or 'auto' to choose per scene)"
-            )
-    return run_jax(stepper, n_steps, state=state, checkpoint=checkpoint, unroll=unroll, sharding=sharding)
-
-
-def _run_lattice_adjoint(stepper: Stepper, n_steps: int, checkpoint: Checkpoint, on_native: bool) -> Result:
-    chunk = chunking(n_steps, stepper.sensors, "sqrt" if checkpoint is None else checkpoint)
-    probes, re, im, p, p_prev, peaks = adj.linear_run(stepper, n_steps, chunk, on_native)
-    final = eqx.tree_at(
-        lambda s: (s.p, s.p_prev, s.n, s.phasor_re, s.phasor_im),
-        stepper.init(),
-        (p, p_prev, jnp.asarray(n_steps, jnp.int32), re, im),
-        is_leaf=lambda x: x is None,
-    )
-    n_chunks, rem = divmod(n_steps, chunk)
-    steps = [chunk * (i + 1) for i in range(n_chunks)] + ([n_steps] if rem else [])
-    return Result(
-        final=final,
-        probes=probes,
-        phasors=None if re is None else jax.lax.complex(re, im),
-        p_max=None,
-        p_rms=None,
-        arrival=None,
-        snapshots=None,
-        peak_history=peaks,
-        n_steps=n_steps,
-        chunk_steps=tuple(steps),
-    )
+    return choose(Request(stepper, n_steps, state, checkpoint, unroll, sharding, adjoint), backend).run()
 
 
 INSTABILITY_MESSAGE = (

@@ -5,6 +5,7 @@ that imports them all, so the solver's imports form no circle)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from typing import Literal
@@ -28,6 +29,8 @@ class Result(eqx.Module):
     - `snapshots`: (k, nx, ny) fields at steps `snapshot_steps`; on a 3-D grid a tuple with one
       (k, n_i, n_j) array per plane of `sensors.snapshot_slices` (or (k, nx, ny, nz) volumes).
     - `peak_history`: (n_chunks,) max |p| at the end of each chunk (`chunk_steps`).
+    - `backend`: the backend that ran ("jax", "sharded", "native", "lattice adjoint"; see
+      `solver.backends`) and `backend_why_not`: (name, reason) of each one passed over.
     """
 
     final: State
@@ -40,6 +43,8 @@ class Result(eqx.Module):
     peak_history: Float[Array, " c"]
     n_steps: int = eqx.field(static=True)
     chunk_steps: tuple[int, ...] = eqx.field(static=True)
+    backend: str = eqx.field(static=True, default="jax")
+    backend_why_not: tuple[tuple[str, str], ...] = eqx.field(static=True, default=())
 
     @property
     def snapshot_steps(self) -> tuple[int, ...]:
@@ -79,6 +84,7 @@ class Joiner:
         self.keep_snapshots = keep_snapshots
         self.done = 0
         self.final: State | None = None
+        self.last: Result | None = None
         self.probes: list = []
         self.peaks: list = []
         self.snapshots: list = []
@@ -86,7 +92,7 @@ class Joiner:
 
     def add(self, piece: Result) -> None:
         """Append the next piece (its steps follow the pieces added so far)."""
-        self.final = piece.final
+        self.final, self.last = piece.final, piece
         if piece.probes is not None:
             self.probes.append(piece.probes)
         self.peaks.append(piece.peak_history)
@@ -102,7 +108,9 @@ class Joiner:
         cat = lambda *a: jnp.concatenate(a, axis=0)
         snaps = jax.tree_util.tree_map(cat, *self.snapshots) if self.snapshots else None
         probes = cat(*self.probes) if self.probes else None
-        return Result.of_final(self.final, probes, cat(*self.peaks), snaps, self.done, self.steps)
+        joined = Result.of_final(self.final, probes, cat(*self.peaks), snaps, self.done, self.steps)
+        assert self.last is not None
+        return dataclasses.replace(joined, backend=self.last.backend, backend_why_not=self.last.backend_why_not)
 
 
 # ------------------------------------------------------------------------------------------

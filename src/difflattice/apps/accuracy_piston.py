@@ -87,6 +87,7 @@ def run_piston(
     from ..lattice.coefficients import Edges
     from ..lattice.grid import make_grid
     from ..lattice.medium import Medium
+    from ..lattice.window import Span, Window
     from ..observe.farfield_rz import CylinderSurface, axis_line, far_field_rz, scan_line
     from ..solver.loop import run
     from ..solver.sensors import Sensors
@@ -102,8 +103,18 @@ def run_piston(
     spp = int(round(ppw / courant))
     gap = max(3, math.ceil(ppw / 2))  # the far-field cylinder: half a wavelength around the face
     z_far = 5 * radius_m**2 / lam if on_axis else line_z_m
-    nz = math.ceil(max(z_far, line_z_m, (gap + 2) * dx) / dx + 2 * ppw) + pml_cells
-    nr = math.ceil(max(a_cells, np.abs(line_x_m).max() / dx) + PISTON_R_MARGIN_WAVELENGTHS * ppw) + pml_cells
+    # the baffle and the axis close the window; its interior reaches past the range and the line
+    win = Window(
+        (
+            Span.closed(gap=gap, layer=pml_cells, pad=1).with_reach(
+                math.ceil(max(z_far, line_z_m, (gap + 2) * dx) / dx + 2 * ppw)
+            ),
+            Span.closed(gap=gap, layer=pml_cells, pad=1, fwd=math.ceil(a_cells)).with_reach(
+                math.ceil(max(a_cells, np.abs(line_x_m).max() / dx) + PISTON_R_MARGIN_WAVELENGTHS * ppw)
+            ),
+        )
+    )
+    nz, nr = win.shape
     grid = make_grid(
         frequency_hz=frequency_hz,
         cells_per_wavelength=ppw,
@@ -115,7 +126,8 @@ def run_piston(
         stencil=stencil,
     )
     src = disc_transducer(grid, radius_m=radius_m, signal=ContinuousWave(frequency_hz, 3.0, 1.0))
-    surface = CylinderSurface(0, gap, math.ceil(a_cells) + gap, baffled=True)
+    (z0, z1), (_, jr) = win.box
+    surface = CylinderSurface(z0, z1, jr, baffled=True)
     surface.check_inside(grid, margin=pml_cells)
     line = scan_line(grid, line_x_m, line_z_m)
     groups = [("surface", surface.cells), ("line", line.cells)]

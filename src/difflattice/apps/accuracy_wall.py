@@ -304,14 +304,15 @@ def _edge_run(ppw: float, half_cells: int, edges, dtype: Dtype, probes_rel, n_st
 
     from ..lattice.grid import make_grid
     from ..lattice.medium import Medium
+    from ..lattice.window import Span
     from ..solver.loop import run
     from ..solver.sensors import Sensors
     from ..solver.sources import PointSources, ToneBurst
     from ..solver.stepper import Stepper
 
     L = edges.thickness_cells if edges.kinds() & {"pml", "sponge"} else 0
-    n = 2 * (half_cells + L) + 1
-    centre = half_cells + L
+    span = Span.open(gap=half_cells, layer=L, pad=0)  # free space `half_cells` each side of the source
+    n, centre = span.n, span.source
     grid = make_grid(frequency_hz=F_HZ, cells_per_wavelength=ppw, c_max_m_s=C_M_S, shape=(n, n), dtype=dtype)
     dt = grid.jnp_dtype
     sig = ToneBurst(F_HZ, BURST_CYCLES, "hann", 1.0)

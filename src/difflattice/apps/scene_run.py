@@ -14,7 +14,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -26,8 +25,8 @@ from ..observe.farfield import far_field, level_db
 from ..observe.farfield_rz import CylinderSurface
 from ..observe.observables import lobe_metrics
 from ..scene.model import Scene
-from ..solver.loop import INSTABILITY_MESSAGE, Result, run
-from ..solver.stepper import State, Stepper
+from ..solver.loop import INSTABILITY_MESSAGE, Result, run_pieces
+from ..solver.stepper import Stepper
 
 if TYPE_CHECKING:  # a plane or rz run never imports the 3-D runner
     from .scene3d_run import SceneRun3D
@@ -97,8 +96,8 @@ def run_in_pieces(
     bad = [m for m in wanted if not 1 <= m <= n_steps]
     if bad:
         raise ValueError(f"moments {sorted(bad)} lie outside steps 1..{n_steps}")
-    runner = eqx.filter_jit(lambda st, s, n: run(s, n, state=st, checkpoint=checkpoint))
-    state: State = stepper.init()
+    ends = _piece_ends(n_steps, seg, k, wanted)
+    pieces = run_pieces(stepper, ends, checkpoint=checkpoint)  # the solver's piece loop
     probes, snaps, snap_steps, peaks = [], [], [], []
     kept = {}
     done = 0
@@ -106,11 +105,9 @@ def run_in_pieces(
     seen: set[int] = set()
     fresh_steps, fresh_s, steady_steps, steady_s = 0, 0.0, 0, 0.0
     bar = tqdm(total=n_steps, unit="step", disable=not progress, desc="simulate (compiling)")
-    for end in _piece_ends(n_steps, seg, k, wanted):
+    t0 = time.perf_counter()
+    for end, res in zip(ends, pieces):
         n = end - done
-        t0 = time.perf_counter()
-        res = runner(state, stepper, n)
-        jax.block_until_ready(res.peak_history)
         dt = time.perf_counter() - t0
         if first_time is None:
             first_time = dt
@@ -137,6 +134,7 @@ def run_in_pieces(
         if not np.all(np.isfinite(peaks[-1])):
             bar.close()
             raise FloatingPointError(f"{INSTABILITY_MESSAGE} (detected by step {done})")
+        t0 = time.perf_counter()
     bar.close()
     import dataclasses
 
@@ -214,6 +212,8 @@ def _run_plane(scene: Scene, *, progress: bool) -> SceneRun:
             "that did not compile (compile_s: the rest of the time less those steps at that rate)",
             "device": str(jax.devices()[0]),
             "machine": platform.machine(),
+            "backend": result.backend,
+            "backend_why_not": dict(result.backend_why_not),
         },
         "stability": {
             "finite": bool(np.all(np.isfinite(result.peak_history))),

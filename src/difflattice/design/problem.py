@@ -32,6 +32,7 @@ from ..lattice.geometry import rasterise
 from ..lattice.grid import Grid, make_grid
 from ..lattice.kinds import AXISYMMETRIC, PLANE, LatticeKind, as_kind
 from ..lattice.medium import Medium, air, material
+from ..lattice.window import Window
 from ..observe.farfield import BoxContour, far_field
 from ..observe.farfield_rz import CylinderSurface, field_at_rz
 from ..solver.loop import simulate
@@ -387,24 +388,12 @@ def _layout(
     """Grid and contour around a transducer anchored `back` cells behind and `fwd` cells before
     the walls' reach, `half` cells either side (rz: `half` rings out from the axis); returns
     (grid, contour, anchor cell)."""
+    win = Window.around(lattice, gap=gap_cells, layer=pml_cells, pad=3, pad_hi=2, extent=((back, fwd), (half, half)))
+    grid = _grid(frequency_hz, cells_per_wavelength, wall, win.shape, dtype, lattice, stencil)
+    (i0, i1), (j0, j1) = win.box
     if lattice.ring_metric:
-        iz0 = pml_cells + 3
-        iz_s = iz0 + gap_cells + back
-        iz1 = iz_s + fwd + gap_cells
-        jr = half + gap_cells
-        grid = _grid(
-            frequency_hz, cells_per_wavelength, wall, (iz1 + 3 + pml_cells, jr + 3 + pml_cells), dtype, lattice, stencil
-        )
-        return grid, CylinderSurface(iz0, iz1, jr, False), (iz_s, 0)
-    ix0 = iy0 = pml_cells + 3
-    ix_s = ix0 + gap_cells + back
-    ix1 = ix_s + fwd + gap_cells
-    iy_s = iy0 + gap_cells + half
-    iy1 = iy_s + half + gap_cells
-    grid = _grid(
-        frequency_hz, cells_per_wavelength, wall, (ix1 + 3 + pml_cells, iy1 + 3 + pml_cells), dtype, lattice, stencil
-    )
-    return grid, BoxContour(ix0, ix1, iy0, iy1), (ix_s, iy_s)
+        return grid, CylinderSurface(i0, i1, j1, False), win.source
+    return grid, BoxContour(i0, i1, j0, j1), win.source
 
 
 def horn_design(

@@ -46,6 +46,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ..lattice.window import Span
 from ..transforms import logit
 
 FAMILIES = ("flat", "recessed", "opening", "profile")
@@ -246,13 +247,11 @@ class HousedSpec:
         dx, g, pml = self.dx_m, self.surface_gap, self.pml_cells
         below = int(math.ceil(self.housing.length_m / dx))
         above = int(math.ceil(self.recess_max_m / dx))
-        margin = 4
-        iz0 = pml + margin + 2
-        zd = iz0 + 1 + g + below
-        iz1 = zd + above + g
-        jr = int(math.ceil(self.housing.outer_radius_m / dx - 1e-9)) + g
-        nz = iz1 + 3 + margin + pml
-        nr = jr + 3 + margin + pml
+        # 4 cells of margin and the cylinder's 2 outer stencil cells between it and the PML
+        span_z = Span.open(gap=g, layer=pml, pad=6, back=1 + below, fwd=above)
+        span_r = Span.closed(gap=g, layer=pml, pad=6, fwd=int(math.ceil(self.housing.outer_radius_m / dx - 1e-9)))
+        (nz, nr), zd = (span_z.n, span_r.n), span_z.source
+        (iz0, iz1), jr = (span_z.contour_lo, span_z.contour_hi), span_r.contour_hi
         courant = 0.5  # lattice default of the rz kind is read from the grid below
         n_steps = int(math.hypot(nz, nr) / courant + 8 * self.cells_per_wavelength / courant)
         return HousedLayout((nz, nr), zd, iz0, iz1, jr, n_steps, dx)

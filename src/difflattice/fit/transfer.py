@@ -29,6 +29,7 @@ import numpy as np
 from ..lattice.coefficients import Edges
 from ..lattice.grid import Grid, make_grid
 from ..lattice.medium import Medium, air_density_kg_m3
+from ..lattice.window import Span, Window
 from ..observe.farfield import BoxContour, field_at
 from ..solver.loop import simulate
 from ..solver.sensors import Sensors
@@ -105,7 +106,9 @@ def free_field_transfer(
     L = pml_cells
     offsets = np.arange(n_cells) - (n_cells - 1) / 2.0  # cells
     gap = contour_gap
-    xs = L + gap + 4
+    # x: layer, 4 cells, the contour `gap` cells round the source cell, 3 cells, layer (with a
+    # wavefront line, the interior reaches 7 cells past its row); y: symmetric about the source
+    span_x = Span.open(gap=gap, layer=L, pad=4, pad_hi=3)
     if wave_x_m is not None:
         assert wave_z_m is not None  # checked above
         zc = wave_z_m / dx
@@ -113,12 +116,11 @@ def free_field_transfer(
             raise ValueError(f"wavefront distance z = {wave_z_m} m is too close to the face for this grid")
         iz = int(math.floor(zc))
         half = int(math.ceil(np.max(np.abs(wave_x_m)) / dx + np.max(np.abs(offsets)) + 4))
-        nx = xs + iz + 3 + 4 + L
+        span_x = span_x.with_reach(span_x.source + iz + 7)
     else:
         half = gap + 4
-        nx = xs + gap + 4 + L
-    ny = 2 * (half + L + 2) + 1
-    yc = ny // 2
+    win = Window((span_x, Span.open(gap=gap, layer=L, pad=half + 2 - gap)))
+    (nx, ny), (xs, yc) = win.shape, win.source
     grid = make_grid(
         frequency_hz=frequency_hz,
         cells_per_wavelength=cells_per_wavelength,
@@ -126,7 +128,8 @@ def free_field_transfer(
         shape=(nx, ny),
         dtype=dtype,
     )
-    contour = BoxContour(xs - gap, xs + gap, yc - gap, yc + gap)
+    (x0, x1), (y0, y1) = win.box
+    contour = BoxContour(x0, x1, y0, y1)
     parts = [contour.cells]
     if wave_x_m is not None:
         cols = xs + iz + np.arange(-1, 3)

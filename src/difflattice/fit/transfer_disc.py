@@ -38,6 +38,7 @@ from .disc import AxisLayout, DiscSpec, ring_edges
 
 if TYPE_CHECKING:
     from ..lattice.grid import Grid, StencilKind
+    from ..lattice.window import Window
 
 
 @dataclass
@@ -215,6 +216,7 @@ class _HousingLayout:
     surface: Any  # observe.farfield_rz.CylinderSurface
     face_row: int  # the row whose low face is the disc's face plane
     depth_m: float | None  # the housing's depth behind the face (None: no housing)
+    window: Window  # (z, r): the grid around the cylinder (before a lattice wavefront line widens it)
 
 
 def _housing_layout(
@@ -227,12 +229,21 @@ def _housing_layout(
     1 + `gap` cells below the housing's lowest row, the side `gap` rings beyond its outermost ring
     (as the "rigid" side is `gap` rings beyond the rim); below the lower cap's outer cells lie a
     4-cell margin and the PML."""
+    from ..lattice.window import Span, Window
     from ..observe.farfield_rz import CylinderSurface
 
     if baffle not in ("rigid", "none", "can"):
         raise ValueError(f"baffle = {baffle!r}; allowed: 'rigid', 'none', 'can'")
+    pad = 5  # the cylinder's outer stencil cells, then a 4-cell margin, then the PML
     if baffle == "rigid":
-        return _HousingLayout(CylinderSurface(0, gap, n_rings - 1 + gap, baffled=True), 0, None)
+        win = Window(
+            (
+                Span.closed(gap=gap, layer=pml_cells, pad=pad),
+                Span.closed(gap=gap, layer=pml_cells, pad=pad, fwd=n_rings - 1),
+            )
+        )
+        (z0, z1), (_, jr) = win.box
+        return _HousingLayout(CylinderSurface(z0, z1, jr, baffled=True), 0, None, win)
     if baffle == "can":
         if can_depth_m is None or not can_depth_m > 0:
             raise ValueError(
@@ -245,10 +256,13 @@ def _housing_layout(
     else:
         depth_m, outer = dx, float(n_rings)  # a rigid disc one cell thick behind the face
     depth = depth_m / dx
-    low = pml_cells + 4 + 2 + gap  # the lowest row of the cylinder (its lower cap's inner cells)
-    zf = low + 1 + gap + int(math.ceil(depth - 1e-9))  # the housing's lowest row: low + 1 + gap
-    jr = int(math.ceil(outer - 1e-9)) + gap  # rings jr, jr - 1 (the side's inner stencil) clear of the housing
-    return _HousingLayout(CylinderSurface(low, zf + gap, jr, baffled=False), zf, depth_m)
+    # the lower cap (its inner cells) at pml + 4 + 2 + gap, the housing's lowest row 1 + gap above
+    # it, the face at the housing's top; rings jr, jr - 1 (the side's inner stencil) clear of it
+    span_z = Span.open(gap=gap, layer=pml_cells, pad=6 + gap, back=1 + int(math.ceil(depth - 1e-9)), pad_hi=pad)
+    span_r = Span.closed(gap=gap, layer=pml_cells, pad=pad, fwd=int(math.ceil(outer - 1e-9)))
+    win = Window((span_z, span_r))
+    (low, z1), (_, jr) = win.box
+    return _HousingLayout(CylinderSurface(low, z1, jr, baffled=False), span_z.source, depth_m, win)
 
 
 def disc_transfer(
@@ -313,7 +327,7 @@ def disc_transfer(
     surf, zf = layout.surface, layout.face_row
     z_face = zf * dx  # the face plane in grid coordinates, m (0: the baffle)
     lattice_x = wave_x_m if wave_method == "lattice" else None
-    nz, nr = _grid_shape(surf, pml_cells, dx, z_face + z_line, lattice_x)
+    nz, nr = _grid_shape(layout.window, dx, z_face + z_line, lattice_x)
     grid = make_grid(
         frequency_hz=frequency_hz,
         cells_per_wavelength=cells_per_wavelength,
@@ -387,16 +401,21 @@ def _transfer_info(grid, shape: tuple[int, int], n_steps: int, sim_s: float, req
     } | request
 
 
-def _grid_shape(surf, pml_cells: int, dx: float, z_line_m: float, lattice_wave_x_m) -> tuple[int, int]:
+def _grid_shape(win: Window, dx: float, z_line_m: float, lattice_wave_x_m) -> tuple[int, ...]:
     """(nz, nr): the Kirchhoff-Helmholtz cylinder, a 4-cell margin and the PML; with a wavefront
-    sampled on the lattice itself (`lattice_wave_x_m`), its scan line at `z_line_m` too."""
-    margin = 4
-    nz = surf.iz1 + 2 + margin + pml_cells
-    nr = surf.jr + 2 + margin + pml_cells
+    sampled on the lattice itself (`lattice_wave_x_m`), its scan line at `z_line_m` too (3 cells
+    past its cell, then the margin)."""
+    from ..lattice.window import Window
+
     if lattice_wave_x_m is not None:
-        nz = max(nz, int(math.ceil(z_line_m / dx)) + 3 + margin + pml_cells)
-        nr = max(nr, int(math.ceil(np.max(np.abs(lattice_wave_x_m)) / dx)) + 3 + margin + pml_cells)
-    return nz, nr
+        span_z, span_r = win.spans
+        win = Window(
+            (
+                span_z.with_reach(int(math.ceil(z_line_m / dx)) + 7),
+                span_r.with_reach(int(math.ceil(np.max(np.abs(lattice_wave_x_m)) / dx)) + 7),
+            )
+        )
+    return win.shape
 
 
 def _checked_request(wave_method: str, surface_gap: int, lobe_angle_deg, lobe_range_m, wave_x_m, wave_z_m) -> float:

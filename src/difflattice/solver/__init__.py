@@ -10,9 +10,10 @@ from .loop import (
     check_result,
     check_speed,
     run,
+    run_pieces,
     simulate,
 )
-from .scan import grid_sharding
+from .scan import Joiner, grid_sharding
 from .sensors import Sensors, received_signal
 from .sources import (
     ContinuousWave,
@@ -33,6 +34,7 @@ __all__ = [
     "SPEED_MESSAGE",
     "SPEED_MESSAGE_3D",
     "ContinuousWave",
+    "Joiner",
     "LayerFields",
     "LeapfrogState",
     "PointSources",
@@ -55,5 +57,6 @@ __all__ = [
     "ring_radii_m",
     "rings_from_fit_report",
     "run",
+    "run_pieces",
     "simulate",
 ]

@@ -9,7 +9,7 @@ per-chunk record of the peak |p| (instability detection), and memory-bounded rev
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from typing import Literal
 
 import equinox as eqx
@@ -21,10 +21,9 @@ from ..lattice.coefficients import Edges, speed_limit
 from ..lattice.grid import Grid
 from ..lattice.kinds import PLANE, VOLUME
 from ..lattice.medium import Medium
-from . import adjoint as adj
-from . import native
+from .backends import Request, choose
 from .estimate import preflight as _preflight
-from .scan import Checkpoint, Result, chunking, run_jax
+from .scan import Checkpoint, Joiner, Result, chunking
 from .sensors import Sensors
 from .sources import PointSources
 from .stepper import State, Stepper
@@ -60,72 +59,15 @@ def run(
     `backend`: "jax" (this loop: the reference, and the path on GPUs), "native" (the C++ kernels
     of `difflattice.solver.native` on a CPU: raises if the scene or machine is not supported), or
     "auto" (native where supported, else jax). Derivatives of a native run are the JAX loop's,
-    except with adjoint="lattice", whose forward and backward runs are native where supported."""
+    except with adjoint="lattice", whose forward and backward runs are native where supported.
+    The chooser is `backends.choose`; `Result.backend` names the backend that ran and
+    `Result.backend_why_not` why each other one did not."""
     if not isinstance(n_steps, (int, np.integer)) or n_steps < 1:
         raise ValueError(f"n_steps = {n_steps!r} must be a positive integer")
     n_steps = int(n_steps)
     if adjoint not in ("autodiff", "lattice", "auto"):
         raise ValueError(f"adjoint = {adjoint!r}; allowed: 'autodiff', 'lattice', 'auto'")
-    if adjoint == "auto":  # the adjoint wave equation where it supports the run, else JAX's reverse mode
-        adjoint = "lattice" if adj.supports(stepper, state) is None and sharding is None else "autodiff"
-    # --- native CPU kernels (issue 15): the one dispatch hook ------------------------------
-    if backend != "jax":
-        result = native.dispatch(
-            stepper,
-            n_steps,
-            state=state,
-            checkpoint=checkpoint,
-            unroll=unroll,
-            sharding=sharding,
-            adjoint=adjoint,
-            backend=backend,
-        )
-        if result is not None:
-            return result
-    # ------------------------------------------------------------------------------------------
-    if adjoint != "autodiff":
-        reason = adj.supports(stepper, state)
-        if reason is None and sharding is None:
-            on_native = False
-            if backend != "jax":
-                why = native.why_not(stepper, state, sharding)
-                if why is not None and backend == "native":
-                    raise ValueError(
-                        f"backend='native' is not available for this run: {why} (use backend='auto' or 'jax')"
-                    )
-                on_native = why is None
-            return _run_lattice_adjoint(stepper, n_steps, checkpoint, on_native)
-        if adjoint == "lattice":
-            raise ValueError(
-                f"adjoint='lattice' does not support {reason or 'sharding'}: use adjoint='autodiff' "
-                "(or 'auto' to choose per scene)"
-            )
-    return run_jax(stepper, n_steps, state=state, checkpoint=checkpoint, unroll=unroll, sharding=sharding)
-
-
-def _run_lattice_adjoint(stepper: Stepper, n_steps: int, checkpoint: Checkpoint, on_native: bool) -> Result:
-    chunk = chunking(n_steps, stepper.sensors, "sqrt" if checkpoint is None else checkpoint)
-    probes, re, im, p, p_prev, peaks = adj.linear_run(stepper, n_steps, chunk, on_native)
-    final = eqx.tree_at(
-        lambda s: (s.p, s.p_prev, s.n, s.phasor_re, s.phasor_im),
-        stepper.init(),
-        (p, p_prev, jnp.asarray(n_steps, jnp.int32), re, im),
-        is_leaf=lambda x: x is None,
-    )
-    n_chunks, rem = divmod(n_steps, chunk)
-    steps = [chunk * (i + 1) for i in range(n_chunks)] + ([n_steps] if rem else [])
-    return Result(
-        final=final,
-        probes=probes,
-        phasors=None if re is None else jax.lax.complex(re, im),
-        p_max=None,
-        p_rms=None,
-        arrival=None,
-        snapshots=None,
-        peak_history=peaks,
-        n_steps=n_steps,
-        chunk_steps=tuple(steps),
-    )
+    return choose(Request(stepper, n_steps, state, checkpoint, unroll, sharding, adjoint), backend).run()
 
 
 INSTABILITY_MESSAGE = (
@@ -161,6 +103,7 @@ def simulate(
     throw: bool = True,
     backend: Literal["auto", "jax", "native"] = "auto",
     preflight: Literal["check", "print", "off"] = "check",
+    progress: Progress | None = None,
 ) -> Result:
     """Simulate `n_steps` time steps of the scene and return what the sensors recorded.
 
@@ -182,11 +125,21 @@ def simulate(
       in the available memory (`solver.estimate`, a `RunTooLargeError` naming the estimate and the
       fix), "print" also prints the memory and time estimate before the run starts, "off" skips
       both.
+    - `progress`: None, or a callable `progress(steps_done, steps_total)` called on the host after
+      each chunk of the run (`Result.chunk_steps`) has finished, e.g. a progress bar's update.
+      The run is then a host loop of compiled pieces, one chunk each (`run_pieces`), whose joined
+      `Result` equals the whole run's bit for bit; for an eager call (not under `jit`/`grad`)
+      and with adjoint="autodiff" or "auto" (a piece starts from a state, which the lattice
+      adjoint does not take). None (default): one compiled program, as if the option were absent.
     """
     stepper = Stepper.build(grid, medium, sources, sensors, edges)
     if preflight != "off":
         _preflight(stepper, n_steps, checkpoint=checkpoint, show=preflight == "print")
     traced = any(isinstance(v, jax.core.Tracer) for v in jax.tree_util.tree_leaves(stepper))
+    if progress is not None:
+        return _simulate_reporting(
+            stepper, n_steps, checkpoint, unroll, sharding, adjoint, throw, backend, progress, traced
+        )
     if traced:  # inside the caller's jit / vmap / grad: the checks run in the program (eqx.error_if)
         return _simulate(stepper, n_steps, checkpoint, unroll, sharding, adjoint, throw, backend)
     # called eagerly: the same checks in Python around the program, which then has no host
@@ -197,6 +150,77 @@ def simulate(
     if throw:
         check_finite(result.peak_history)
     return result
+
+
+Progress = Callable[[int, int], object]
+"""A progress callback: `progress(steps_done, steps_total)`, called on the host."""
+
+
+def _simulate_reporting(stepper, n_steps, checkpoint, unroll, sharding, adjoint, throw, backend, progress, traced):
+    """`simulate` with a `progress` callback: the run's chunks as pieces (`run_pieces`), joined."""
+    if traced:
+        raise ValueError(
+            "simulate(progress=...) reports from the host between compiled pieces: call it eagerly, "
+            "not under jax.jit / grad / vmap (or leave progress=None there)"
+        )
+    if adjoint == "lattice":
+        raise ValueError(
+            "simulate(progress=...) runs pieces from a state, which adjoint='lattice' does not take: "
+            "use adjoint='autodiff' (or 'auto'), or progress=None"
+        )
+    if not isinstance(n_steps, (int, np.integer)) or n_steps < 1:
+        raise ValueError(f"n_steps = {n_steps!r} must be a positive integer")
+    n_steps = int(n_steps)
+    check_speed(stepper)
+    chunk = chunking(n_steps, stepper.sensors, checkpoint)
+    # a piece of one chunk chunks as the whole run does ("sqrt" is the whole run's chunk length)
+    piece_checkpoint = chunk if checkpoint == "sqrt" else checkpoint
+    ends = list(range(chunk, n_steps + 1, chunk)) + ([n_steps] if n_steps % chunk else [])
+    joined = Joiner()
+    for end, piece in zip(
+        ends,
+        run_pieces(stepper, ends, checkpoint=piece_checkpoint, unroll=unroll, sharding=sharding, backend=backend),
+    ):
+        joined.add(piece)
+        progress(end, n_steps)
+    result = joined.result()
+    if throw:
+        check_finite(result.peak_history)
+    return result
+
+
+def run_pieces(
+    stepper: Stepper,
+    ends: Iterable[int],
+    *,
+    state: State | None = None,
+    checkpoint: Checkpoint = None,
+    unroll: int | None = None,
+    sharding: jax.sharding.Sharding | None = None,
+    backend: Literal["auto", "jax", "native"] = "auto",
+) -> Iterator[Result]:
+    """Run from `state` (default: rest) to each step of `ends` (increasing) in turn, yielding
+    each piece's `Result` (steps counted from the piece's start) once its arrays are ready.
+
+    Host-side (not jittable): one compiled program per piece length, each piece starting from
+    the last one's final state, so the pieces are the whole run cut at `ends` (`scan.Joiner`
+    joins them). For progress reports, field moments and snapshots thinned as they arrive;
+    the arguments are `run`'s."""
+    st: State = stepper.init() if state is None else state
+    done = 0
+    for end in ends:
+        n = int(end) - done
+        if n < 1:
+            raise ValueError(f"run_pieces: ends must increase from step {done + 1}, got {end}")
+        res = _piece(st, stepper, n, checkpoint, unroll, sharding, backend)
+        jax.block_until_ready(res.peak_history)
+        yield res
+        st, done = res.final, int(end)
+
+
+@eqx.filter_jit
+def _piece(state: State, stepper: Stepper, n_steps: int, checkpoint, unroll, sharding, backend) -> Result:
+    return run(stepper, n_steps, state=state, checkpoint=checkpoint, unroll=unroll, sharding=sharding, backend=backend)
 
 
 def check_speed(stepper: Stepper) -> None:

@@ -5,6 +5,7 @@ that imports them all, so the solver's imports form no circle)."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from typing import Literal
@@ -28,6 +29,8 @@ class Result(eqx.Module):
     - `snapshots`: (k, nx, ny) fields at steps `snapshot_steps`; on a 3-D grid a tuple with one
       (k, n_i, n_j) array per plane of `sensors.snapshot_slices` (or (k, nx, ny, nz) volumes).
     - `peak_history`: (n_chunks,) max |p| at the end of each chunk (`chunk_steps`).
+    - `backend`: the backend that ran ("jax", "sharded", "native", "lattice adjoint"; see
+      `solver.backends`) and `backend_why_not`: (name, reason) of each one passed over.
     """
 
     final: State
@@ -40,6 +43,8 @@ class Result(eqx.Module):
     peak_history: Float[Array, " c"]
     n_steps: int = eqx.field(static=True)
     chunk_steps: tuple[int, ...] = eqx.field(static=True)
+    backend: str = eqx.field(static=True, default="jax")
+    backend_why_not: tuple[tuple[str, str], ...] = eqx.field(static=True, default=())
 
     @property
     def snapshot_steps(self) -> tuple[int, ...]:
@@ -66,6 +71,46 @@ class Result(eqx.Module):
             n_steps=n_steps,
             chunk_steps=tuple(chunk_steps),
         )
+
+
+class Joiner:
+    """Joins the `Result`s of consecutive pieces of one run (each started from the last one's
+    final state) into the run's `Result`: probes, peaks and snapshots concatenated, chunk steps
+    counted from the run's start, phasors and field statistics from the last final state (they
+    accumulate in the state). Host-side; keeps only the recorded series, not each piece's state.
+    `keep_snapshots=False` drops the pieces' snapshots (a caller that thins them as they arrive)."""
+
+    def __init__(self, keep_snapshots: bool = True):
+        self.keep_snapshots = keep_snapshots
+        self.done = 0
+        self.final: State | None = None
+        self.last: Result | None = None
+        self.probes: list = []
+        self.peaks: list = []
+        self.snapshots: list = []
+        self.steps: list[int] = []
+
+    def add(self, piece: Result) -> None:
+        """Append the next piece (its steps follow the pieces added so far)."""
+        self.final, self.last = piece.final, piece
+        if piece.probes is not None:
+            self.probes.append(piece.probes)
+        self.peaks.append(piece.peak_history)
+        if self.keep_snapshots and piece.snapshots is not None:
+            self.snapshots.append(piece.snapshots)
+        self.steps += [self.done + s for s in piece.chunk_steps]
+        self.done += piece.n_steps
+
+    def result(self) -> Result:
+        """The whole run's `Result` (at least one piece added)."""
+        if self.final is None:
+            raise ValueError("Joiner.result: no piece was added")
+        cat = lambda *a: jnp.concatenate(a, axis=0)
+        snaps = jax.tree_util.tree_map(cat, *self.snapshots) if self.snapshots else None
+        probes = cat(*self.probes) if self.probes else None
+        joined = Result.of_final(self.final, probes, cat(*self.peaks), snaps, self.done, self.steps)
+        assert self.last is not None
+        return dataclasses.replace(joined, backend=self.last.backend, backend_why_not=self.last.backend_why_not)
 
 
 # ------------------------------------------------------------------------------------------

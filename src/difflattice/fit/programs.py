@@ -29,7 +29,8 @@ def small_jit(fn: Callable) -> Callable:
 
     Called from inside another traced function (an argument is a tracer), `fn` is traced into
     that program as a plain `filter_jit` call: XLA takes compiler options at the top level only."""
-    top = eqx.filter_jit(fn, compiler_options=dict(SMALL_PROGRAM_OPTIONS))
+    options: dict[str, Any] = {"compiler_options": dict(SMALL_PROGRAM_OPTIONS)}  # passed on to jax.jit
+    top = eqx.filter_jit(fn, **options)
     nested = eqx.filter_jit(fn)
 
     @functools.wraps(fn)

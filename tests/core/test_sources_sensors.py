@@ -1,11 +1,12 @@
-"""Sources, sensors and absorption on every lattice kind, the 'only what the scene uses' rule, and
-the 3-D disc transducer's cells and weights (area held per cell, rings from a plain dict or a fit
-report), 3-D snapshots as slices, the memory refusal before a run of any kind, and bad input named.
+"""Sources, sensors and absorption on every lattice kind, the 'only what the scene uses' rule, the
+memory refusal before a run of any kind; the rz disc transducer's geometry; the 3-D disc
+transducer's cells and weights (area held per cell, rings from a plain dict or a fit report), 3-D
+snapshots as slices, and bad input named.
 
 The tests are written once; what differs between the kinds is the table `KINDS` below: each kind's
 grid, its open (absorbing) and closed edges, its transducer (a line of cells on the plane and rz
 grids, where on rz it is an annulus; a disc facing +x in 3-D) and the cells that the tests use.
-The rz disc transducer's geometry is checked in `test_axisym_observe.py`.
+The two disc transducers (rz rings, 3-D cells) are built differently and have their own tests.
 
 Tolerances: superposition and the hard source's pressure hold to round-off (1e-12); the first
 arrival lies between distance / (1 cell per step) and distance / courant plus a few steps of
@@ -36,8 +37,11 @@ from difflattice.solver.sources import (
     PointSources,
     ToneBurst,
     disc_cells_3d,
+    disc_housing,
+    disc_transducer,
     disc_transducer_3d,
     line_transducer,
+    ring_fractions,
     rings_from_fit_report,
 )
 
@@ -251,6 +255,41 @@ def test_run_that_does_not_fit_is_refused_before_it_starts(kind):
     huge = make_grid(frequency_hz=40e3, cells_per_wavelength=20, c_max_m_s=343.0, shape=shape, kind=kind)
     with pytest.raises(RunTooLargeError, match=" x ".join(map(str, shape)) + ".*estimated memory.*Fix"):
         simulate(huge, Medium(343.0, 1.2), (), Sensors(), n_steps=10, edges=KINDS[kind].open)
+
+
+# --- the rz disc transducer (rz only) ------------------------------------------------------------
+def test_rz_disc_geometry():
+    """Ring fractions cover exactly pi a^2 (so the radius is continuous), the face sits on the
+    baffle, and a traced radius needs a static ring count."""
+    for a in (0.3, 1.0, 5.3, 55.97):
+        n = math.ceil(a)
+        j = np.arange(n)
+        area = np.sum(np.asarray(ring_fractions(a, n)) * (2 * j + 1))  # ring face areas / pi
+        assert abs(area - a * a) < 1e-12 * a * a
+    g = make_grid(
+        frequency_hz=50e3, cells_per_wavelength=20, c_max_m_s=343.0, shape=(60, 40), dtype="float64", kind="rz"
+    )
+    src = disc_transducer(g, radius_m=5.3 * g.dx_m)
+    assert src.n_cells == 6 and src.injection == "velocity" and (np.asarray(src.cells)[:, 0] == 0).all()
+    d = jax.grad(lambda r: jnp.sum(disc_transducer(g, radius_m=r, n_rings=8).weights * (2 * jnp.arange(8) + 1)))(
+        5.3 * g.dx_m
+    )
+    assert abs(float(d) - 2 * 5.3 / g.dx_m) < 1e-9 * 2 * 5.3 / g.dx_m  # d(a^2)/da, a in cells per metre
+    with pytest.raises(ValueError, match="give n_rings"):
+        jax.jit(lambda r: disc_transducer(g, radius_m=r).weights)(0.001)
+    with pytest.raises(ValueError, match="rigid z_lo window face"):
+        disc_transducer(g, radius_m=0.002, z_m=0.003)
+    with pytest.raises(ValueError, match="axisymmetric grid"):
+        disc_transducer(
+            make_grid(frequency_hz=50e3, cells_per_wavelength=20, c_max_m_s=343.0, shape=(20, 20)), radius_m=0.001
+        )
+    can = np.asarray(
+        disc_housing(g, radius_m=5.3 * g.dx_m, z_m=10 * g.dx_m, baffle="can", depth_m=4.5 * g.dx_m, wall_m=g.dx_m)
+    )
+    assert can[9, 0] == 1 and can[10, 0] == 0 and abs(can[5, 0] - 0.5) < 1e-12  # 4.5 cells deep behind z = 10
+    j = np.arange(40)
+    assert abs(np.sum(can[9] * (2 * j + 1)) - 6.3**2) < 1e-9  # the can's outer radius 5.3 + 1 cells
+    assert disc_housing(g, radius_m=0.002, z_m=0.0, baffle="rigid") is None
 
 
 # --- the 3-D disc transducer and snapshots (3-D only) -----------------------------

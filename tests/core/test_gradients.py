@@ -65,8 +65,9 @@ class Problem:
     weights: Callable
     """The loss as a function of the source weights alone (a field linear in them)."""
     n_weights: int
-    adjoint: tuple[str, int] | None = None
-    """(loss, how many gradient entries are not zero) for the adjoint wave equation."""
+    adjoint: tuple[str, int, bool] | None = None
+    """(loss, how many gradient entries are not zero, whether the adjoint path runs inside jit) for
+    the adjoint wave equation."""
     central_differences: tuple[tuple[int, float], ...] = field(default=())
     """(entry, step) of the loss `adjoint[0]` checked against central differences."""
 
@@ -192,7 +193,7 @@ PROBLEMS = {
         weights=lambda w: _loss(_run_rz(w, jnp.zeros(N_RINGS), RADIUS)),
         n_weights=N_RINGS,
         # rings 6 and 7 lie outside the 5.3-cell disc: their weights and lags move nothing
-        adjoint=("can", 6 + 6 + 1 + 1),
+        adjoint=("can", 6 + 6 + 1 + 1, True),
     ),
     "3d": Problem(
         losses={"weights, lags, radius": (_3d, X3)},
@@ -202,7 +203,7 @@ PROBLEMS = {
         checkpointed=(),
         weights=lambda w: _3d(jnp.concatenate([w, X3[2:]])),
         n_weights=2,
-        adjoint=("weights, lags, radius", 5),
+        adjoint=("weights, lags, radius", 5, False),
         # one weight, one lag, the radius; relative steps 1e-6 (the lag: of a 1-us scale)
         central_differences=((1, 1e-6), (3, 1e-6), (4, 1e-6 * G3.dx_m * 1e3)),
     ),
@@ -210,13 +211,11 @@ PROBLEMS = {
 
 
 @functools.cache
-def _value_and_grad(kind, name, checkpoint=None, adjoint="autodiff"):
+def _value_and_grad(kind, name, checkpoint=None, adjoint="autodiff", jit=False):
     """The loss and its gradient at the base point (cached: several tests compare against it)."""
     f, x0 = PROBLEMS[kind].losses[name]
     vg = jax.value_and_grad(lambda x: f(x, checkpoint=checkpoint, adjoint=adjoint))
-    if adjoint == "lattice":
-        vg = jax.jit(vg)  # the adjoint path as a fit runs it: inside jit
-    return vg(x0)
+    return (jax.jit(vg) if jit else vg)(x0)
 
 
 def _cases(attribute):
@@ -271,9 +270,9 @@ def test_jit_and_vmap_over_weights(kind):
 @pytest.mark.slow  # ~15-30 s per kind on 2 busy cores, mostly compiling the differentiated programs
 @pytest.mark.parametrize("kind", [k for k, p in PROBLEMS.items() if p.adjoint])
 def test_lattice_adjoint_equals_autodiff(kind):
-    name, n_live = PROBLEMS[kind].adjoint
+    name, n_live, jit = PROBLEMS[kind].adjoint
     ref_val, ref = _value_and_grad(kind, name, PROBLEMS[kind].checkpoint)
-    val, got = _value_and_grad(kind, name, None, "lattice")
+    val, got = _value_and_grad(kind, name, None, "lattice", jit)
     assert abs(float(val - ref_val)) <= 1e-12 * abs(float(ref_val))
     leaves = list(zip(jax.tree.leaves(got), jax.tree.leaves(ref)))
     for a, b in leaves:

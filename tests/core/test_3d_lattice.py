@@ -5,11 +5,9 @@
    wavelength), along the axis and the body diagonal, stays exact to round-off (< 1e-10, f64) in
    the part of the grid the edges cannot reach yet: the lattice's phase velocity is the relation's
    to ~1e-12. The continuum |k| = omega / c must not (so the test can fail).
-2. Energy: a closed box (rigid edges), f64, exactly at the limit 1/sqrt(3), two fluids and a
-   cut-cell rigid sphere: the discrete energy sum (dP)^2 / K + sum_faces b dq1 dq0 is conserved to
-   < 1e-9 over 1e5 steps (round-off random walk ~ sqrt(1e5) 1e-16 ~ 3e-14 per unit).
-3. Stability limit: 1.0001 / sqrt(3) refused with a message naming the fix; a traced speed above
-   it refused at run time; non-finite fields detected.
+2. Energy conservation in a closed box at the limit 1/sqrt(3), and 1.0001 / sqrt(3) refused:
+   `test_stability.py` (every kind).
+3. Stability limit: a traced speed above it refused at run time; non-finite fields detected.
 4. Point source: the lattice's own Green's function (stationary phase of the dispersion surface,
    `analytic3d.point_source_phasor`: exactly 1/(4 pi r) in amplitude along the axis, 1.7 % more on
    the diagonal at 20 cells per wavelength) against the simulated phasor from 10 to 100 cells
@@ -25,9 +23,7 @@ import numpy as np
 import pytest
 
 from difflattice.lattice import Edges, Medium
-from difflattice.lattice.geometry3d import Sphere, rasterise3d
 from difflattice.lattice.grid import MAX_COURANT_3D, make_grid
-from difflattice.lattice.operators import face_gradient
 from difflattice.observe.analytic3d import lattice_wavenumber_3d, mirror_points, point_source_phasor
 from difflattice.solver import PointSources, Sensors, Stepper, ToneBurst, check_result, run, simulate
 
@@ -42,20 +38,6 @@ def _grid(shape, courant=None, ppw=20.0, dtype="float64"):
         courant=courant,
         dtype=dtype,
     )
-
-
-def energy(stepper, p_new, p_old) -> float:
-    """The leapfrog's conserved energy between two successive fields (closed box, no sources):
-    sum (P1 - P0)^2 / K + sum_faces b (q1_j - q1_i)(q0_j - q0_i), q = P."""
-    lat = stepper.lattice
-    kin = jnp.sum((p_new - p_old) ** 2 / lat.K)
-    pot = 0.0
-    for axis in range(3):
-        b = lat.conductance(axis)
-        g1 = face_gradient(lat, p_new, axis)
-        g0 = face_gradient(lat, p_old, axis)
-        pot = pot + jnp.sum(g1 * (g0 if b is None else g0 / jnp.where(b == 0, 1, b)))
-    return float(kin + pot)
 
 
 N_STEPS = 20
@@ -85,33 +67,7 @@ def test_plane_wave_follows_the_3d_dispersion_relation(direction):
         assert errs["continuum"] > 1e-3, errs
 
 
-def test_closed_box_conserves_energy_at_the_limit():
-    n = 12
-    g = _grid((n, n, n), courant=MAX_COURANT_3D, ppw=10.0)
-    x = np.stack(np.meshgrid(*(np.arange(n),) * 3, indexing="ij"), 0)
-    slow = x[0] > n // 2
-    med = Medium(
-        jnp.asarray(np.where(slow, 200.0, 343.0)),
-        jnp.asarray(np.where(slow, 5.0, 1.2)),
-        rigid=rasterise3d(Sphere(jnp.array([3.3, 8.2, 6.1]) * g.dx_m, jnp.asarray(2.4 * g.dx_m)), g),
-    )
-    st = Stepper.build(g, med, edges=Edges.all("rigid"))
-    assert float(jnp.sum((med.rigid > 0.05) & (med.rigid < 0.95))) > 10  # really cut cells
-    p0 = jnp.asarray(np.exp(-((x[0] - 4) ** 2 + (x[1] - 3) ** 2 + (x[2] - 7) ** 2) / 3.0))
-    s0 = eqx.tree_at(lambda s: (s.p, s.p_prev), st.init(), (p0, p0))
-    e0 = energy(st, p0, p0)
-    res = run(st, 100_000, state=s0, checkpoint=1000)
-    e1 = energy(st, res.final.p, res.final.p_prev)
-    assert np.all(np.isfinite(np.asarray(res.peak_history)))
-    assert abs(e1 - e0) / e0 < 1e-9, (e0, e1)
-
-
-def test_stability_limit_refused_and_instability_detected():
-    with pytest.raises(ValueError, match=r"3-D stability limit 1/sqrt\(3\).*Lower `courant`"):
-        _grid((8, 8, 8), courant=1.0001 / math.sqrt(3))
-    _grid((8, 8, 8), courant=1 / math.sqrt(3))  # the limit itself is allowed
-    with pytest.raises(ValueError, match="3-D stability limit"):  # a medium faster than the grid's c_max
-        Stepper.build(_grid((8, 8, 8), courant=0.57), Medium(343.0 * 1.02, 1.2))
+def test_traced_speed_refused_and_instability_detected():
     g = _grid((10, 10, 10), courant=0.57, dtype="float32")
 
     @jax.jit

@@ -1,10 +1,9 @@
 """Observables of the axisymmetric lattice on analytic fields (no simulation): the Rayleigh
 quadrature reference, the Kirchhoff-Helmholtz transform over a closed cylinder (free and baffled),
-the scan-line sampler, and the disc transducer's geometry."""
+and the scan-line sampler (the disc transducer's geometry: `test_sources_sensors.py`)."""
 
 import math
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -12,7 +11,6 @@ import pytest
 from difflattice.lattice.grid import make_grid
 from difflattice.observe import analytic as an
 from difflattice.observe.farfield_rz import CylinderSurface, far_field_rz, field_at_rz, field_sampler, scan_line
-from difflattice.solver.sources import disc_housing, disc_transducer, ring_fractions
 
 
 def _grid(ppw=20, shape=(200, 120)):
@@ -101,35 +99,3 @@ def test_scan_line_interpolation():
     assert np.abs(got - want).max() < 1e-12 * np.abs(want).max()
     with pytest.raises(ValueError, match="outside the grid"):
         field_sampler(g, [[0.0, 0.0]])  # needs a row below z = 0
-
-
-def test_disc_geometry():
-    """Ring fractions cover exactly pi a^2 (so the radius is continuous), the face sits on the
-    baffle, and a traced radius needs a static ring count."""
-    for a in (0.3, 1.0, 5.3, 55.97):
-        n = math.ceil(a)
-        j = np.arange(n)
-        area = np.sum(np.asarray(ring_fractions(a, n)) * (2 * j + 1))  # ring face areas / pi
-        assert abs(area - a * a) < 1e-12 * a * a
-    g = _grid(20, (60, 40))
-    src = disc_transducer(g, radius_m=5.3 * g.dx_m)
-    assert src.n_cells == 6 and src.injection == "velocity" and (np.asarray(src.cells)[:, 0] == 0).all()
-    d = jax.grad(lambda r: jnp.sum(disc_transducer(g, radius_m=r, n_rings=8).weights * (2 * jnp.arange(8) + 1)))(
-        5.3 * g.dx_m
-    )
-    assert abs(float(d) - 2 * 5.3 / g.dx_m) < 1e-9 * 2 * 5.3 / g.dx_m  # d(a^2)/da, a in cells per metre
-    with pytest.raises(ValueError, match="give n_rings"):
-        jax.jit(lambda r: disc_transducer(g, radius_m=r).weights)(0.001)
-    with pytest.raises(ValueError, match="rigid z_lo window face"):
-        disc_transducer(g, radius_m=0.002, z_m=0.003)
-    with pytest.raises(ValueError, match="axisymmetric grid"):
-        disc_transducer(
-            make_grid(frequency_hz=50e3, cells_per_wavelength=20, c_max_m_s=343.0, shape=(20, 20)), radius_m=0.001
-        )
-    can = np.asarray(
-        disc_housing(g, radius_m=5.3 * g.dx_m, z_m=10 * g.dx_m, baffle="can", depth_m=4.5 * g.dx_m, wall_m=g.dx_m)
-    )
-    assert can[9, 0] == 1 and can[10, 0] == 0 and abs(can[5, 0] - 0.5) < 1e-12  # 4.5 cells deep behind z = 10
-    j = np.arange(40)
-    assert abs(np.sum(can[9] * (2 * j + 1)) - 6.3**2) < 1e-9  # the can's outer radius 5.3 + 1 cells
-    assert disc_housing(g, radius_m=0.002, z_m=0.0, baffle="rigid") is None

@@ -1,6 +1,7 @@
 """The axisymmetric (rz) lattice: its stability limit from the spectral bound of the actual
-operator, discrete energy conservation in a closed cylinder at that limit, refusals, and a point
-source on the axis against the 3-D free-space Green's function."""
+operator, refusals, a point source on the axis against the 3-D free-space Green's function, and
+the radial PML (energy conservation in a closed cylinder at the limit and the limit's refusal,
+every kind: `test_stability.py`)."""
 
 import equinox as eqx
 import jax
@@ -76,47 +77,6 @@ def test_spectral_bound_gives_the_limit(edges):
     ev = np.linalg.eigvals(_operator_matrix(lat, (12, 10)))
     assert np.abs(ev.imag).max() < 1e-8 * np.abs(ev).max()
     assert -ev.real.min() <= 4.0 * (1 + 1e-12)  # c^2 rho(-L) <= 4: the leapfrog's condition
-
-
-def _energy(lat, p1, p0):
-    """The leapfrog's conserved energy on ring cells: sum V (P1 - P0)^2 / K - P1 . S P0 with
-    S = V L symmetric (the finite-volume operator times the ring volumes), V = j + 1/2."""
-    v = lat.metric.volume
-    return float(jnp.sum(v * (p1 - p0) ** 2 / lat.K) - jnp.sum(p1 * v * stencil(lat, p0)))
-
-
-@pytest.mark.parametrize("inhomogeneous", [False, True], ids=["air", "contrast_and_cut_cells"])
-def test_closed_cylinder_conserves_energy_at_the_limit(inhomogeneous):
-    """float64, 1e5 steps at exactly the derived limit: the discrete energy is conserved to
-    round-off (1e-16 per step, a random walk over 1e5 steps: ~1e-13; the issue asks < 1e-9), and
-    the field stays bounded. The start is at rest (P1 = P0): the constant mode of a closed
-    cylinder stays put."""
-    shape = (12, 10)
-    g = _grid(shape)
-    med = _medium(shape) if inhomogeneous else Medium(343.0, 1.2)
-    stepper = Stepper.build(g, med, edges=CLOSED)
-    z, r = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
-    p0 = jnp.asarray(np.exp(-((z - 7.0) ** 2 + r**2) / 4.0) + 0.3 * np.exp(-((z - 9.0) ** 2 + (r - 6.0) ** 2) / 2.0))
-    if stepper.lattice.keep is not None:
-        p0 = p0 * stepper.lattice.keep
-    st = eqx.tree_at(lambda s: (s.p, s.p_prev), stepper.init(), (p0, p0))
-    e0 = _energy(stepper.lattice, p0, p0)
-    res = run(stepper, 100_000, state=st, checkpoint=1000)
-    e1 = _energy(stepper.lattice, res.final.p, res.final.p_prev)
-    assert e0 > 0
-    assert abs(e1 - e0) / e0 < 1e-9, (e0, e1)
-    assert np.all(np.isfinite(np.asarray(res.peak_history)))
-
-
-def test_above_the_limit_is_refused():
-    """1.0001 x the limit is refused with a message naming the fix; the limit itself is accepted;
-    a medium faster than the grid's c_max is refused too."""
-    _grid((8, 8), courant=LIMIT)
-    with pytest.raises(ValueError, match="exceeds the rz stability limit.*Lower `courant`"):
-        _grid((8, 8), courant=1.0001 * LIMIT)
-    g = _grid((8, 8))
-    with pytest.raises(ValueError, match="exceeds the rz stability limit"):
-        build_lattice(g, Medium(343.0 * 1.0001, 1.2), CLOSED)
 
 
 def test_edges_and_models_refused_on_the_wrong_grid():

@@ -1,7 +1,7 @@
 """The isotropic (9-point Mehrstellen) stencil, `Grid.stencil = "isotropic"`, on plane and rz grids:
 its discrete dispersion relation (an exact discrete plane wave stays exact), its stability limit
-sqrt(3)/2 from the spectral bound of the actual operator, discrete energy conservation at that
-limit, the refusals, and gradients (JAX reverse mode = forward mode; the native kernels and the
+sqrt(3)/2 from the spectral bound of the actual operator, the refusals (discrete energy
+conservation at that limit and its refusal: `test_stability.py`), and gradients (JAX reverse mode = forward mode; the native kernels and the
 hand-written lattice adjoint decline it with a reason)."""
 
 import math
@@ -153,47 +153,9 @@ def test_spectral_bound_gives_the_limit(kind):
     assert -ev.real.min() <= 4.0 * (1 + 1e-12)
 
 
-def _energy(lat, p1, p0):
-    """sum V (P1 - P0)^2 / K - P1 . V L P0, V L symmetric (V = ring volumes, 1 on a plane grid)."""
-    v = 1.0 if lat.metric is None else lat.metric.volume
-    return float(jnp.sum(v * (p1 - p0) ** 2 / lat.K) - jnp.sum(p1 * v * stencil(lat, p0)))
-
-
-@pytest.mark.parametrize("obstacles", [False, True], ids=["air_at_sqrt3_over_2", "contrast_and_cut_cells"])
-def test_closed_cylinder_conserves_energy_at_the_limit(obstacles):
-    """float64, 1e5 steps in a closed rz cylinder at its limit (air: sqrt(3)/2; a density contrast
-    and a cut-cell body on the axis: 1/sqrt(2)): energy drift < 1e-9 (round-off random walk
-    ~1e-13), bounded."""
-    shape = (12, 10)
-    z, r = np.meshgrid(np.arange(shape[0]), np.arange(shape[1]), indexing="ij")
-    block = (z > 6) & (r > 2) & (r < 6)
-    rigid = np.clip(3.5 - np.hypot(z - 3.0, r + 0.5), 0, 1) * (r < 4)
-    med = (
-        Medium(343.0, 1.2)
-        if not obstacles
-        else Medium(
-            jnp.asarray(np.where(block, 250.0, 343.0)), jnp.asarray(np.where(block, 4.0, 1.2)), rigid=jnp.asarray(rigid)
-        )
-    )
-    courant = 1 / math.sqrt(2) if obstacles else LIMIT
-    stepper = Stepper.build(_grid(shape, "rz", courant=courant), med, edges=CLOSED_RZ)
-    p0 = jnp.asarray(np.exp(-((z - 7.0) ** 2 + r**2) / 4.0) + 0.3 * np.exp(-((z - 9.0) ** 2 + (r - 6.0) ** 2) / 2.0))
-    if stepper.lattice.keep is not None:
-        p0 = p0 * stepper.lattice.keep
-    st = eqx.tree_at(lambda s: (s.p, s.p_prev), stepper.init(), (p0, p0))
-    e0 = _energy(stepper.lattice, p0, p0)
-    res = run(stepper, 100_000, state=st, checkpoint=1000)
-    e1 = _energy(stepper.lattice, res.final.p, res.final.p_prev)
-    assert e0 > 0 and abs(e1 - e0) / e0 < 1e-9, (e0, e1)
-    assert np.all(np.isfinite(np.asarray(res.peak_history)))
-
-
 def test_refusals():
-    _grid((8, 8), "rz", courant=LIMIT)
-    with pytest.raises(ValueError, match="exceeds the rz isotropic-stencil stability limit sqrt\\(3\\)/2"):
-        _grid((8, 8), "rz", courant=1.0001 * LIMIT)
-    with pytest.raises(ValueError, match="exceeds the rz isotropic-stencil stability limit"):
-        build_lattice(_grid((8, 8), "rz"), Medium(343.0 * 1.0001, 1.2), CLOSED_RZ)
+    """Unknown stencils, the paper's boundary model and a standard-stencil courant above its limit
+    (the isotropic limit itself and 1.0001 x it, every kind: `test_stability.py`)."""
     with pytest.raises(ValueError, match="stencil = 'mehrstellen'; allowed"):
         make_grid(
             frequency_hz=40e3,

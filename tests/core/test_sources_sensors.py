@@ -398,3 +398,21 @@ def test_snapshots_are_slices_unless_asked():
         )
     with pytest.raises(ValueError, match="needs 3"):
         simulate(g, Medium(343.0, 1.2), src, Sensors(probes=[(1, 2)]), n_steps=5)
+
+
+def test_too_strong_absorption_names_the_resolution_that_works():
+    """The viscous coefficient grows in proportion to the resolution, so the refusal names the
+    largest resolution that takes the absorption (and that one builds), not "refine the grid"."""
+    from difflattice.lattice.coefficients import build_lattice
+
+    def grid(cpw):
+        return make_grid(frequency_hz=50e3, cells_per_wavelength=cpw, c_max_m_s=343.0, shape=(16, 16), dtype="float64")
+
+    medium = Medium(343.0, 1.2, absorption_db_per_m=30.0)
+    with pytest.raises(ValueError, match=r"too strong .* use at most ([0-9.]+) cells per wavelength") as err:
+        build_lattice(grid(40.0), medium, Edges.all("rigid"))
+    most = float(err.value.args[0].split("use at most ")[1].split(" ")[0])
+    assert 20.0 < most < 40.0  # eta = 0.068 at 40 cells per wavelength: 0.05 at 29.5
+    build_lattice(grid(0.98 * most), medium, Edges.all("rigid"))  # under the named resolution: accepted
+    with pytest.raises(ValueError, match="too strong"):
+        build_lattice(grid(1.02 * most), medium, Edges.all("rigid"))

@@ -427,9 +427,13 @@ def _viscous(grid: Grid, medium: Medium) -> float:
         c_ref = float(grid.courant)
         eta = 2 * alpha_cell * c_ref / grid.omega**2
         if eta > 0.05:
+            # eta grows in proportion to the resolution (alpha dx / omega^2 with omega ~ 1 / cells
+            # per wavelength): a finer grid makes it worse, a coarser one better
+            most = grid.cells_per_wavelength * 0.05 / eta
             raise ValueError(
                 f"absorption_db_per_m = {medium.absorption_db_per_m} is too strong for this grid "
-                f"(viscous coefficient {eta:.3g} > 0.05 per step): refine the grid"
+                f"(viscous coefficient {eta:.3g} > 0.05 per step, in proportion to the resolution): use at most "
+                f"{most:.3g} cells per wavelength (now {grid.cells_per_wavelength:g}) or a smaller absorption"
             )
     return eta
 

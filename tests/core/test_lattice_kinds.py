@@ -8,6 +8,7 @@ import sys
 import tomllib
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 
@@ -131,3 +132,26 @@ def test_rz_images_are_labelled_z_and_r(tmp_path, monkeypatch):
         assert (ax.get_xlabel(), ax.get_ylabel()) == ("z (mm)", "r (mm)"), name
         r_mm = 1e3 * sr.grid.size_m[1]
         assert ax.get_ylim() == pytest.approx((-r_mm, r_mm)), name
+
+
+@pytest.mark.parametrize("kind", ["2d", "rz", "3d"])
+def test_default_edges_fit_every_kind(kind):
+    """`simulate`/`Stepper.build` without `edges` use the kind's default window (a PML on every
+    side; rz: the axis at y_lo), where `Edges()` alone is refused on an rz grid."""
+    from difflattice.lattice import Edges
+    from difflattice.lattice.medium import Medium
+    from difflattice.solver import Stepper
+
+    shape = (30, 30, 30) if kind == "3d" else (30, 30)
+    grid = make_grid(frequency_hz=40e3, cells_per_wavelength=10, c_max_m_s=343.0, shape=shape, kind=kind)
+    edges = Edges.default_for(grid.kind)
+    assert edges.uses_pml and (edges.y_lo == "axis") == (kind == "rz")
+    stepper = Stepper.build(grid, Medium(343.0, 1.2))  # no edges given: the kind's default
+    explicit = Stepper.build(grid, Medium(343.0, 1.2), edges=edges)
+    assert stepper.staggered and explicit.staggered
+    assert jax.tree_util.tree_all(
+        jax.tree_util.tree_map(lambda a, b: bool(np.array_equal(a, b)), stepper.lattice, explicit.lattice)
+    )
+    if kind == "rz":
+        with pytest.raises(ValueError, match="the y_lo side is the axis"):
+            Stepper.build(grid, Medium(343.0, 1.2), edges=Edges())

@@ -127,6 +127,12 @@ class Edges(eqx.Module):
         A rigid baffle is `z_lo="rigid"` (the closed face z = 0)."""
         return cls(x_lo=z_lo, x_hi=z_hi, y_lo="axis", y_hi=r_hi, **kwargs)
 
+    @classmethod
+    def default_for(cls, kind: LatticeKind | str) -> Edges:
+        """The default window of a grid of `kind`: a 20-cell PML on every side (rz: on z_lo,
+        z_hi and r_hi; its y_lo is the axis)."""
+        return cls.axisymmetric() if as_kind(kind).has_axis_edge else cls()
+
     def check_kind(self, kind: LatticeKind | str) -> None:
         """Refuse edges that do not fit a grid of `kind` ("2d", "rz" or "3d")."""
         kind = as_kind(kind)

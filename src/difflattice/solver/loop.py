@@ -95,7 +95,7 @@ def simulate(
     sensors: Sensors = Sensors(),
     *,
     n_steps: int,
-    edges: Edges = Edges(),
+    edges: Edges | None = None,
     checkpoint: Checkpoint = None,
     unroll: int | None = None,
     sharding: jax.sharding.Sharding | None = None,
@@ -113,7 +113,8 @@ def simulate(
     - `sources`: one or more `PointSources` (e.g. `line_transducer`).
     - `sensors`: what to record.
     - `n_steps`: number of time steps (static).
-    - `edges`: window edges (default: 20-cell PML on every side).
+    - `edges`: window edges (default `Edges.default_for(grid.kind)`: a 20-cell PML on every side;
+      an rz grid's y_lo is the axis).
     - `checkpoint`: None (plain reverse mode), "sqrt" (memory ~ sqrt(n_steps)) or a chunk length.
     - `unroll`: steps per scan iteration (None: the fastest per stepper, see `run`).
     - `sharding`: split the grid across devices (`grid_sharding()`); None: one device.

@@ -120,7 +120,7 @@ class Stepper(eqx.Module):
         medium: Medium,
         sources: PointSources | Sequence[PointSources] = (),
         sensors: Sensors = Sensors(),
-        edges: Edges = Edges(),
+        edges: Edges | None = None,
     ) -> Stepper:
         if isinstance(sources, PointSources):
             sources = (sources,)
@@ -131,7 +131,7 @@ class Stepper(eqx.Module):
                 "jax.config.update('jax_enable_x64', True) first (or use dtype='float32')"
             )
         sensors.check_inside(grid)
-        edges = edges.for_rank(grid.ndim)
+        edges = (Edges.default_for(grid.kind) if edges is None else edges).for_rank(grid.ndim)
         lat = build_lattice(grid, medium, edges)
         check_spectrum(lat, tuple(grid.shape))  # 3-D isotropic stencil next to obstacles
         shape = tuple(grid.shape)

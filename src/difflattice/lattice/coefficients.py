@@ -35,6 +35,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .grid import Grid, GridKind, StencilKind, check_courant, stability_limit
+from .kinds import MAX_COURANT_WIDE_FACES
 from .kinds import LatticeKind, as_kind
 from .medium import Medium
 from .pml import PML, Box, RadialPML, layer_boxes, pml_factors  # noqa: F401 (re-exported)
@@ -320,9 +321,9 @@ def _checked_inputs(grid: Grid, medium: Medium, edges: Edges):
         if arr is not None and jnp.ndim(arr) != 0 and tuple(jnp.shape(arr)) != shape:
             raise ValueError(f"medium.{name} has shape {jnp.shape(arr)}, expected the grid shape {shape}")
     _check_speed(c, grid.kind, grid.stencil)
-    if grid.stencil == "isotropic" and medium.boundary_model == "paper":
+    if grid.stencil in ("isotropic", "wide") and medium.boundary_model == "paper":
         raise ValueError(
-            "stencil = 'isotropic' needs a symmetric flux form: boundary_model = 'paper' (eq. 10's per-cell "
+            f"stencil = {grid.stencil!r} needs a symmetric flux form: boundary_model = 'paper' (eq. 10's per-cell "
             "factors) has none; use Medium(..., boundary_model='conservative') or stencil='standard'"
         )
     return edges, c, rho
@@ -469,6 +470,8 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
     measure = (
         ndim == 3 and medium.soft is None and _uniform(medium.density_kg_m3) and not isinstance(c, jax.core.Tracer)
     )
+    if grid.stencil == "wide":  # its operator's spectrum is measured whenever the faces are not uniform
+        measure = not isinstance(c, jax.core.Tracer)
     if grid.stencil == "isotropic" and not uniform_faces and not measure:
         _check_speed(c, grid.kind, "standard", why=ISOTROPIC_WITH_FACES)
     mur = tuple(getattr(edges, s) == "mur" for s in sides)
@@ -609,7 +612,10 @@ def _uniform(v) -> bool:
 
 def speed_limit(lat: Lattice, kind: LatticeKind | GridKind) -> float:
     """The largest stable lattice speed for these coefficients: `stability_limit(kind, stencil)`,
-    except that the isotropic stencil with obstacles or a density contrast keeps the standard limit."""
+    except that the isotropic stencil with obstacles or a density contrast keeps the standard limit,
+    and the wide one with traced (unmeasured) obstacles `kinds.MAX_COURANT_WIDE_FACES`."""
+    if lat.stencil == "wide" and not lat.uniform_faces:
+        return MAX_COURANT_WIDE_FACES
     return stability_limit(kind, lat.stencil if lat.uniform_faces else "standard")
 
 

@@ -260,7 +260,8 @@ class Volume(LatticeKind):
     """A volume of cubic cells, shape (nx, ny, nz); the origin is the centre of cell (0, 0, 0).
     Seven-point stencil, limit 1/sqrt(3), or the 19-point isotropic one (scenes' default), limit
     sqrt(3)/2: 1.2 % phase-speed error at 6 cells/wavelength in every direction against the
-    seven-point stencil's 3.1 % on the axes (`observe.analytic3d`)."""
+    seven-point stencil's 3.1 % on the axes (`observe.analytic3d`), or the 25-point wide one,
+    limit 1/sqrt(2.79): 0.24 % (`MAX_COURANT_WIDE`)."""
 
     name = "3d"
     label = "3-D"

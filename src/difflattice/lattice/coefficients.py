@@ -278,6 +278,7 @@ class Lattice(eqx.Module):
     stencil: StencilKind = eqx.field(static=True, default="standard")  # `Grid.stencil`: "standard" | "isotropic"
     uniform_faces: bool = eqx.field(static=True, default=True)  # the stencil's limit holds (`speed_limit`, `spectrum`)
     relax: AirRelaxation | None = None  # air's absorption (None: lossless, no fields, no work)
+    wide_rows: tuple[Float[Array, "nx ny nz"], ...] | None = None  # the 3-D wide stencil's axis rows next to obstacles (`operators.wide_rows`)
 
     def conductance(self, axis: int):
         """The face conductances along `axis` (None: unit conductance)."""
@@ -478,7 +479,7 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
     sponge = _sponge(grid, edges, dtype) if "sponge" in edges.kinds() else None
     pml = pml_factors(grid, edges, dtype) if edges.uses_pml else None
     metric = AxisymMetric.build(ny, dtype) if grid.kind.ring_metric else None
-    return Lattice(
+    lat = Lattice(
         K=K,
         q_scale=q_scale,
         bx=bx,
@@ -497,6 +498,11 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
         relax=relax,
         **a,
     )
+    if grid.stencil == "wide" and bx is not None:  # its axis rows next to obstacles, formed once
+        from .operators import wide_rows
+
+        lat = eqx.tree_at(lambda lt: lt.wide_rows, lat, wide_rows(lat, shape, dtype), is_leaf=lambda v: v is None)
+    return lat
 
 
 def absorbing_courant(

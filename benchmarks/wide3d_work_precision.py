@@ -39,10 +39,18 @@ def _stepper(scheme: str, cpw: float, size_m: float):
     dx = C_M_S / F_HZ / cpw
     n = int(round(size_m / dx))
     grid = make_grid(
-        frequency_hz=F_HZ, cells_per_wavelength=cpw, c_max_m_s=C_M_S, shape=(n, n, n), courant=SCHEMES[scheme],
-        dtype="float32", kind="3d", stencil=scheme,
+        frequency_hz=F_HZ,
+        cells_per_wavelength=cpw,
+        c_max_m_s=C_M_S,
+        shape=(n, n, n),
+        courant=SCHEMES[scheme],
+        dtype="float32",
+        kind="3d",
+        stencil=scheme,
     )
-    src = PointSources(cells=np.array([[n // 4] * 3]), signal=ToneBurst(F_HZ, 2), weights=jnp.ones(1), lags_s=jnp.zeros(1))
+    src = PointSources(
+        cells=np.array([[n // 4] * 3]), signal=ToneBurst(F_HZ, 2), weights=jnp.ones(1), lags_s=jnp.zeros(1)
+    )
     stepper = Stepper.build(grid, Medium(C_M_S, 1.2), src, edges=Edges.all("rigid"))
     steps = int(math.ceil(n / SCHEMES[scheme]))  # the time sound takes to cross the box
     return stepper, steps, n
@@ -86,7 +94,8 @@ def _errors(acc_dir: str | None) -> dict:
             if (s, cpw) not in out:
                 om = 2 * math.pi * c / cpw
                 out[(s, cpw, "formula")] = max(
-                    abs(float(phase_velocity_3d(om, c, d, stencil=s)) / c - 1) for d in ((1, 0, 0), (1, 1, 0), (1, 1, 1))
+                    abs(float(phase_velocity_3d(om, c, d, stencil=s)) / c - 1)
+                    for d in ((1, 0, 0), (1, 1, 0), (1, 1, 1))
                 )
     return out
 
@@ -117,26 +126,47 @@ def main() -> None:
         if err is None:
             err, src = errs[(s, cpw, "formula")], "formula"
         rows.append(
-            dict(scheme=s, cells_per_wavelength=cpw, courant=SCHEMES[s], cells=n**3, steps=steps,
-                 seconds_median=med, seconds_all=times[(s, cpw)], time_vs_isotropic_6cpw=med / base,
-                 worst_phase_speed_error=err, error_source=src)
+            dict(
+                scheme=s,
+                cells_per_wavelength=cpw,
+                courant=SCHEMES[s],
+                cells=n**3,
+                steps=steps,
+                seconds_median=med,
+                seconds_all=times[(s, cpw)],
+                time_vs_isotropic_6cpw=med / base,
+                worst_phase_speed_error=err,
+                error_source=src,
+            )
         )
-        print(f"{s:9s} cpw {cpw:3.0f} {n}^3 x {steps} steps: {med:.3f} s ({med / base:.2f}x iso@6) worst error {100 * err:.3f} % ({src})")
+        print(
+            f"{s:9s} cpw {cpw:3.0f} {n}^3 x {steps} steps: {med:.3f} s ({med / base:.2f}x iso@6) worst error {100 * err:.3f} % ({src})"
+        )
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
-    meta = dict(size_m=a.size_m, frequency_hz=F_HZ, repeats=a.repeats, dtype="float32", backend="jax (XLA CPU)",
-                load_average_start=load0, load_average_end=load1, cores=os.cpu_count(),
-                when=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-                note="machine shared with other agents: absolute seconds are not valid figures; the ratios are from one interleaved run")
+    meta = dict(
+        size_m=a.size_m,
+        frequency_hz=F_HZ,
+        repeats=a.repeats,
+        dtype="float32",
+        backend="jax (XLA CPU)",
+        load_average_start=load0,
+        load_average_end=load1,
+        cores=os.cpu_count(),
+        when=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        note="machine shared with other agents: absolute seconds are not valid figures; the ratios are from one interleaved run",
+    )
     (out / "wide3d_work_precision.json").write_text(json.dumps(dict(meta=meta, rows=rows), indent=1) + "\n")
     lines = [
-        "# 3-D stencils: work against precision (issue 29)", "",
+        "# 3-D stencils: work against precision (issue 29)",
+        "",
         f"A closed box of air {a.size_m * 100:g} cm on a side at {F_HZ / 1e3:g} kHz, run for the time sound takes to cross it "
         f"(float32, the compiled JAX/XLA CPU leapfrog, compile excluded); each time the median of {a.repeats} interleaved rounds; {meta['when']}, "
         f"{meta['cores']} cores **shared with other agents** (load average {load0:.2f} at start, {load1:.2f} at end): the "
         "seconds are not valid speed figures, the ratios (all from this one run) are what to read. Worst error: the largest "
         "|phase-speed error| over axis, face and body diagonal, measured from simulated arrivals "
-        "(`difflattice accuracy --case dispersion3d`).", "",
+        "(`difflattice accuracy --case dispersion3d`).",
+        "",
         "| scheme (courant) | cells/λ | cells | steps | time (s) | time / isotropic at 6 | worst phase-speed error |",
         "|---|---:|---:|---:|---:|---:|---:|",
     ]
@@ -146,8 +176,11 @@ def main() -> None:
             f"{r['seconds_median']:.3f} | {r['time_vs_isotropic_6cpw']:.2f} | {100 * r['worst_phase_speed_error']:.2f} % "
             f"{'' if r['error_source'] == 'measured' else '(formula)'}|"
         )
-    lines += ["", "Reproduce: `PYTHONPATH=$PWD/src python benchmarks/wide3d_work_precision.py --accuracy DIR` "
-              "after `difflattice accuracy --case dispersion3d --cells-per-wavelength 4 5 6 7 8 --out DIR`."]
+    lines += [
+        "",
+        "Reproduce: `PYTHONPATH=$PWD/src python benchmarks/wide3d_work_precision.py --accuracy DIR` "
+        "after `difflattice accuracy --case dispersion3d --cells-per-wavelength 4 5 6 7 8 --out DIR`.",
+    ]
     (out / "wide3d_work_precision.md").write_text("\n".join(lines) + "\n")
 
 

@@ -35,8 +35,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .grid import Grid, GridKind, StencilKind, check_courant, stability_limit
-from .kinds import MAX_COURANT_WIDE_FACES
-from .kinds import LatticeKind, as_kind
+from .kinds import MAX_COURANT_WIDE_FACES, LatticeKind, as_kind
 from .medium import Medium
 from .pml import PML, Box, RadialPML, layer_boxes, pml_factors  # noqa: F401 (re-exported)
 
@@ -278,7 +277,9 @@ class Lattice(eqx.Module):
     stencil: StencilKind = eqx.field(static=True, default="standard")  # `Grid.stencil`: "standard" | "isotropic"
     uniform_faces: bool = eqx.field(static=True, default=True)  # the stencil's limit holds (`speed_limit`, `spectrum`)
     relax: AirRelaxation | None = None  # air's absorption (None: lossless, no fields, no work)
-    wide_rows: tuple[Float[Array, "nx ny nz"], ...] | None = None  # the 3-D wide stencil's axis rows next to obstacles (`operators.wide_rows`)
+    wide_rows: tuple[Float[Array, "nx ny nz"], ...] | None = (
+        None  # the 3-D wide stencil's axis rows next to obstacles (`operators.wide_rows`)
+    )
 
     def conductance(self, axis: int):
         """The face conductances along `axis` (None: unit conductance)."""

@@ -258,10 +258,10 @@ class Axisymmetric(LatticeKind):
 
 class Volume(LatticeKind):
     """A volume of cubic cells, shape (nx, ny, nz); the origin is the centre of cell (0, 0, 0).
-    Seven-point stencil, limit 1/sqrt(3), or the 19-point isotropic one (scenes' default), limit
-    sqrt(3)/2: 1.2 % phase-speed error at 6 cells/wavelength in every direction against the
-    seven-point stencil's 3.1 % on the axes (`observe.analytic3d`), or the 25-point wide one,
-    limit 1/sqrt(2.79): 0.24 % (`MAX_COURANT_WIDE`)."""
+    Seven-point stencil, limit 1/sqrt(3), the 19-point isotropic one, limit sqrt(3)/2: 1.3 %
+    phase-speed error at 6 cells/wavelength in every direction against the seven-point
+    stencil's 3.4 % on the axes (`observe.analytic3d`), or the 25-point wide one (scenes'
+    default), limit 1/sqrt(2.79): 0.24 % (`MAX_COURANT_WIDE`; docs/benchmarks/wide3d_work_precision.md)."""
 
     name = "3d"
     label = "3-D"
@@ -269,7 +269,7 @@ class Volume(LatticeKind):
     ndim = 3
     axis_names = ("x", "y", "z")
     stencils = ("standard", "isotropic", "wide")
-    default_stencil = "isotropic"
+    default_stencil = "wide"
     default_courant = DEFAULT_COURANT_3D
     min_cells = 3
     _standard_limit = MAX_COURANT_3D

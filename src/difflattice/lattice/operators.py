@@ -11,7 +11,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .coefficients import Lattice
+from .coefficients import Lattice, wide_axis_rows
 from .kinds import PAIR_WEIGHT, WIDE_AXIS_WEIGHT
 
 # spatial operator
@@ -353,7 +353,9 @@ def _wide_3d(lat: Lattice, q):
     if lat.bx is None:
         return _wide_uniform_3d(lat, q)
     out = _isotropic_links_3d(lat, q)
-    rows = lat.wide_rows if lat.wide_rows is not None else wide_rows(lat, q.shape, q.dtype)
+    rows = lat.wide_rows
+    if rows is None:  # a lattice not from `build_lattice` (or edited since): formed here, each step
+        rows = wide_axis_rows((lat.bx, lat.by, lat.bz), lat.K / lat.c**2, q.shape, q.dtype)
     c2, c1, c0 = rows[:3], rows[3:6], rows[6]
     out = out + c0 * q
     for axis in range(3):
@@ -363,33 +365,6 @@ def _wide_3d(lat: Lattice, q):
         c2m = _shifted(_shifted(c2[axis], axis)[1], axis)[1]
         out = out + c2[axis] * q2p + c1[axis] * q1p + c1m * q1m + c2m * q2m
     return out
-
-
-def wide_rows(lat: Lattice, shape, dtype) -> tuple:
-    """``-(e/4) D_a W D_a`` of the wide stencil as 5-point rows along each axis a (equal to
-    composing `axis_second_difference` twice with W between, `_axis_weighted`, to rounding): with
-    b+ and b- a cell's high and low face conductances along a, ``c2_i = b+_i W_(i+1) b+_(i+1)`` to
-    q_(i+2), ``c1_i = -b+_i [W_(i+1) (b+_(i+1) + b+_i) + W_i (b+_i + b-_i)]`` to q_(i+1), the row
-    symmetric (c1_(i-1) to q_(i-1), c2_(i-2) to q_(i-2)), and ``W_(i+1) b+_i^2 + W_i (b+_i +
-    b-_i)^2 + W_(i-1) b-_i^2`` to q_i, all times -e/4. Returns (c2_x, c2_y, c2_z, c1_x, c1_y,
-    c1_z, c0 summed over the axes): `coefficients.build_lattice` stores them (7 grid arrays) so
-    the step reads them; composing the differences in the step ran XLA's CPU loop at an eighth of
-    the isotropic links' speed next to a post, forming them in the step at a fifth."""
-    s = -WIDE_AXIS_WEIGHT / 4.0
-    faces = _face_coefficients(lat, shape, dtype)
-    w = jnp.broadcast_to(jnp.asarray(lat.K / lat.c**2, dtype), shape)
-    c2s, c1s, c0 = [], [], None
-    for axis in range(3):
-        fshape = tuple(m + 1 if a == axis else m for a, m in enumerate(shape))
-        b = jnp.ones(fshape, dtype) if faces[axis] is None else jnp.broadcast_to(faces[axis], fshape).astype(dtype)
-        bp, bm = _along(b, axis, slice(1, None)), _along(b, axis, slice(None, -1))  # b+_i, b-_i
-        wp, wm = _shifted(w, axis)  # W_(i+1), W_(i-1); zero beyond the window, where b = 0 or q = 0
-        bpp = _shifted(bp, axis)[0]  # b+_(i+1)
-        c2s.append(s * bp * wp * bpp)
-        c1s.append(-s * bp * (wp * (bpp + bp) + w * (bp + bm)))
-        term = s * (wp * bp * bp + w * (bp + bm) ** 2 + wm * bm * bm)
-        c0 = term if c0 is None else c0 + term
-    return (*c2s, *c1s, c0)
 
 
 def _wide_uniform_3d(lat: Lattice, q):

@@ -100,12 +100,47 @@ def _errors(acc_dir: str | None) -> dict:
     return out
 
 
+def per_update(n: int, repeats: int) -> dict:
+    """MLUPS of each stencil on an n^3 box (rigid sides, float32, 20 compiled steps), in air and
+    around a rigid post (the isotropic links, the wide rows), interleaved, median of `repeats`."""
+    import jax.numpy as jnp
+
+    from difflattice.lattice import Edges
+    from difflattice.lattice.grid import make_grid
+    from difflattice.lattice.medium import Medium
+    from difflattice.solver import Stepper
+
+    x, y, _ = np.meshgrid(*[np.arange(n)] * 3, indexing="ij")
+    post = jnp.asarray((((x - n // 2) ** 2 + (y - n // 2) ** 2) < 25).astype(np.float32))
+    loops = {}
+    for case in ("air", "post"):
+        for s, c in SCHEMES.items():
+            g = make_grid(
+                frequency_hz=F_HZ,
+                cells_per_wavelength=6,
+                c_max_m_s=C_M_S,
+                shape=(n, n, n),
+                courant=c,
+                dtype="float32",
+                kind="3d",
+                stencil=s,
+            )
+            med = Medium(C_M_S, 1.2) if case == "air" else Medium(C_M_S, 1.2, rigid=post)
+            loops[(case, s)] = _loop(Stepper.build(g, med, edges=Edges.all("rigid")), 20)
+    times: dict = {k: [] for k in loops}
+    for _ in range(repeats):
+        for k, loop in loops.items():
+            times[k].append(_timed(loop))
+    return {f"{c}/{s}": n**3 * 20 / statistics.median(v) / 1e6 for (c, s), v in times.items()}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--size-m", type=float, default=0.09)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--accuracy", default=None, help="DIR of accuracy_dispersion3d.json (measured errors)")
     ap.add_argument("--out", default="docs/benchmarks")
+    ap.add_argument("--per-update", type=int, default=80, help="n of the n^3 box of the MLUPS comparison (0: skip)")
     a = ap.parse_args()
     steppers = {(s, cpw): _stepper(s, cpw, a.size_m) for s in SCHEMES for cpw in CPW}
     loops = {k: _loop(st, steps) for k, (st, steps, _) in steppers.items()}
@@ -116,6 +151,7 @@ def main() -> None:
             times[k].append(_timed(loop))
         print(f"round {rnd + 1}/{a.repeats} done", flush=True)
     load1 = os.getloadavg()[0]
+    mlups = per_update(a.per_update, a.repeats) if a.per_update else {}
     errs = _errors(a.accuracy)
     base = statistics.median(times[("isotropic", 6.0)])
     rows = []
@@ -154,15 +190,23 @@ def main() -> None:
         load_average_end=load1,
         cores=os.cpu_count(),
         when=time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        per_update_n=a.per_update,
         note="machine shared with other agents: absolute seconds are not valid figures; the ratios are from one interleaved run",
     )
-    (out / "wide3d_work_precision.json").write_text(json.dumps(dict(meta=meta, rows=rows), indent=1) + "\n")
+    (out / "wide3d_work_precision.json").write_text(
+        json.dumps(dict(meta=meta, rows=rows, mlups=mlups), indent=1) + "\n"
+    )
+    (out / "wide3d_work_precision.md").write_text(markdown(meta, rows, mlups))
+
+
+def markdown(meta: dict, rows: list, mlups: dict) -> str:
+    """The markdown table of a run (`main`'s JSON fields)."""
     lines = [
         "# 3-D stencils: work against precision (issue 29)",
         "",
-        f"A closed box of air {a.size_m * 100:g} cm on a side at {F_HZ / 1e3:g} kHz, run for the time sound takes to cross it "
-        f"(float32, the compiled JAX/XLA CPU leapfrog, compile excluded); each time the median of {a.repeats} interleaved rounds; {meta['when']}, "
-        f"{meta['cores']} cores **shared with other agents** (load average {load0:.2f} at start, {load1:.2f} at end): the "
+        f"A closed box of air {meta['size_m'] * 100:g} cm on a side at {meta['frequency_hz'] / 1e3:g} kHz, run for the time sound takes to cross it "
+        f"(float32, the compiled JAX/XLA CPU leapfrog, compile excluded); each time the median of {meta['repeats']} interleaved rounds; {meta['when']}, "
+        f"{meta['cores']} cores **shared with other agents** (load average {meta['load_average_start']:.2f} at start, {meta['load_average_end']:.2f} at end): the "
         "seconds are not valid speed figures, the ratios (all from this one run) are what to read. Worst error: the largest "
         "|phase-speed error| over axis, face and body diagonal, measured from simulated arrivals "
         "(`difflattice accuracy --case dispersion3d`).",
@@ -176,12 +220,27 @@ def main() -> None:
             f"{r['seconds_median']:.3f} | {r['time_vs_isotropic_6cpw']:.2f} | {100 * r['worst_phase_speed_error']:.2f} % "
             f"{'' if r['error_source'] == 'measured' else '(formula)'}|"
         )
+    if mlups:
+        n = meta.get("per_update_n", 80)
+        lines += [
+            "",
+            f"Cost per cell update: {n}^3 cells, rigid sides, 20 steps, in air and around a rigid post (radius 5 cells), "
+            f"interleaved, median of {meta['repeats']}, same run (MLUPS, higher is faster; read the ratios):",
+            "",
+            "| case | standard | isotropic | wide | wide / isotropic time per update |",
+            "|---|---:|---:|---:|---:|",
+        ]
+        for c in ("air", "post"):
+            m = {s: mlups[f"{c}/{s}"] for s in SCHEMES}
+            lines.append(
+                f"| {c} | {m['standard']:.0f} | {m['isotropic']:.0f} | {m['wide']:.0f} | {m['isotropic'] / m['wide']:.2f} |"
+            )
     lines += [
         "",
         "Reproduce: `PYTHONPATH=$PWD/src python benchmarks/wide3d_work_precision.py --accuracy DIR` "
         "after `difflattice accuracy --case dispersion3d --cells-per-wavelength 4 5 6 7 8 --out DIR`.",
     ]
-    (out / "wide3d_work_precision.md").write_text("\n".join(lines) + "\n")
+    return "\n".join(lines) + "\n"
 
 
 if __name__ == "__main__":

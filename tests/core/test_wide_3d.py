@@ -22,7 +22,7 @@ from difflattice.lattice.medium import Medium
 from difflattice.lattice.operators import divergence, face_gradient, stencil
 from difflattice.lattice.spectrum import spectral_radius
 from difflattice.observe.analytic3d import lattice_omega_3d, lattice_symbol_3d, phase_velocity_3d
-from difflattice.solver import Stepper, run
+from difflattice.solver import Sensors, Stepper, run
 
 jax.config.update("jax_enable_x64", True)
 
@@ -188,3 +188,31 @@ def test_closed_room_with_a_post_conserves_energy():
     e1 = _energy(stepper.lattice, res.final.p, res.final.p_prev)
     assert e0 > 0 and abs(e1 - e0) / e0 < 1e-10, (e0, e1)
     assert float(jnp.abs(res.final.p).max()) > 1e-3  # the field is still there (nothing absorbed it)
+
+
+def test_pml_absorbs_a_plane_pulse():
+    """A plane pulse along x (rigid y, z sides) into a 12-cell x_hi PML: the split-field layer
+    steps the wide stencil's flux form (face values reaching two cells) and reflects less than its
+    design reflection pml_r0 = 1e-8 (-160 dB continuum, graded profile; the discrete layer's floor
+    is higher) plus the discretisation's: below -100 dB (measured -128 dB; isotropic and
+    seven-point: -127 dB in the same setup)."""
+    n, c = 300, DEFAULT_COURANT_3D_WIDE
+    g = make_grid(
+        frequency_hz=40e3,
+        cells_per_wavelength=6,
+        c_max_m_s=343.0,
+        shape=(n, 6, 6),
+        courant=c,
+        dtype="float64",
+        kind="3d",
+        stencil="wide",
+    )
+    x = np.arange(n)[:, None, None] * np.ones((1, 6, 6))
+    p0, pm = (np.exp(-((((x + d) - 200.0) / 4.0) ** 2)) for d in (0.0, c))  # moving towards +x
+    edges = Edges(x_lo="rigid", x_hi="pml", y_lo="rigid", y_hi="rigid", z_lo="rigid", z_hi="rigid", thickness_cells=12)
+    stepper = Stepper.build(g, Medium(343.0, 1.2), sensors=Sensors(probes=[(220, 3, 3)]), edges=edges)
+    st = eqx.tree_at(lambda s: (s.p, s.p_prev), stepper.init(), (jnp.asarray(p0), jnp.asarray(pm)))
+    rec = np.abs(np.asarray(run(stepper, int(300 / c), state=st).probes)[:, 0])
+    t_back = int((20 + 2 * (n - 220 - 12) - 30) / c)  # the layer's echo; the x_lo one comes after the end
+    incident, reflected = rec[: int(35 / c)].max(), rec[t_back:].max()
+    assert incident > 0.9 and 20 * np.log10(reflected / incident) < -100

@@ -522,10 +522,12 @@ def wide_axis_rows(faces, w, shape, dtype) -> tuple:
     (b+_i + b-_i)]`` to q_(i+1), the row symmetric (c1_(i-1) to q_(i-1), c2_(i-2) to q_(i-2)),
     and ``W_(i+1) b+_i^2 + W_i (b+_i + b-_i)^2 + W_(i-1) b-_i^2`` to q_i, all times -e/4: the two
     wall-aware second differences composed, to rounding (`tests/core/test_wide_3d.py`). Returns
-    (c2_x, c2_y, c2_z, c1_x, c1_y, c1_z, c0 summed over the axes); `build_lattice` stores them
-    (7 grid arrays, `Lattice.wide_rows`) so the step only reads them: composing the differences
-    in the step ran XLA's CPU loop at an eighth of the isotropic links' speed next to a post,
-    forming these rows in the step at a fifth, reading them at about 1/2.5."""
+    (c2_x, c2_y, c2_z, c1_x, c1_y, c1_z, c0 summed over the axes), c2 and c1 padded at the low
+    end of their axis by two and one zero layers so that the step reads the row below by slicing;
+    `build_lattice` stores them (7 grid arrays, `Lattice.wide_rows`) so the step only reads them:
+    composing the differences in the step ran XLA's CPU loop at an eighth of the isotropic links'
+    speed next to a post, forming these rows in the step at a fifth, reading them shifted by
+    concatenation at 1/2.5-1/4, sliced from the padded rows at about 1/2 (80^3, interleaved)."""
     s = -WIDE_AXIS_WEIGHT / 4.0
     w = jnp.broadcast_to(jnp.asarray(w, dtype), shape)
     c2s, c1s, c0 = [], [], None
@@ -535,8 +537,11 @@ def wide_axis_rows(faces, w, shape, dtype) -> tuple:
         bp, bm = _along(b, axis, slice(1, None)), _along(b, axis, slice(None, -1))  # b+_i, b-_i
         wp, wm = _shift(w, axis, True), _shift(w, axis, False)  # zero beyond the window, where b = 0 or q = 0
         bpp = _shift(bp, axis, True)  # b+_(i+1)
-        c2s.append(s * bp * wp * bpp)
-        c1s.append(-s * bp * (wp * (bpp + bp) + w * (bp + bm)))
+        low = [(0, 0)] * 3
+        low[axis] = (2, 0)
+        c2s.append(jnp.pad(s * bp * wp * bpp, low))  # padded low: the step slices the row below
+        low[axis] = (1, 0)
+        c1s.append(jnp.pad(-s * bp * (wp * (bpp + bp) + w * (bp + bm)), low))
         term = s * (wp * bp * bp + w * (bp + bm) ** 2 + wm * bm * bm)
         c0 = term if c0 is None else c0 + term
     return (*c2s, *c1s, c0)

@@ -356,14 +356,24 @@ def _wide_3d(lat: Lattice, q):
     rows = lat.wide_rows
     if rows is None:  # a lattice not from `build_lattice` (or edited since): formed here, each step
         rows = wide_axis_rows((lat.bx, lat.by, lat.bz), lat.K / lat.c**2, q.shape, q.dtype)
-    c2, c1, c0 = rows[:3], rows[3:6], rows[6]
+    c2, c1, c0 = rows[:3], rows[3:6], rows[6]  # c2, c1 padded low by 2 and 1 zero layers along their axis
     out = out + c0 * q
+    qp = jnp.pad(q, 2)  # zero beyond the window (where the rows are zero or the ghost is)
+    n = q.shape
     for axis in range(3):
-        q1p, q1m = _shifted(q, axis)
-        q2p, q2m = _shifted(q1p, axis)[0], _shifted(q1m, axis)[1]
-        c1m = _shifted(c1[axis], axis)[1]  # c1 of the cell below: its link to this one
-        c2m = _shifted(_shifted(c2[axis], axis)[1], axis)[1]
-        out = out + c2[axis] * q2p + c1[axis] * q1p + c1m * q1m + c2m * q2m
+
+        def at(d, axis=axis):
+            return jax.lax.slice_in_dim(
+                qp[tuple(slice(None) if a == axis else slice(2, 2 + n[a]) for a in range(3))],
+                2 + d,
+                2 + d + n[axis],
+                axis=axis,
+            )
+
+        c1a, c2a = c1[axis], c2[axis]
+        c1_here, c1_below = (jax.lax.slice_in_dim(c1a, i, i + n[axis], axis=axis) for i in (1, 0))
+        c2_here, c2_below = (jax.lax.slice_in_dim(c2a, i, i + n[axis], axis=axis) for i in (2, 0))
+        out = out + c2_here * at(2) + c1_here * at(1) + c1_below * at(-1) + c2_below * at(-2)
     return out
 
 

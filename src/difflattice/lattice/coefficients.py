@@ -469,11 +469,13 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
     # volume with rigid obstacles if the operator's measured spectrum allows (`spectrum.check_spectrum`, at
     # `Stepper.build`); otherwise its bound is the standard stencil's (`speed_limit`)
     uniform_faces = medium.rigid is None and medium.soft is None and _uniform(medium.density_kg_m3)
-    measure = (
-        ndim == 3 and medium.soft is None and _uniform(medium.density_kg_m3) and not isinstance(c, jax.core.Tracer)
-    )
+    # (the spectrum of a lattice whose maps are traced, e.g. under jax.grad, cannot be measured)
+    concrete = not any(isinstance(v, jax.core.Tracer) for v in (c, medium.rigid, medium.soft, medium.density_kg_m3))
+    measure = ndim == 3 and medium.soft is None and _uniform(medium.density_kg_m3) and concrete
     if grid.stencil == "wide":  # its operator's spectrum is measured whenever the faces are not uniform
-        measure = not isinstance(c, jax.core.Tracer)
+        measure = concrete
+        if not uniform_faces and not measure:
+            _check_wide_faces(c)
     if grid.stencil == "isotropic" and not uniform_faces and not measure:
         _check_speed(c, grid.kind, "standard", why=ISOTROPIC_WITH_FACES)
     mur = tuple(getattr(edges, s) == "mur" for s in sides)
@@ -646,6 +648,21 @@ ISOTROPIC_WITH_FACES = (
     "operator; next to cut cells the filter's 2/3 reduction of the checkerboard is lost: c^2 rho = 4.23 "
     "measured at sqrt(3)/2), so lower `courant` to <= 1/sqrt(2) for this scene, or use stencil='standard'"
 )
+
+
+def _check_wide_faces(c) -> None:
+    """Refuse a wide-stencil lattice with traced obstacles above `kinds.MAX_COURANT_WIDE_FACES`."""
+    try:
+        cmax = float(jnp.max(c))
+    except Exception:  # traced: checked at run time (`speed_limit`)
+        return
+    if cmax > MAX_COURANT_WIDE_FACES * (1 + 1e-9):
+        raise ValueError(
+            f"the fastest medium's speed {cmax:.6f} cells/step exceeds {MAX_COURANT_WIDE_FACES:.6f} = "
+            "1/sqrt(3 (1 + e)), the 3-D wide stencil's bound for obstacles or a density contrast whose spectrum "
+            "cannot be measured (traced maps, e.g. under jax.grad): lower `courant` to <= 0.516 for this run, "
+            "or use stencil='isotropic' or 'standard'"
+        )
 
 
 def _uniform(v) -> bool:

@@ -354,7 +354,7 @@ def _wide_3d(lat: Lattice, q):
         return _wide_uniform_3d(lat, q)
     out = _isotropic_links_3d(lat, q)
     rows = lat.wide_rows
-    if rows is None:  # a lattice not from `build_lattice` (or edited since): formed here, each step
+    if rows is None:  # a lattice built without them (not by `build_lattice`): formed here, each step
         rows = wide_axis_rows((lat.bx, lat.by, lat.bz), lat.K / lat.c**2, q.shape, q.dtype)
     c2, c1, c0 = rows[:3], rows[3:6], rows[6]  # c2, c1 padded low by 2 and 1 zero layers along their axis
     out = out + c0 * q

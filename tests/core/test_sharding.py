@@ -2,7 +2,7 @@
 every lattice kind (the physics and the harness are the same; the scenes differ by what each kind
 has): 2-D with media, a rigid obstacle, PML and rigid edges; rz with a disc, the cylindrical PML
 and rigid edges; 3-D with cut-cell obstacles, a disc transducer, the split-field PML and the
-leapfrog, with the 7-point and the 19-point isotropic stencil. Harness (a subprocess on two forced host devices, compared to 1e-12 of the probes'
+leapfrog, with the 7-point, the 19-point isotropic and the 25-point wide stencil. Harness (a subprocess on two forced host devices, compared to 1e-12 of the probes'
 scale): `tests/two_devices.py`."""
 
 import pytest
@@ -79,6 +79,15 @@ SCENES["3d-isotropic"] = (
     .replace("rigid=rasterise3d(ball, g)", "rigid=(rasterise3d(ball, g) > 0.5).astype(g.jnp_dtype)")
 )
 assert 'stencil="isotropic"' in SCENES["3d-isotropic"]
+
+# the 3-D wide stencil (25 points: second axis neighbours, a two-cell halo that XLA's partitioner
+# exchanges), cut-cell obstacles and the split-field PML (whose face values reach two cells)
+SCENES["3d-wide"] = (
+    SCENES["3d"]
+    .replace('kind="3d",', 'kind="3d", stencil="wide", courant=0.595,')
+    .replace('(Edges.all("pml", thickness_cells=6), Edges.all("rigid"))', '(Edges.all("pml", thickness_cells=6),)')
+)
+assert 'stencil="wide"' in SCENES["3d-wide"]
 
 
 @pytest.mark.parametrize("kind", list(SCENES))

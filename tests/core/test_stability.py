@@ -161,7 +161,7 @@ def test_closed_lattice_conserves_energy_at_the_limit(scene):
 
 
 STENCILS = [
-    pytest.param(kind, s, id=kind + ("" if s == "standard" else "-isotropic"))
+    pytest.param(kind, s, id=kind + ("" if s == "standard" else f"-{s}"))
     for kind in CLOSED
     for s in KINDS[kind].stencils
 ]

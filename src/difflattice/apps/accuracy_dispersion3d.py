@@ -20,10 +20,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ..lattice.kinds import StencilKind
+from ..lattice.kinds import VOLUME, StencilKind
 
 DIRECTIONS = {"axis": (1, 0, 0), "face_diagonal": (1, 1, 0), "body_diagonal": (1, 1, 1)}
-SCHEMES = {"isotropic": 0.86, "standard": 0.577}  # stencil -> its default courant (kinds.Volume)
+SCHEMES = {s: VOLUME.default_courant_for(s) for s in ("wide", "isotropic", "standard")}  # stencil -> default courant
 RESOLUTIONS = (6.0, 7.0, 8.0, 12.0)
 FILE = "accuracy_dispersion3d.json"
 
@@ -47,7 +47,7 @@ class DispersionRow:
     wavelength)."""
 
 
-POINTS = {"isotropic": 19, "standard": 7}
+POINTS = {"wide": 25, "isotropic": 19, "standard": 7}
 
 
 def _sine_fit(sig: np.ndarray, omega: float, steps: np.ndarray) -> complex:
@@ -142,7 +142,7 @@ def measure(
 
 def sweep(
     cells_per_wavelength=RESOLUTIONS,
-    schemes: tuple[StencilKind, ...] = ("isotropic", "standard"),
+    schemes: tuple[StencilKind, ...] = ("wide", "isotropic", "standard"),
     *,
     far_wavelengths: float = 6.0,
 ) -> list[DispersionRow]:
@@ -172,7 +172,7 @@ def write(rows: list[DispersionRow], out_dir: str | Path) -> Path:
     doc = {
         "what": "3-D phase speed along axis, face and body diagonals: simulated (CW point source, phase "
         "between two ranges) beside the leapfrog's dispersion relation",
-        "default_scheme": "isotropic",
+        "default_scheme": VOLUME.default_stencil,
         "rows": [asdict(r) for r in rows],
         "worst_abs_error_by_cpw": worst,
     }

@@ -114,7 +114,9 @@ def run_scene3d(
     dist_cells = min(grid.courant * n_steps, math.sqrt(sum(n * n for n in shape)))
     omega = grid.omega
     k0 = omega / grid.courant
-    k_axis, k_diag = (float(lattice_wavenumber_3d(omega, grid.courant, d)) for d in ((1, 0, 0), (1, 1, 1)))
+    k_axis, k_diag = (
+        float(lattice_wavenumber_3d(omega, grid.courant, d, stencil=grid.stencil)) for d in ((1, 0, 0), (1, 1, 1))
+    )
     perr = max(abs(k_axis - k0), abs(k_diag - k0)) * dist_cells
     edges = built.edges
     summary = {

@@ -35,7 +35,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from .grid import Grid, GridKind, StencilKind, check_courant, stability_limit
-from .kinds import LatticeKind, as_kind
+from .kinds import MAX_COURANT_WIDE_FACES, WIDE_AXIS_WEIGHT, LatticeKind, as_kind
 from .medium import Medium
 from .pml import PML, Box, RadialPML, layer_boxes, pml_factors  # noqa: F401 (re-exported)
 
@@ -283,6 +283,9 @@ class Lattice(eqx.Module):
     stencil: StencilKind = eqx.field(static=True, default="standard")  # `Grid.stencil`: "standard" | "isotropic"
     uniform_faces: bool = eqx.field(static=True, default=True)  # the stencil's limit holds (`speed_limit`, `spectrum`)
     relax: AirRelaxation | None = None  # air's absorption (None: lossless, no fields, no work)
+    wide_rows: tuple[Float[Array, "nx ny nz"], ...] | None = (
+        None  # the 3-D wide stencil's axis rows next to obstacles (`operators.wide_rows`)
+    )
 
     def conductance(self, axis: int):
         """The face conductances along `axis` (None: unit conductance)."""
@@ -334,9 +337,9 @@ def _checked_inputs(grid: Grid, medium: Medium, edges: Edges):
         if arr is not None and jnp.ndim(arr) != 0 and tuple(jnp.shape(arr)) != shape:
             raise ValueError(f"medium.{name} has shape {jnp.shape(arr)}, expected the grid shape {shape}")
     _check_speed(c, grid.kind, grid.stencil)
-    if grid.stencil == "isotropic" and medium.boundary_model == "paper":
+    if grid.stencil in ("isotropic", "wide") and medium.boundary_model == "paper":
         raise ValueError(
-            "stencil = 'isotropic' needs a symmetric flux form: boundary_model = 'paper' (eq. 10's per-cell "
+            f"stencil = {grid.stencil!r} needs a symmetric flux form: boundary_model = 'paper' (eq. 10's per-cell "
             "factors) has none; use Medium(..., boundary_model='conservative') or stencil='standard'"
         )
     return edges, c, rho
@@ -484,16 +487,20 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
     # volume with rigid obstacles if the operator's measured spectrum allows (`spectrum.check_spectrum`, at
     # `Stepper.build`); otherwise its bound is the standard stencil's (`speed_limit`)
     uniform_faces = medium.rigid is None and medium.soft is None and _uniform(medium.density_kg_m3)
-    measure = (
-        ndim == 3 and medium.soft is None and _uniform(medium.density_kg_m3) and not isinstance(c, jax.core.Tracer)
-    )
+    # (the spectrum of a lattice whose maps are traced, e.g. under jax.grad, cannot be measured)
+    concrete = not any(isinstance(v, jax.core.Tracer) for v in (c, medium.rigid, medium.soft, medium.density_kg_m3))
+    measure = ndim == 3 and medium.soft is None and _uniform(medium.density_kg_m3) and concrete
+    if grid.stencil == "wide":  # its operator's spectrum is measured whenever the faces are not uniform
+        measure = concrete
+        if not uniform_faces and not measure:
+            _check_wide_faces(c)
     if grid.stencil == "isotropic" and not uniform_faces and not measure:
         _check_speed(c, grid.kind, "standard", why=ISOTROPIC_WITH_FACES)
     mur = tuple(getattr(edges, s) == "mur" for s in sides)
     sponge = _sponge(grid, edges, dtype) if "sponge" in edges.kinds() else None
     pml = pml_factors(grid, edges, dtype) if edges.uses_pml else None
     metric = AxisymMetric.build(ny, dtype) if grid.kind.ring_metric else None
-    return Lattice(
+    lat = Lattice(
         K=K,
         q_scale=q_scale,
         bx=bx,
@@ -512,6 +519,52 @@ def build_lattice(grid: Grid, medium: Medium, edges: Edges) -> Lattice:
         relax=relax,
         **a,
     )
+    if grid.stencil == "wide" and bx is not None:  # its axis rows next to obstacles, formed once
+        rows = wide_axis_rows((bx, by, bz), K / c**2, shape, dtype)
+        lat = eqx.tree_at(lambda lt: lt.wide_rows, lat, rows, is_leaf=lambda v: v is None)
+    return lat
+
+
+def _shift(v, axis: int, up: bool):
+    """v at i + 1 (`up`) or i - 1 along `axis`, zero beyond the ends."""
+    n = v.shape[axis]
+    zero = jnp.zeros(tuple(1 if a == axis else m for a, m in enumerate(v.shape)), v.dtype)
+    if up:
+        return jnp.concatenate([jax.lax.slice_in_dim(v, 1, n, axis=axis), zero], axis=axis)
+    return jnp.concatenate([zero, jax.lax.slice_in_dim(v, 0, n - 1, axis=axis)], axis=axis)
+
+
+def wide_axis_rows(faces, w, shape, dtype) -> tuple:
+    """``-(e/4) D_a W D_a`` of the 3-D wide stencil (`operators._wide_3d`) as 5-point rows along
+    each axis a, from the face conductances `faces` (bx, by, bz; rigid window sides closed) and
+    the per-cell weight `w` = K / c^2: with b+ and b- a cell's high and low face conductances,
+    ``c2_i = b+_i W_(i+1) b+_(i+1)`` to q_(i+2), ``c1_i = -b+_i [W_(i+1) (b+_(i+1) + b+_i) + W_i
+    (b+_i + b-_i)]`` to q_(i+1), the row symmetric (c1_(i-1) to q_(i-1), c2_(i-2) to q_(i-2)),
+    and ``W_(i+1) b+_i^2 + W_i (b+_i + b-_i)^2 + W_(i-1) b-_i^2`` to q_i, all times -e/4: the two
+    wall-aware second differences composed, to rounding (`tests/core/test_wide_3d.py`). Returns
+    (c2_x, c2_y, c2_z, c1_x, c1_y, c1_z, c0 summed over the axes), c2 and c1 padded at the low
+    end of their axis by two and one zero layers so that the step reads the row below by slicing;
+    `build_lattice` stores them (7 grid arrays, `Lattice.wide_rows`) so the step only reads them:
+    composing the differences in the step ran XLA's CPU loop at an eighth of the isotropic links'
+    speed next to a post, forming these rows in the step at a fifth, reading them shifted by
+    concatenation at 1/2.5-1/4, sliced from the padded rows at about 1/2 (80^3, interleaved)."""
+    s = -WIDE_AXIS_WEIGHT / 4.0
+    w = jnp.broadcast_to(jnp.asarray(w, dtype), shape)
+    c2s, c1s, c0 = [], [], None
+    for axis in range(3):
+        fshape = tuple(m + 1 if a == axis else m for a, m in enumerate(shape))
+        b = jnp.broadcast_to(faces[axis], fshape).astype(dtype)
+        bp, bm = _along(b, axis, slice(1, None)), _along(b, axis, slice(None, -1))  # b+_i, b-_i
+        wp, wm = _shift(w, axis, True), _shift(w, axis, False)  # zero beyond the window, where b = 0 or q = 0
+        bpp = _shift(bp, axis, True)  # b+_(i+1)
+        low = [(0, 0)] * 3
+        low[axis] = (2, 0)
+        c2s.append(jnp.pad(s * bp * wp * bpp, low))  # padded low: the step slices the row below
+        low[axis] = (1, 0)
+        c1s.append(jnp.pad(-s * bp * (wp * (bpp + bp) + w * (bp + bm)), low))
+        term = s * (wp * bp * bp + w * (bp + bm) ** 2 + wm * bm * bm)
+        c0 = term if c0 is None else c0 + term
+    return (*c2s, *c1s, c0)
 
 
 def absorbing_courant(
@@ -615,6 +668,21 @@ ISOTROPIC_WITH_FACES = (
 )
 
 
+def _check_wide_faces(c) -> None:
+    """Refuse a wide-stencil lattice with traced obstacles above `kinds.MAX_COURANT_WIDE_FACES`."""
+    try:
+        cmax = float(jnp.max(c))
+    except Exception:  # traced: checked at run time (`speed_limit`)
+        return
+    if cmax > MAX_COURANT_WIDE_FACES * (1 + 1e-9):
+        raise ValueError(
+            f"the fastest medium's speed {cmax:.6f} cells/step exceeds {MAX_COURANT_WIDE_FACES:.6f} = "
+            "1/sqrt(3 (1 + e)), the 3-D wide stencil's bound for obstacles or a density contrast whose spectrum "
+            "cannot be measured (traced maps, e.g. under jax.grad): lower `courant` to <= 0.516 for this run, "
+            "or use stencil='isotropic' or 'standard'"
+        )
+
+
 def _uniform(v) -> bool:
     """A scalar, or a concrete array of one value (a traced one counts as varying)."""
     if jnp.ndim(v) == 0:
@@ -627,7 +695,10 @@ def _uniform(v) -> bool:
 
 def speed_limit(lat: Lattice, kind: LatticeKind | GridKind) -> float:
     """The largest stable lattice speed for these coefficients: `stability_limit(kind, stencil)`,
-    except that the isotropic stencil with obstacles or a density contrast keeps the standard limit."""
+    except that the isotropic stencil with obstacles or a density contrast keeps the standard limit,
+    and the wide one with traced (unmeasured) obstacles `kinds.MAX_COURANT_WIDE_FACES`."""
+    if lat.stencil == "wide" and not lat.uniform_faces:
+        return MAX_COURANT_WIDE_FACES
     return stability_limit(kind, lat.stencil if lat.uniform_faces else "standard")
 
 

@@ -17,8 +17,8 @@ from typing import ClassVar, Literal
 
 import numpy as np
 
-StencilKind = Literal["standard", "isotropic"]
-STENCILS = ("standard", "isotropic")
+StencilKind = Literal["standard", "isotropic", "wide"]
+STENCILS = ("standard", "isotropic", "wide")
 
 MAX_COURANT = 1.0 / math.sqrt(2.0)
 """Stability limit of the 2-D five-point leapfrog in cells/step (also the r-z lattice's)."""
@@ -28,6 +28,38 @@ MAX_COURANT_3D = 1.0 / math.sqrt(3.0)
 
 MAX_COURANT_ISOTROPIC = math.sqrt(3.0) / 2.0
 """Stability limit of the leapfrog with the isotropic (9-point) stencil, plane and rz grids."""
+
+WIDE_PAIR_WEIGHT = 0.08
+"""The 3-D wide stencil's compact pair weight a: ``L = L7 + a sum_(i<j) T_i T_j - (e/4) sum_i D_i W D_i``
+(`operators._wide_3d`; the isotropic stencil is a = 1/6, e = 0)."""
+
+WIDE_AXIS_WEIGHT = 0.25
+"""The 3-D wide stencil's axis fourth-difference weight e (its second-neighbour term)."""
+
+PAIR_WEIGHT = {"isotropic": 1.0 / 6.0, "wide": WIDE_PAIR_WEIGHT}
+"""The compact pair weight a of each stencil with one (`operators._across_faces`)."""
+
+MAX_COURANT_WIDE = 1.0 / math.sqrt(3.0 * (1.0 + WIDE_AXIS_WEIGHT) - 12.0 * WIDE_PAIR_WEIGHT)
+"""Stability limit of the 3-D wide stencil, 1/sqrt(2.79) = 0.598684 cells/step: the leapfrog's
+``sin^2(omega/2) = c^2 B(s)``, ``B = sum s_i + e sum s_i^2 - 4 a sum_(i<j) s_i s_j``, s_i =
+sin^2(k_i/2) in [0, 1], is stable iff c^2 max B <= 1. B is convex along each s_i (d^2B/ds_i^2 = 2e
+> 0), so its maximum over the cube [0, 1]^3 lies at a vertex; with n of the three s_i at 1,
+B = n (1 + e) - 2 a n (n - 1): 1.25, 2.18, 2.79 for n = 1, 2, 3 (a = 0.08, e = 1/4), the
+maximum at the body-diagonal checkerboard (pi, pi, pi): c <= 1/sqrt(3 + 3e - 12a). B >= 0 on
+the cube (its minimum, 0, at s = 0), so -L is positive semi-definite."""
+
+MAX_COURANT_WIDE_FACES = 1.0 / math.sqrt(3.0 * (1.0 + WIDE_AXIS_WEIGHT))
+"""The wide stencil's bound for any face conductances of one speed, 1/sqrt(3.75) = 0.516: the
+compact part is bounded by the 7-point operator (its filter M <= diag(b)), and each ``D W D`` by
+``rho(K D) / c^2 (-D) <= 4 (-D)`` in the energy inner product, so ``-K L <= (1 + e) (-K L7)``.
+Used only where the spectrum cannot be measured (traced obstacles); `spectrum.check_spectrum`
+measures it otherwise."""
+
+DEFAULT_COURANT_3D_WIDE = 0.595
+"""The wide stencil's default courant: 0.6 % under its limit, a margin for obstacles (whose
+operator spectrum is measured at build, `spectrum.check_spectrum`). Phase-speed error at 6
+cells/wavelength: -0.24 % worst over every direction and every wavenumber up to it, group
+velocity 0.74 % (`docs/three_d.md`)."""
 
 PAPER_COURANT = 0.707
 """The paper's choice: just below the limit."""
@@ -143,6 +175,8 @@ class LatticeKind:
         """Largest stable lattice speed (cells/step) of the leapfrog with `stencil`
         (derivations: `grid.stability_limit`)."""
         self.check_stencil(stencil)
+        if stencil == "wide":
+            return MAX_COURANT_WIDE
         return MAX_COURANT_ISOTROPIC if stencil == "isotropic" else self._standard_limit
 
     _standard_limit: ClassVar[float] = MAX_COURANT
@@ -150,11 +184,13 @@ class LatticeKind:
 
     def limit_formula(self, stencil: str = "standard") -> str:
         """The stability limit as a formula, for messages."""
+        if stencil == "wide":
+            return "1/sqrt(3 + 3e - 12a) = 1/sqrt(2.79)"
         return "sqrt(3)/2" if stencil == "isotropic" else self._standard_formula
 
     def limit_name(self, stencil: str = "standard") -> str:
         """E.g. "2-D", "rz isotropic-stencil": whose limit a message speaks of."""
-        return self.label + (" isotropic-stencil" if stencil == "isotropic" else "")
+        return self.label + (f" {stencil}-stencil" if stencil in ("isotropic", "wide") else "")
 
     def default_courant_for(self, stencil: str) -> float:
         """The courant a scene gets when it names none, for `stencil`."""
@@ -178,6 +214,8 @@ class LatticeKind:
     def speed_message(self) -> str:
         """The error raised when a (possibly traced) speed map exceeds the limit."""
         iso = ", sqrt(3)/2 with the isotropic stencil" if "isotropic" in self.stencils else ""
+        if "wide" in self.stencils:
+            iso += f", {self.limit_formula('wide')} with the wide one"
         return (
             f"difflattice: a medium speed exceeds the {self.label} stability limit ({self.limit_formula()} "
             f"cells/step{iso}): lower the grid courant or set c_max_m_s to the fastest medium's speed."
@@ -220,27 +258,33 @@ class Axisymmetric(LatticeKind):
 
 class Volume(LatticeKind):
     """A volume of cubic cells, shape (nx, ny, nz); the origin is the centre of cell (0, 0, 0).
-    Seven-point stencil, limit 1/sqrt(3), or the 19-point isotropic one (scenes' default), limit
-    sqrt(3)/2: 1.2 % phase-speed error at 6 cells/wavelength in every direction against the
-    seven-point stencil's 3.1 % on the axes (`observe.analytic3d`)."""
+    Seven-point stencil, limit 1/sqrt(3), the 19-point isotropic one, limit sqrt(3)/2: 1.3 %
+    phase-speed error at 6 cells/wavelength in every direction against the seven-point
+    stencil's 3.4 % on the axes (`observe.analytic3d`), or the 25-point wide one (scenes'
+    default), limit 1/sqrt(2.79): 0.24 % (`MAX_COURANT_WIDE`; docs/benchmarks/wide3d_work_precision.md)."""
 
     name = "3d"
     label = "3-D"
     noun = "3-D"
     ndim = 3
     axis_names = ("x", "y", "z")
-    stencils = ("standard", "isotropic")
-    default_stencil = "isotropic"
+    stencils = ("standard", "isotropic", "wide")
+    default_stencil = "wide"
     default_courant = DEFAULT_COURANT_3D
     min_cells = 3
     _standard_limit = MAX_COURANT_3D
     _standard_formula = "1/sqrt(3)"
 
     def default_courant_for(self, stencil: str) -> float:
+        if stencil == "wide":
+            return DEFAULT_COURANT_3D_WIDE
         return DEFAULT_COURANT_3D_ISOTROPIC if stencil == "isotropic" else self.default_courant
 
     def resolved_cells_per_wavelength(self, stencil: str) -> float:
-        # the isotropic stencil's 2 % point: 1.33 % at 6 cells/wavelength, error ~ 1/cpw^2
+        # the isotropic stencil's 2 % point: 1.33 % at 6 cells/wavelength, error ~ 1/cpw^2; the
+        # wide one's worst phase error is 1.04 % at 4 cells/wavelength (2 % near 3.5)
+        if stencil == "wide":
+            return 4.0
         return 5.0 if stencil == "isotropic" else 8.0
 
 

@@ -1,7 +1,8 @@
 """The measured spectral radius of a lattice's operator, for stability limits no formula bounds:
 the 3-D isotropic stencil next to rigid obstacles (its flux filter loses the checkerboard's
 reduction next to features one cell thin; posts, boxes, walls and steps stay within the
-whole-space bound, `tests/core/test_3d_isotropic.py`). `Stepper.build` calls `check_spectrum`.
+whole-space bound, `tests/core/test_3d_isotropic.py`), and the 3-D wide stencil next to any
+obstacle or density contrast (`tests/core/test_wide_3d.py`). `Stepper.build` calls `check_spectrum`.
 """
 
 from __future__ import annotations
@@ -28,21 +29,27 @@ def spectral_radius(lat: Lattice, shape: tuple[int, ...], iters: int = 100, seed
     v0 = np.random.default_rng(seed).standard_normal(shape)
     dtype = jnp.result_type(lat.K)
 
+    def op(lat, v):  # soft cells (keep = 0) hold zero: the step's operator is the one compressed to the rest
+        return operator(lat, v) if lat.keep is None else lat.keep * operator(lat, lat.keep * v)
+
     def body(lat, v):
-        w = -operator(lat, v)
+        w = -op(lat, v)
         return w / jnp.sqrt(jnp.sum(w * w))
 
     @eqx.filter_jit
     def power(lat, v):  # the lattice is an argument: its arrays are not folded into the program
         v = jax.lax.fori_loop(0, iters, lambda _, v: body(lat, v), v)
-        return jnp.sqrt(jnp.sum(operator(lat, v) ** 2))
+        return jnp.sqrt(jnp.sum(op(lat, v) ** 2))
 
     return float(power(lat, jnp.asarray(v0 / np.linalg.norm(v0), dtype)))
 
 
 def needs_check(lat: Lattice, ndim: int) -> bool:
-    """Whether `lat` claims the 3-D isotropic limit next to obstacles (face conductance arrays)."""
-    return ndim == 3 and lat.stencil == "isotropic" and lat.bx is not None
+    """Whether `lat` claims the 3-D isotropic or wide limit next to obstacles (face conductance
+    arrays: rigid and soft obstacles, cut cells, density contrasts for the wide stencil)."""
+    claims = ndim == 3 and lat.stencil in ("isotropic", "wide") and lat.bx is not None and lat.uniform_faces
+    # a lattice that does not claim it (or whose maps are traced) is held to a formula's bound at build
+    return claims and not isinstance(lat.bx, jax.core.Tracer)
 
 
 def check_spectrum(lat: Lattice, shape: tuple[int, ...]) -> None:
@@ -53,7 +60,7 @@ def check_spectrum(lat: Lattice, shape: tuple[int, ...]) -> None:
     if rho > 4.0 / MARGIN:
         c = float(jnp.max(lat.c))
         raise ValueError(
-            f"the 3-D isotropic stencil next to these obstacles is unstable at this courant: the operator's "
+            f"the 3-D {lat.stencil} stencil next to these obstacles is unstable at this courant: the operator's "
             f"measured spectral radius is {rho:.4f} > 4 / {MARGIN} (features one cell thin lose the stencil's "
             f"reduction of the checkerboard): lower the grid courant (to about {math.sqrt(4.0 / MARGIN / rho) * c:.3f} "
             "cells/step), thicken the obstacles, or use stencil='standard'"

@@ -42,25 +42,29 @@ def _unit(direction) -> np.ndarray:
     return d / n
 
 
-STENCILS_3D = ("standard", "isotropic")
+STENCILS_3D = ("standard", "isotropic", "wide")
+WIDE_A, WIDE_E = 0.08, 0.25
+"""The wide stencil's pair weight a and axis weight e (`lattice.kinds.WIDE_PAIR_WEIGHT`,
+`WIDE_AXIS_WEIGHT`; repeated here, the reference does not read the lattice)."""
 
 
-def _pair_weight(stencil: str) -> float:
-    """The weight w of the pair products in the symbol ``sum s_i - w sum_(i<j) s_i s_j``."""
+def _weights(stencil: str) -> tuple[float, float]:
+    """(w, e) of the symbol ``sum s_i + e sum s_i^2 - w sum_(i<j) s_i s_j`` (w = 4a)."""
     if stencil not in STENCILS_3D:
         raise ValueError(f"stencil = {stencil!r}; allowed: {', '.join(map(repr, STENCILS_3D))}")
-    return 2.0 / 3.0 if stencil == "isotropic" else 0.0
+    return {"standard": (0.0, 0.0), "isotropic": (2.0 / 3.0, 0.0), "wide": (4 * WIDE_A, WIDE_E)}[stencil]
 
 
 def lattice_symbol_3d(k_vec, stencil: str = "standard") -> np.ndarray:
     """``F(k) = -symbol(L) / 4`` of the spatial stencil at wave vector `k_vec` (radians/cell, last
     axis 3): ``sum s_i`` (7-point) or ``sum s_i - (2/3) sum_(i<j) s_i s_j`` (19-point isotropic,
     `lattice.operators._across_faces`), s_i = sin^2(k_i / 2). The leapfrog's dispersion relation
-    is ``sin^2(omega / 2) = c^2 F(k)``."""
-    w = _pair_weight(stencil)
+    is ``sin^2(omega / 2) = c^2 F(k)``. The wide stencil adds ``e sum s_i^2`` (its second axis
+    neighbours) to a pair weight w = 4a: ``sum s_i + (1/4) sum s_i^2 - 0.32 sum s_i s_j``."""
+    w, e = _weights(stencil)
     sv = np.sin(np.asarray(k_vec, dtype=float) / 2) ** 2
     sx, sy, sz = sv[..., 0], sv[..., 1], sv[..., 2]
-    return sx + sy + sz - w * (sx * sy + sy * sz + sz * sx)
+    return sx + sy + sz + e * (sx * sx + sy * sy + sz * sz) - w * (sx * sy + sy * sz + sz * sx)
 
 
 def lattice_omega_3d(k_vec, c: float, stencil: str = "standard") -> np.ndarray:
@@ -69,15 +73,16 @@ def lattice_omega_3d(k_vec, c: float, stencil: str = "standard") -> np.ndarray:
     return 2 * np.arcsin(np.clip(c * np.sqrt(lattice_symbol_3d(k_vec, stencil)), 0.0, 1.0))
 
 
-def _symbol_along(k, d, w):
-    """F(k d) and dF/dk along the unit direction d (..., 3) for |k| = k (...)."""
+def _symbol_along(k, d, we):
+    """F(k d) and dF/dk along the unit direction d (..., 3) for |k| = k (...); we = (w, e)."""
+    w, e = we
     a = k[..., None] * d / 2
     sv = np.sin(a) ** 2
     dv = 0.5 * d * np.sin(2 * a)  # d s_i / dk
     sx, sy, sz = sv[..., 0], sv[..., 1], sv[..., 2]
     dx, dy, dz = dv[..., 0], dv[..., 1], dv[..., 2]
-    f = sx + sy + sz - w * (sx * sy + sy * sz + sz * sx)
-    df = dx + dy + dz - w * (dx * (sy + sz) + dy * (sx + sz) + dz * (sx + sy))
+    f = sx + sy + sz + e * (sx * sx + sy * sy + sz * sz) - w * (sx * sy + sy * sz + sz * sx)
+    df = dx + dy + dz + 2 * e * (sx * dx + sy * dy + sz * dz) - w * (dx * (sy + sz) + dy * (sx + sz) + dz * (sx + sy))
     return f, df
 
 
@@ -89,7 +94,7 @@ def lattice_wavenumber_3d(
     `stencil`. Newton's method on the dispersion relation from the continuum k = omega / c
     (monotone below the first band edge); exact to round-off."""
     d = _unit(direction)
-    w = _pair_weight(stencil)
+    w = _weights(stencil)
     target = math.sin(omega / 2) ** 2 / c**2
     k = np.full(d.shape[:-1], omega / c, dtype=float)
     for _ in range(iters):
@@ -118,7 +123,7 @@ def group_velocity_3d(omega: float, c: float, direction=(1.0, 0.0, 0.0), stencil
     ``sin^2(omega/2) = c^2 F``: ``d omega / dk = c^2 F'(k) / (sin(omega/2) cos(omega/2))``."""
     d = _unit(direction)
     k = lattice_wavenumber_3d(omega, c, d, stencil=stencil)
-    _, df = _symbol_along(k, d, _pair_weight(stencil))
+    _, df = _symbol_along(k, d, _weights(stencil))
     return c**2 * df / (math.sin(omega / 2) * math.cos(omega / 2))
 
 

@@ -62,8 +62,8 @@ class RunFeatures:
       arrival are recorded (each one grid-sized array).
     - `gradient`: reverse mode (adds `checkpoints` saved states and a second working set).
     - `mlups`: million lattice-cell updates per second to assume (None: measured, `measure_mlups`).
-    - `stencil`: the grid's spatial stencil (the isotropic one is timed apart: it costs more per
-      update).
+    - `stencil`: the grid's spatial stencil (the isotropic and wide ones are timed apart: they cost more per
+      update; the wide one next to obstacles keeps 7 more grid-sized arrays).
     """
 
     pml: bool = True
@@ -125,6 +125,8 @@ def memory_breakdown(grid_shape, n_steps: int, dtype: str, features=None) -> dic
         maps = 3 * N  # the medium's SI maps (speed, density, occupancy)
     if f.soft:
         coeff += N
+    if f.heterogeneous and f.stencil == "wide" and ndim == 3:
+        coeff += 7 * N  # the wide stencil's axis rows next to obstacles (`operators.wide_rows`)
     rec = f.n_probes * n_steps + 2 * f.n_phasors + f.snapshot_cells * f.n_snapshots + f.field_stats * N
     parts = {
         "fields": int(WORKING_SET_FACTOR * carried * b),
@@ -320,7 +322,7 @@ def _time_run(
         raise ValueError("measure_mlups(dtype='float64') needs jax_enable_x64 (set it in your script)")
     shape = (160, 160, 160) if ndim == 3 else (840, 630)
     n_steps = 10 if ndim == 3 else 100
-    courant = (0.86 if stencil == "isotropic" else 0.57) if ndim == 3 else 0.7
+    courant = {"isotropic": 0.86, "wide": 0.595}.get(stencil, 0.57) if ndim == 3 else 0.7
     grid = make_grid(
         frequency_hz=40e3,
         cells_per_wavelength=12,
@@ -329,7 +331,7 @@ def _time_run(
         courant=courant,
         dtype=dtype,
         kind="3d" if ndim == 3 else "2d",
-        stencil="isotropic" if stencil == "isotropic" else "standard",
+        stencil="wide" if stencil == "wide" and ndim == 3 else ("isotropic" if stencil == "isotropic" else "standard"),
     )
     edges = Edges.all("pml", thickness_cells=8) if stepper == "pml" else Edges.all("rigid")
     medium = Medium(343.0, 1.2)

@@ -299,7 +299,7 @@ class Stepper(eqx.Module):
                 f"{len(state.layers)}: start from stepper.init() (or the final state of a run of the same scene)"
             )
         lat = self.lattice
-        if lat.stencil == "isotropic":  # face values filtered across faces: the whole grid's, sliced
+        if lat.stencil in ("isotropic", "wide"):  # face values reaching past the box: the whole grid's, sliced
             full = [face_gradient(lat, q, axis) for axis in range(q.ndim)]
             grads = lambda box: [g[_faces_of(box, a)] for a, g in enumerate(full)]
         else:  # from the box's cells and a one-cell halo (zero beyond the window)

@@ -73,8 +73,25 @@ template <typename T>
 struct LayerScratch {
   RowBuf<T> k, bxl, bxh, by, keep, ml, mh;
   std::vector<T> ones, old, d, P, e;
+  std::vector<signed char> k_one;  // per row: K one value on the row (1), not (0), not yet known (-1)
   explicit LayerScratch(int64_t ny, int64_t w)
       : ones(ny + 2, T(1)), old(w + 1, T(0)), d(ny + 2, T(0)), P(ny + 2, T(0)), e(ny + 1, T(0)) {}
+  // whether K is one value on row i (a register coefficient, or a row of one material), and which
+  bool k_uniform(const Coef<T>& K, int64_t i, int64_t nx, int64_t ny, T* v) {
+    if (K.in_register()) {
+      *v = K.value(i);
+      return true;
+    }
+    if (int64_t(k_one.size()) != nx) k_one.assign(nx, -1);
+    const T* r = K.row(i);
+    if (k_one[i] < 0) {
+      k_one[i] = 1;
+      for (int64_t j = 1; j < ny; ++j)
+        if (!(r[j] == r[0])) k_one[i] = 0;
+    }
+    *v = r[0];
+    return k_one[i] == 1;
+  }
 };
 
 // the isotropic stencil's filter weights across x faces (rz: the ring areas (j + 1, j) / (j + 1/2);
@@ -98,8 +115,9 @@ struct IsoWeights {
 // x face f (the box's face kf) from q rows lo, hi: w = A w + B (b (hi - lo)), or with the
 // isotropic stencil the difference filtered across the face ([1, 10, 1] / 12, uniform faces)
 template <typename T>
-void layer_x_face(const LeapfrogArgs<T>& a, const LayerArgs<T>& la, const IsoWeights<T>& iw, const LayerBox<T>& b,
-                  int64_t kf, int64_t f, const T* __restrict lo, const T* __restrict hi, LayerScratch<T>& S) {
+inline void layer_x_face(const LeapfrogArgs<T>& a, const LayerArgs<T>& la, const IsoWeights<T>& iw,
+                         const LayerBox<T>& b, int64_t kf, int64_t f, const T* __restrict lo, const T* __restrict hi,
+                         LayerScratch<T>& S) {
   const int64_t ny = a.ny, c0 = b.c0, nc = b.c1 - b.c0;
   T* __restrict w = b.wx + kf * nc;
   const T A = la.axf.present() ? la.axf.at(f, 0) : T(1), B = la.bxf.present() ? la.bxf.at(f, 0) : T(1);
@@ -151,8 +169,8 @@ void layer_x_face(const LeapfrogArgs<T>& a, const LayerArgs<T>& la, const IsoWei
 // the y faces c0 .. c1 of row i (box row kr) from the q row q (zero beyond the window), and the
 // rz ring correction of the row
 template <typename T>
-void layer_y_faces(const LeapfrogArgs<T>& a, const LayerArgs<T>& la, const LayerBox<T>& b, int64_t kr, int64_t i,
-                   const T* __restrict q, const T* qm, const T* qp, LayerScratch<T>& S) {
+inline void layer_y_faces(const LeapfrogArgs<T>& a, const LayerArgs<T>& la, const LayerBox<T>& b, int64_t kr,
+                          int64_t i, const T* __restrict q, const T* qm, const T* qp, LayerScratch<T>& S) {
   const int64_t ny = a.ny, c0 = b.c0, nc = b.c1 - b.c0;
   T* __restrict w = b.wy + kr * (nc + 1);
   const int64_t w_r = b.cr ? la.w : 0;
@@ -194,14 +212,86 @@ void layer_y_faces(const LeapfrogArgs<T>& a, const LayerArgs<T>& la, const Layer
   }
 }
 
+// a box row's parts: px, py (keep), P = px + py into o; RZ: the metric (m_hi w_(j+1) - m_lo w_j),
+// plus the ring correction cr on the box's last w_r columns. kp == nullptr: the fast path (no
+// keep, K is kv on the row), which also updates the x face i + 1 (whi, passed as an XFace) column
+// by column before its use (whi is then not read); else kk_or_face is the K row.
+template <typename T>
+struct XFace {  // the x face above a box row: w = A w + B (b (hi - lo)), per column of the box
+  T* w;
+  const T *lo, *hi, *b;
+  T A, B;
+};
+
+template <typename T, bool RZ>
+inline void layer_parts(T* __restrict x, T* __restrict y, T* __restrict o, const T* __restrict wlo,
+                        const T* __restrict whi, const T* __restrict wy, const T* __restrict ayc,
+                        const T* __restrict byc, T Ax, T Bx, const void* kk_or_face, const T* __restrict kp, T kv,
+                        const T* __restrict ml, const T* __restrict mh, const T* cr, int64_t nc, int64_t w_r) {
+  const int64_t k_r = nc - w_r;
+  auto dy = [&](int64_t k) {
+    if constexpr (RZ) return mh[k] * wy[k + 1] - ml[k] * wy[k];
+    else return wy[k + 1] - wy[k];
+  };
+  if (kp == nullptr) {  // the fast path: kk_or_face is the x face i + 1 (whi), K is kv
+    const XFace<T>& f = *static_cast<const XFace<T>*>(kk_or_face);
+    T* __restrict fw = f.w;
+    const T* __restrict flo = f.lo;
+    const T* __restrict fhi = f.hi;
+    const T* __restrict fb = f.b;
+    const T fA = f.A, fB = f.B;
+#pragma GCC ivdep
+    for (int64_t k = 0; k < k_r; ++k) {
+      const T wh = fA * fw[k] + fB * (fb[k] * (fhi[k] - flo[k]));
+      fw[k] = wh;
+      const T xv = Ax * x[k] + Bx * (kv * (wh - wlo[k]));
+      const T yv = ayc[k] * y[k] + byc[k] * (kv * dy(k));
+      x[k] = xv;
+      y[k] = yv;
+      o[k] = xv + yv;
+    }
+    for (int64_t k = k_r; k < nc; ++k) {
+      const T wh = fA * fw[k] + fB * (fb[k] * (fhi[k] - flo[k]));
+      fw[k] = wh;
+      const T xv = Ax * x[k] + Bx * (kv * (wh - wlo[k]));
+      const T yv = ayc[k] * y[k] + byc[k] * (kv * (dy(k) + cr[k]));
+      x[k] = xv;
+      y[k] = yv;
+      o[k] = xv + yv;
+    }
+    return;
+  }
+  const T* __restrict kk = static_cast<const T*>(kk_or_face);
+#pragma GCC ivdep
+  for (int64_t k = 0; k < k_r; ++k) {
+    const T xv = kp[k] * (Ax * x[k] + Bx * (kk[k] * (whi[k] - wlo[k])));
+    const T yv = kp[k] * (ayc[k] * y[k] + byc[k] * (kk[k] * dy(k)));
+    x[k] = xv;
+    y[k] = yv;
+    o[k] = xv + yv;
+  }
+  for (int64_t k = k_r; k < nc; ++k) {
+    const T xv = kp[k] * (Ax * x[k] + Bx * (kk[k] * (whi[k] - wlo[k])));
+    const T yv = kp[k] * (ayc[k] * y[k] + byc[k] * (kk[k] * (dy(k) + cr[k])));
+    x[k] = xv;
+    y[k] = yv;
+    o[k] = xv + yv;
+  }
+}
+
 // row i of box b at one step: its faces from the q rows of the previous step (qm, q0, qp: rows
 // i - 1, i, i + 1, zero beyond the window), its parts, and P = px + py into the new row `out`
 template <typename T>
 void layer_row(const LeapfrogArgs<T>& a, const LayerArgs<T>& la, const IsoWeights<T>& iw, const LayerBox<T>& b,
                int64_t i, const T* qm, const T* q0, const T* qp, T* out, LayerScratch<T>& S) {
   const int64_t ny = a.ny, c0 = b.c0, nc = b.c1 - b.c0, kr = i - b.r0;
+  // the common case (standard stencil, no keep, K one value on the row: a layer in one material):
+  // the x face i + 1 is updated in the loop of the parts, and the arrays of ones and of K are not
+  // read (the same arithmetic: keep = 1 multiplies exactly, K's row holds the one value)
+  T kv = T(0);
+  const bool fast = !a.iso && !a.keep.present() && S.k_uniform(a.K, i, a.nx, ny, &kv);
   if (i == b.r0) layer_x_face(a, la, iw, b, 0, i, qm, q0, S);
-  layer_x_face(a, la, iw, b, kr + 1, i + 1, q0, qp, S);
+  if (!fast) layer_x_face(a, la, iw, b, kr + 1, i + 1, q0, qp, S);
   if (a.iso && !la.iso_faces) {  // the y faces from P = q0 filtered across them (am, ap = 0 at the first / last row)
     T* __restrict P = S.P.data();
     const T am = i > 0 ? T(1) : T(0), ap = i + 1 < a.nx ? T(1) : T(0);
@@ -217,43 +307,30 @@ void layer_row(const LeapfrogArgs<T>& a, const LayerArgs<T>& la, const IsoWeight
   const T* __restrict wlo = b.wx + kr * nc;
   const T* __restrict whi = wlo + nc;
   const T* __restrict wy = b.wy + kr * (nc + 1);
-  const T* __restrict kk = S.k.get(a.K, i, ny) + c0;
   const T Ax = la.axc.present() ? la.axc.at(i, 0) : T(1), Bx = la.bxc.present() ? la.bxc.at(i, 0) : T(1);
   const T* __restrict ayc = (la.ayc.present() ? la.ayc.row(0) : S.ones.data()) + c0;
   const T* __restrict byc = (la.byc.present() ? la.byc.row(0) : S.ones.data()) + c0;
-  const T* __restrict kp = (a.keep.present() ? S.keep.get(a.keep, i, ny) : S.ones.data()) + c0;  // 1 x is x
   T* __restrict o = out + c0;
-  // one pass: px, py (keep), P = px + py
-  if (a.my_lo.present()) {  // rz: (m_hi w_(j+1) - m_lo w_j) (+ C on the ring columns)
-    const T* __restrict ml = S.ml.get(a.my_lo, i, ny) + c0;
-    const T* __restrict mh = S.mh.get(a.my_hi, i, ny) + c0;
-    const int64_t w_r = b.cr ? la.w : 0, k_r = nc - w_r;
-#pragma GCC ivdep
-    for (int64_t k = 0; k < k_r; ++k) {
-      const T xv = kp[k] * (Ax * x[k] + Bx * (kk[k] * (whi[k] - wlo[k])));
-      const T yv = kp[k] * (ayc[k] * y[k] + byc[k] * (kk[k] * (mh[k] * wy[k + 1] - ml[k] * wy[k])));
-      x[k] = xv;
-      y[k] = yv;
-      o[k] = xv + yv;
-    }
-    const T* c = b.cr ? b.cr + kr * w_r - k_r : nullptr;
-    for (int64_t k = k_r; k < nc; ++k) {
-      const T xv = kp[k] * (Ax * x[k] + Bx * (kk[k] * (whi[k] - wlo[k])));
-      const T yv = kp[k] * (ayc[k] * y[k] + byc[k] * (kk[k] * ((mh[k] * wy[k + 1] - ml[k] * wy[k]) + c[k])));
-      x[k] = xv;
-      y[k] = yv;
-      o[k] = xv + yv;
-    }
-  } else {
-#pragma GCC ivdep
-    for (int64_t k = 0; k < nc; ++k) {
-      const T xv = kp[k] * (Ax * x[k] + Bx * (kk[k] * (whi[k] - wlo[k])));
-      const T yv = kp[k] * (ayc[k] * y[k] + byc[k] * (kk[k] * (wy[k + 1] - wy[k])));
-      x[k] = xv;
-      y[k] = yv;
-      o[k] = xv + yv;
-    }
+  const T* __restrict ml = a.my_lo.present() ? S.ml.get(a.my_lo, i, ny) + c0 : nullptr;
+  const T* __restrict mh = a.my_lo.present() ? S.mh.get(a.my_hi, i, ny) + c0 : nullptr;
+  const int64_t w_r = b.cr ? la.w : 0;
+  const T* cr = b.cr ? b.cr + kr * w_r - (nc - w_r) : nullptr;
+  if (fast) {
+    XFace<T> xf;  // layer_x_face's plain form for face i + 1
+    xf.w = b.wx + (kr + 1) * nc;
+    xf.lo = q0 + c0;
+    xf.hi = qp + c0;
+    xf.b = (a.bx.present() ? S.bxl.get(a.bx, i + 1, ny) : S.ones.data()) + c0;
+    xf.A = la.axf.present() ? la.axf.at(i + 1, 0) : T(1);
+    xf.B = la.bxf.present() ? la.bxf.at(i + 1, 0) : T(1);
+    if (ml) layer_parts<T, true>(x, y, o, wlo, whi, wy, ayc, byc, Ax, Bx, &xf, nullptr, kv, ml, mh, cr, nc, w_r);
+    else layer_parts<T, false>(x, y, o, wlo, whi, wy, ayc, byc, Ax, Bx, &xf, nullptr, kv, ml, mh, cr, nc, w_r);
+    return;
   }
+  const T* __restrict kk = S.k.get(a.K, i, ny) + c0;
+  const T* __restrict kp = (a.keep.present() ? S.keep.get(a.keep, i, ny) : S.ones.data()) + c0;  // 1 x is x
+  if (ml) layer_parts<T, true>(x, y, o, wlo, whi, wy, ayc, byc, Ax, Bx, kk, kp, T(0), ml, mh, cr, nc, w_r);
+  else layer_parts<T, false>(x, y, o, wlo, whi, wy, ayc, byc, Ax, Bx, kk, kp, T(0), ml, mh, cr, nc, w_r);
 }
 
 }  // namespace dl

@@ -1,0 +1,186 @@
+"""The native kernel of 3-D grids (`volume.cc`, FFI target `difflattice_volume`): what it runs,
+its schedule, and one chunk of steps as one FFI call.
+
+It runs the JAX 3-D loop's leapfrog with the standard 7-point stencil: homogeneous air (a scalar
+K, no coefficient array: memory-lean) or K and the three face-conductance arrays of obstacles,
+cut cells and media, rigid and soft window sides, sponge edges, soft cells (`keep`), with the
+sources, probes, phasors and field statistics inside the loop. What it does not run is refused by
+name (`unsupported_3d`), and the JAX loop runs it as before.
+"""
+
+from __future__ import annotations
+
+import os
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from ..stepper import LeapfrogState, State, Stepper
+
+# the stencils the kernel implements, by `Grid.stencil` name
+STENCILS_3D = ("standard",)
+# working set of one thread's sweep (the planes of its steps in flight): L2 plus a share of L3
+PLANE_BUDGET_BYTES = 6 * 1024 * 1024
+
+
+def absent(dtype):
+    return jnp.zeros((0,), dtype)
+
+
+def cpus() -> int:
+    """The CPUs this process may use."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
+
+
+def unsupported_3d(stepper: Stepper, state: State | None) -> str | None:
+    """None if the 3-D kernel runs this scene, otherwise the reason (the JAX loop runs it)."""
+    lat = stepper.lattice
+    if lat.stencil not in STENCILS_3D:
+        return (
+            f"the {lat.stencil!r} stencil on a 3-D grid (the native 3-D kernel runs "
+            f"{', '.join(repr(s) for s in STENCILS_3D)} only)"
+        )
+    if stepper.staggered or lat.pml is not None:
+        return "PML edges on a 3-D grid (the native 3-D kernel has no split-field layers yet: rigid, soft or sponge)"
+    if lat.relax is not None:
+        return "air absorption (Medium(air=...)) on a 3-D grid"
+    if lat.eta != 0:
+        return "viscous absorption (absorption_db_per_m) on a 3-D grid"
+    if lat.q_scale is not None or lat.ax_lo is not None:
+        return "a q_scale or paper-model term on a 3-D grid"
+    if lat.metric is not None or any(lat.mur):
+        return "a ring metric or Mur edges on a 3-D grid"
+    if (lat.bx is None) != (lat.by is None) or (lat.bx is None) != (lat.bz is None):
+        return "face conductances on some axes only"
+    if state is not None and not isinstance(state, LeapfrogState):
+        return "a start state of the other stepper"
+    return None
+
+
+def levels_3d(shape, itemsize: int, faces: bool) -> int:
+    """Steps each thread advances per sweep over the x planes: as many as keep the planes in flight
+    (about `levels + 3` of each field the step reads) in `PLANE_BUDGET_BYTES`."""
+    env = os.environ.get("DIFFLATTICE_NATIVE_LEVELS")
+    if env:
+        return max(1, int(env))
+    _, ny, nz = shape
+    fields = 2 + (4 if faces else 0)  # P(n), P(n-1); K and three face arrays with obstacles
+    plane = ny * nz * itemsize * fields
+    return int(max(1, min(16, PLANE_BUDGET_BYTES // plane - 3)))
+
+
+def threads_3d(nx: int, levels: int) -> int:
+    """Threads of the pipeline over the x planes (as `kernels._threads`)."""
+    env = os.environ.get("DIFFLATTICE_NATIVE_THREADS")
+    if env:
+        return max(1, int(env))
+    return max(1, min(cpus(), nx // (4 * (levels + 2))))
+
+
+def _plane_cells(cells, shape):
+    """(n, 3) cells as the kernel's (plane i, j nz + k) pairs."""
+    c = jnp.asarray(cells, jnp.int32).reshape(-1, 3)
+    return jnp.stack([c[:, 0], c[:, 1] * shape[2] + c[:, 2]], axis=1)
+
+
+class VolumeChunk:
+    """The constant inputs of the 3-D kernel's calls for one stepper (built once per trace)."""
+
+    def __init__(self, stepper: Stepper, threads: int, levels: int):
+        from .kernels import _Chunk  # the per-step tables and statistics are the 2-D chunk's
+
+        self._tables = _Chunk.tables
+        self._stats = _Chunk._stats_in
+        self.stepper = stepper
+        grid, lat, sens = stepper.grid, stepper.lattice, stepper.sensors
+        self.dt = dt = grid.jnp_dtype
+        self.shape = shape = tuple(grid.shape)
+        nx, ny, nz = shape
+        full = lambda v, shp: absent(dt) if v is None else jnp.broadcast_to(jnp.asarray(v, dt), shp)
+        K = jnp.asarray(lat.K, dt)
+        self.K = K.reshape(()) if K.size == 1 else jnp.broadcast_to(K, shape)
+        self.faces = [
+            full(lat.bx, (nx + 1, ny, nz)),
+            full(lat.by, (nx, ny + 1, nz)),
+            full(lat.bz, (nx, ny, nz + 1)),
+        ]
+        self.keep, self.sponge = full(lat.keep, shape), full(lat.sponge, shape)
+        closed = sum(1 << s for s, g in enumerate(lat.ghosts) if g == "neumann") if lat.bx is None else 0
+        self.attrs = dict(
+            threads=np.int64(threads),
+            levels=np.int64(levels),
+            closed=np.int64(closed),
+            threshold=float(sens.arrival_threshold_pa or 0.0),
+        )
+        srcs = stepper.sources
+        self.src_cells = (
+            _plane_cells(jnp.concatenate([jnp.asarray(s.cells, jnp.int32).reshape(-1, 3) for s in srcs]), shape)
+            if srcs
+            else jnp.zeros((0, 2), jnp.int32)
+        )
+        self.src_hard = jnp.asarray(
+            np.concatenate([np.full(s.n_cells, s.injection == "hard", np.int32) for s in srcs])
+            if srcs
+            else np.zeros(0, np.int32)
+        )
+        self.rec_cells = _plane_cells(sens.probes, shape)
+        self.ph_cells = _plane_cells(sens.phasor_cells, shape)
+        self.n_probes, self.n_ph = sens.n_probes, sens.n_phasors
+
+    def tables(self, n0, length):
+        return self._tables(self, n0, length)
+
+    def advance(self, st: State, length: int):
+        """`length` steps from `st`; returns the new state and the probes (length, n) or None."""
+        assert isinstance(st, LeapfrogState)  # unsupported_3d() refuses other states
+        vals, cos, sin = self.tables(st.n, length)
+        stats = self._stats(self, st)
+        args = [
+            st.p,
+            st.p_prev,
+            self.K,
+            *self.faces,
+            self.keep,
+            self.sponge,
+            self.src_cells,
+            self.src_hard,
+            vals,
+            self.rec_cells,
+            self.ph_cells,
+            cos,
+            sin,
+            *stats,
+            jnp.asarray(st.n, jnp.int32),
+        ]
+        field = jax.ShapeDtypeStruct(self.shape, self.dt)
+        shapes = [
+            field,
+            field,
+            jax.ShapeDtypeStruct((length, self.n_probes), self.dt),
+            *(jax.ShapeDtypeStruct(a.shape, a.dtype) for a in stats),
+        ]
+        aliases = {0: 0, 1: 1, 15: 3, 16: 4, 17: 5, 18: 6, 19: 7}
+        out = jax.ffi.ffi_call("difflattice_volume", shapes, input_output_aliases=aliases, vmap_method="sequential")(
+            *args, n_steps=np.int64(length), **self.attrs
+        )
+        p, p_prev, rec, *stats_out = out
+        names = ("phasor_re", "phasor_im", "p_max", "p_sq", "arrival")
+        keys = ("p", "p_prev", "n", *(k for k in names if getattr(st, k) is not None))
+        new = {"p": p, "p_prev": p_prev, "n": st.n + length, **dict(zip(names, stats_out))}
+        st = eqx.tree_at(lambda s: tuple(getattr(s, k) for k in keys), st, tuple(new[k] for k in keys))
+        return st, (rec if self.n_probes else None)
+
+
+def schedule_3d(stepper: Stepper) -> tuple[int, int]:
+    """(threads, levels) of the 3-D kernel for this stepper's grid."""
+    lat = stepper.lattice
+    levels = levels_3d(stepper.grid.shape, jnp.dtype(stepper.grid.jnp_dtype).itemsize, lat.bx is not None)
+    return threads_3d(stepper.grid.shape[0], levels), levels
+
+
+__all__ = ["STENCILS_3D", "VolumeChunk", "schedule_3d", "unsupported_3d"]

@@ -11,6 +11,8 @@ name (`unsupported_3d`), and the JAX loop runs it as before.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
+from typing import Any
 
 import equinox as eqx
 import jax
@@ -94,8 +96,9 @@ class VolumeChunk:
     def __init__(self, stepper: Stepper, threads: int, levels: int):
         from .kernels import _Chunk  # the per-step tables and statistics are the 2-D chunk's
 
-        self._tables = _Chunk.tables
-        self._stats = _Chunk._stats_in
+        # (duck-typed: they read stepper, dt and n_ph, which this chunk has too)
+        self._tables: Callable[..., Any] = _Chunk.tables
+        self._stats: Callable[..., Any] = _Chunk._stats_in
         self.stepper = stepper
         grid, lat, sens = stepper.grid, stepper.lattice, stepper.sensors
         self.dt = dt = grid.jnp_dtype

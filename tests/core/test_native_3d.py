@@ -141,12 +141,22 @@ def test_snapshots_and_chunks_of_a_native_3d_run():
 
 
 @pytest.mark.parametrize("kind", ("homogeneous_mixed", "obstacle_medium", "sponge"))
-def test_threads_and_levels_never_change_a_3d_result(kind):
+def test_threads_levels_and_bands_never_change_a_3d_result(kind):
     st = _build(kind, "float32")
     s0 = st.init()
     outs = []
-    for threads, levels in ((1, 1), (2, 1), (2, 3), (3, 2), (1, 5)):
-        fin, rec = VolumeChunk(st, threads, levels).advance(s0, N)
+    # (threads, steps per sweep, rows of a plane's bands: 0 = whole planes)
+    for threads, levels, band in (
+        (1, 1, 0),
+        (2, 1, 0),
+        (2, 3, 0),
+        (3, 2, 0),
+        (1, 5, 0),
+        (1, 3, 4),
+        (2, 2, 5),
+        (3, 4, 7),
+    ):
+        fin, rec = VolumeChunk(st, threads, levels, band).advance(s0, N)
         outs.append((np.asarray(fin.p), np.asarray(fin.p_prev), np.asarray(rec), np.asarray(fin.p_sq)))
     for o in outs[1:]:
         for a, b in zip(o, outs[0]):

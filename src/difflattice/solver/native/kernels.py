@@ -529,7 +529,11 @@ def _unpack_layers(layers, packed):
 def _native_loop(stepper: Stepper, state: State, n_steps: int, chunk: int, threads: int, levels: int, bands: bool):
     """(final state, probes, peak history, snapshots) of `loop.run`, on the native kernels."""
     sens = stepper.sensors
-    kern = _Chunk(stepper, threads, levels, bands) if stepper.grid.ndim == 2 else VolumeChunk(stepper, threads, levels)
+    kern = (
+        _Chunk(stepper, threads, levels, bands)
+        if stepper.grid.ndim == 2
+        else VolumeChunk(stepper, *schedule_3d(stepper))
+    )
     n_chunks, rem = divmod(n_steps, chunk)
 
     def outer(st, _):
@@ -570,7 +574,7 @@ def _loop_jvp(primals, tangents, *, n_steps, chunk, checkpoint, unroll, threads,
 def schedule(stepper: Stepper) -> tuple[int, int, bool]:
     """(threads, levels, bands) of the kernels for this stepper's grid."""
     if stepper.grid.ndim == 3:
-        return (*schedule_3d(stepper), False)
+        return (*schedule_3d(stepper)[:2], False)
     nx, ny = stepper.grid.shape
     extra = 0 if stepper.lattice.relax is None else 2  # Q_O, Q_N
     # PML layers: the leapfrog's rows (the layer's fields are a few columns of most rows)

@@ -49,7 +49,7 @@ ffi::Error volume_typed(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K, f
                         ffi::Result<ffi::AnyBuffer> rec_o, ffi::Result<ffi::AnyBuffer> ph_re_o,
                         ffi::Result<ffi::AnyBuffer> ph_im_o, ffi::Result<ffi::AnyBuffer> p_max_o,
                         ffi::Result<ffi::AnyBuffer> p_sq_o, ffi::Result<ffi::AnyBuffer> arrival_o, int64_t n_steps,
-                        int64_t threads, int64_t levels, int64_t closed, double threshold) {
+                        int64_t threads, int64_t levels, int64_t band, int64_t closed, double threshold) {
   auto dims = p.dimensions();
   if (dims.size() != 3) return ffi::Error::InvalidArgument("difflattice_volume: the field must be 3-D");
   const int64_t nx = dims[0], ny = dims[1], nz = dims[2], n = nx * ny * nz;
@@ -60,6 +60,7 @@ ffi::Error volume_typed(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K, f
   a.n_steps = n_steps;
   a.n_threads = int(threads);
   a.levels = int(levels);
+  a.band = band;
   bool ok = pp.element_count() == size_t(n);
   if (K.element_count() == 1) a.k = *reinterpret_cast<const T*>(K.untyped_data());
   else a.K = full_or_null<T>(K, size_t(n), &ok);
@@ -112,11 +113,11 @@ ffi::Error volume_impl(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K, ff
                        ffi::Result<ffi::AnyBuffer> rec_o, ffi::Result<ffi::AnyBuffer> ph_re_o,
                        ffi::Result<ffi::AnyBuffer> ph_im_o, ffi::Result<ffi::AnyBuffer> p_max_o,
                        ffi::Result<ffi::AnyBuffer> p_sq_o, ffi::Result<ffi::AnyBuffer> arrival_o, int64_t n_steps,
-                       int64_t threads, int64_t levels, int64_t closed, double threshold) {
+                       int64_t threads, int64_t levels, int64_t band, int64_t closed, double threshold) {
 #define DL_ARGS                                                                                                   \
   p, pp, K, bx, by, bz, keep, sponge, src_cells, src_hard, src_vals, rec_cells, ph_cells, ph_cos, ph_sin, ph_re, \
       ph_im, p_max, p_sq, arrival, n0, p_o, pp_o, rec_o, ph_re_o, ph_im_o, p_max_o, p_sq_o, arrival_o, n_steps,  \
-      threads, levels, closed, threshold
+      threads, levels, band, closed, threshold
   switch (p.element_type()) {
     case ffi::DataType::F32:
       return volume_typed<float>(DL_ARGS);
@@ -143,5 +144,6 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(DifflatticeVolume, volume_impl,
                                   .Attr<int64_t>("n_steps")
                                   .Attr<int64_t>("threads")
                                   .Attr<int64_t>("levels")
+                                  .Attr<int64_t>("band")
                                   .Attr<int64_t>("closed")
                                   .Attr<double>("threshold"));

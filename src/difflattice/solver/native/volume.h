@@ -4,6 +4,8 @@
 #pragma once
 
 #include <algorithm>
+#include <atomic>
+#include <thread>
 #include <cstdint>
 #include <vector>
 
@@ -23,6 +25,7 @@ template <typename T>
 struct VolumeArgs {
   int64_t nx, ny, nz, n_steps;
   int n_threads, levels;
+  int64_t band = 0;  // rows of a plane's bands (0: whole planes; band_pipeline)
   T* p;   // P(t) in, the latest field out
   T* pp;  // P(t-1) in, the previous field out
   const T* K = nullptr;  // full (nx, ny, nz) or nullptr: the scalar k
@@ -90,6 +93,65 @@ inline void volume_row(const VolRow<T>& r, int64_t nz, T k, bool zlo, bool zhi) 
   cell(nz - 1, c[nz - 2], ghi ? c[nz - 1] : T(0));
 }
 
+// The pipeline of threads.h over the x planes, each plane cut into bands of `band` rows along y
+// (0: whole planes), skewed by one row per step: in a block of steps, band b of the block's g-th
+// step (0-based) is the rows [b band - g, (b + 1) band - g), so a band's steps read only rows of
+// the bands before it (done, and not yet overwritten: the two fields alternate) or of itself. A
+// band of planes in flight (about levels + 3 of each field) fits in L2 where a whole plane does
+// not. `make_worker(t)` returns row(L, i, j0, j1): rows [j0, j1) of plane i of step L.
+template <typename MakeWorker, typename Finish>
+void band_pipeline(int64_t nx, int64_t ny, int64_t band, int64_t n_steps, int n_threads, int levels,
+                   MakeWorker&& make_worker, Finish&& finish) {
+  const int nt = std::max(1, n_threads);
+  levels = std::max(1, levels);
+  std::vector<Progress> progress(nt);
+  SpinBarrier barrier(nt);
+  parallel(nt, [&](int t) {
+    auto row = make_worker(t);
+    for (int64_t s0 = 0; s0 < n_steps; s0 += int64_t(nt) * levels) {
+      const int64_t n_block = std::min<int64_t>(int64_t(nt) * levels, n_steps - s0);
+      const int64_t base = n_block / nt, extra = n_block % nt;
+      const int64_t first = s0 + 1 + t * base + std::min<int64_t>(t, extra);
+      const int64_t mine = base + (t < extra ? 1 : 0);
+      const bool whole = band <= 0 || band >= ny + n_block;
+      const int64_t n_bands = whole ? 1 : (ny + n_block - 1 + band - 1) / band;
+      for (int64_t b = 0; b < n_bands; ++b) {
+        progress[t].rows.store(0, std::memory_order_relaxed);
+        barrier.wait();
+        if (mine > 0) {
+          const bool wait_prev = t > 0 && first - 1 > s0;  // step first - 1 is another thread's
+          int64_t seen = 0;
+          for (int64_t m = 0; m < nx + mine - 1; ++m) {
+            for (int64_t l = 0; l < mine; ++l) {
+              const int64_t i = m - l;
+              if (i < 0 || i >= nx) continue;
+              if (l == 0 && wait_prev) {
+                const int64_t need = std::min<int64_t>(i + 2, nx);
+                int spins = 0;
+                while (seen < need) {
+                  seen = progress[t - 1].rows.load(std::memory_order_acquire);
+                  if (seen >= need) break;
+                  if (++spins < 4000) DL_PAUSE();
+                  else std::this_thread::yield();
+                }
+              }
+              const int64_t g = first + l - s0 - 1;
+              const int64_t j0 = whole ? 0 : std::clamp<int64_t>(b * band - g, 0, ny);
+              const int64_t j1 = whole ? ny : std::clamp<int64_t>((b + 1) * band - g, 0, ny);
+              if (j0 < j1) row(first + l, i, j0, j1);
+              if (l == mine - 1) progress[t].rows.store(i + 1, std::memory_order_release);
+            }
+          }
+        } else {
+          progress[t].rows.store(nx, std::memory_order_release);
+        }
+        barrier.wait();
+      }
+    }
+    finish(t, nt);
+  });
+}
+
 template <typename T, bool FACES, bool KFULL, bool SPONGE>
 void volume_steps(const VolumeArgs<T>& a) {
   const int64_t nx = a.nx, ny = a.ny, nz = a.nz, S = ny * nz;
@@ -98,7 +160,7 @@ void volume_steps(const VolumeArgs<T>& a) {
   const std::vector<T> zero(S, T(0));
   T* buf[2] = {a.p, a.pp};  // step L lives in buf[L % 2] (step 0 = P(t) in buf[0])
   auto make_worker = [&](int) {
-    return [&](int, int64_t L, int64_t i) {
+    return [&](int64_t L, int64_t i, int64_t j0, int64_t j1) {
       const T* p = buf[(L - 1) & 1];  // step L - 1
       T* pp = buf[L & 1];             // step L - 2, overwritten by step L
       const T* P0 = p + i * S;
@@ -107,7 +169,7 @@ void volume_steps(const VolumeArgs<T>& a) {
       const T* PP = i + 1 < nx ? P0 + S : (!FACES && a.closed[1] ? P0 : zero.data());
       T* out = pp + i * S;
       VolRow<T> r{};
-      for (int64_t j = 0; j < ny; ++j) {
+      for (int64_t j = j0; j < j1; ++j) {
         const int64_t off = j * nz;
         r.c = P0 + off;
         r.xm = PM + off;
@@ -126,13 +188,14 @@ void volume_steps(const VolumeArgs<T>& a) {
         if constexpr (SPONGE) r.sr = a.sponge + i * S + off;
         volume_row<T, FACES, KFULL, SPONGE>(r, nz, a.k, a.closed[4], a.closed[5]);
       }
+      const int64_t c0 = j0 * nz, c1 = j1 * nz;
       if (a.keep) {
         const T* kp = a.keep + i * S;
 #pragma GCC ivdep
-        for (int64_t j = 0; j < S; ++j) out[j] = kp[j] * out[j];
+        for (int64_t j = c0; j < c1; ++j) out[j] = kp[j] * out[j];
       }
-      if (cplan.busy[i]) leapfrog_cells(a.cells, cplan, i, L - 1, pp);
-      if (stats) row_stats(a.cells, i, L - 1, out);
+      if (cplan.busy[i]) leapfrog_cells(a.cells, cplan, i, L - 1, pp, c0, c1);
+      if (stats) row_stats(a.cells, i, L - 1, out, c0, c1);
     };
   };
   // an odd number of steps leaves the latest field in the P(t-1) buffer: swap the contents
@@ -141,7 +204,7 @@ void volume_steps(const VolumeArgs<T>& a) {
     const int64_t r0 = nx * t / nt, r1 = nx * (t + 1) / nt;
     std::swap_ranges(a.p + r0 * S, a.p + r1 * S, a.pp + r0 * S);
   };
-  pipeline(nx, S, a.n_steps, a.n_threads, std::max(1, a.levels), make_worker, finish);
+  band_pipeline(nx, ny, a.band, a.n_steps, a.n_threads, std::max(1, a.levels), make_worker, finish);
 }
 
 template <typename T>

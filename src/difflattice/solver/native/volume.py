@@ -23,8 +23,10 @@ from ..stepper import LeapfrogState, State, Stepper
 
 # the stencils the kernel implements, by `Grid.stencil` name
 STENCILS_3D = ("standard",)
-# working set of one thread's sweep (the planes of its steps in flight): L2 plus a share of L3
-PLANE_BUDGET_BYTES = 6 * 1024 * 1024
+# working sets of one thread's sweep (the planes of its steps in flight, about levels + 3 of each
+# field): a band of each plane in L2 (`band_3d`)
+L2_BUDGET_BYTES = 768 * 1024
+LEVELS_3D = 8
 
 
 def absent(dtype):
@@ -64,16 +66,30 @@ def unsupported_3d(stepper: Stepper, state: State | None) -> str | None:
     return None
 
 
-def levels_3d(shape, itemsize: int, faces: bool) -> int:
-    """Steps each thread advances per sweep over the x planes: as many as keep the planes in flight
-    (about `levels + 3` of each field the step reads) in `PLANE_BUDGET_BYTES`."""
+def _fields(lat) -> int:
+    """Arrays of the grid's size one step reads: P(n), P(n-1), and K, three face arrays, keep, sponge
+    where present."""
+    faces = 4 if lat.bx is not None else (1 if jnp.size(lat.K) > 1 else 0)
+    return 2 + faces + (lat.keep is not None) + (lat.sponge is not None)
+
+
+def levels_3d() -> int:
+    """Steps each thread advances per sweep over the x planes (temporal blocking)."""
     env = os.environ.get("DIFFLATTICE_NATIVE_LEVELS")
+    return max(1, int(env)) if env else LEVELS_3D
+
+
+def band_3d(shape, itemsize: int, fields: int, levels: int) -> int:
+    """Rows (along y) of the bands a plane is cut into so that a band of the planes in flight fits
+    `L2_BUDGET_BYTES` (0: whole planes fit)."""
+    env = os.environ.get("DIFFLATTICE_NATIVE_BAND")
     if env:
-        return max(1, int(env))
+        return max(0, int(env))
     _, ny, nz = shape
-    fields = 2 + (4 if faces else 0)  # P(n), P(n-1); K and three face arrays with obstacles
-    plane = ny * nz * itemsize * fields
-    return int(max(1, min(16, PLANE_BUDGET_BYTES // plane - 3)))
+    row = nz * itemsize * fields * (levels + 3)
+    if ny * row <= L2_BUDGET_BYTES:
+        return 0
+    return int(max(4, L2_BUDGET_BYTES // row))
 
 
 def threads_3d(nx: int, levels: int) -> int:
@@ -93,7 +109,7 @@ def _plane_cells(cells, shape):
 class VolumeChunk:
     """The constant inputs of the 3-D kernel's calls for one stepper (built once per trace)."""
 
-    def __init__(self, stepper: Stepper, threads: int, levels: int):
+    def __init__(self, stepper: Stepper, threads: int, levels: int, band: int = 0):
         from .kernels import _Chunk  # the per-step tables and statistics are the 2-D chunk's
 
         # (duck-typed: they read stepper, dt and n_ph, which this chunk has too)
@@ -117,6 +133,7 @@ class VolumeChunk:
         self.attrs = dict(
             threads=np.int64(threads),
             levels=np.int64(levels),
+            band=np.int64(band),
             closed=np.int64(closed),
             threshold=float(sens.arrival_threshold_pa or 0.0),
         )
@@ -179,11 +196,12 @@ class VolumeChunk:
         return st, (rec if self.n_probes else None)
 
 
-def schedule_3d(stepper: Stepper) -> tuple[int, int]:
-    """(threads, levels) of the 3-D kernel for this stepper's grid."""
-    lat = stepper.lattice
-    levels = levels_3d(stepper.grid.shape, jnp.dtype(stepper.grid.jnp_dtype).itemsize, lat.bx is not None)
-    return threads_3d(stepper.grid.shape[0], levels), levels
+def schedule_3d(stepper: Stepper) -> tuple[int, int, int]:
+    """(threads, levels, band) of the 3-D kernel for this stepper's grid."""
+    grid = stepper.grid
+    levels = levels_3d()
+    band = band_3d(grid.shape, jnp.dtype(grid.jnp_dtype).itemsize, _fields(stepper.lattice), levels)
+    return threads_3d(grid.shape[0], levels), levels, band
 
 
 __all__ = ["STENCILS_3D", "VolumeChunk", "schedule_3d", "unsupported_3d"]

@@ -54,6 +54,10 @@ MIXED = Edges(x_lo="rigid", x_hi="soft", y_lo="soft", y_hi="rigid", z_lo="rigid"
 
 def _scene(kind, dtype):
     """(grid, medium, edges) of a scene kind."""
+    if kind.startswith("isotropic"):  # the 19-point stencil on uniform faces (air)
+        g = _grid(dtype, kind="3d", stencil="isotropic")
+        edges = Edges.all("sponge", thickness_cells=4) if kind == "isotropic_sponge" else MIXED
+        return g, Medium(343.0, 1.2), edges
     g = _grid(dtype, kind="3d")
     h = g.dx_m
     if kind == "homogeneous":
@@ -73,7 +77,15 @@ def _scene(kind, dtype):
     raise ValueError(kind)
 
 
-KINDS = ("homogeneous", "homogeneous_mixed", "sponge", "obstacle_medium", "soft_obstacle")
+KINDS = (
+    "homogeneous",
+    "homogeneous_mixed",
+    "sponge",
+    "obstacle_medium",
+    "soft_obstacle",
+    "isotropic_mixed",
+    "isotropic_sponge",
+)
 
 
 def _build(kind, dtype, sens=SENS):
@@ -110,7 +122,7 @@ def test_native_3d_equals_the_jax_loop_float32(kind):
     assert int(got.final.n) == N
 
 
-@pytest.mark.parametrize("kind", ("homogeneous_mixed", "obstacle_medium"))
+@pytest.mark.parametrize("kind", ("homogeneous_mixed", "obstacle_medium", "isotropic_mixed"))
 def test_native_3d_equals_the_jax_loop_float64(kind):
     jax.config.update("jax_enable_x64", True)
     try:
@@ -140,7 +152,7 @@ def test_snapshots_and_chunks_of_a_native_3d_run():
     _close(got.probes, ref.probes, jnp.float32, peak)
 
 
-@pytest.mark.parametrize("kind", ("homogeneous_mixed", "obstacle_medium", "sponge"))
+@pytest.mark.parametrize("kind", ("homogeneous_mixed", "obstacle_medium", "sponge", "isotropic_mixed"))
 def test_threads_levels_and_bands_never_change_a_3d_result(kind):
     st = _build(kind, "float32")
     s0 = st.init()
@@ -172,8 +184,10 @@ def test_what_the_3d_kernel_does_not_run_is_refused_by_name():
         run(pml, 3, backend="native")
     auto = run(pml, 3)  # backend="auto": the JAX loop runs it
     assert isinstance(auto.final, type(pml.init()))
-    iso = Stepper.build(_grid(kind="3d", stencil="isotropic"), med, edges=Edges.all("rigid"))
-    assert "'isotropic' stencil on a 3-D grid" in native.why_not(iso)
+    g_iso = _grid(kind="3d", stencil="isotropic")
+    ball = rasterise3d(Sphere(jnp.array([11.0, 9.0, 8.0]) * g.dx_m, jnp.asarray(3.0 * g.dx_m)), g_iso)
+    iso = Stepper.build(g_iso, Medium(343.0, 1.2, rigid=ball), edges=Edges.all("rigid"))
+    assert "'isotropic' stencil with face conductances" in native.why_not(iso)
     rigid = Stepper.build(g, med, edges=Edges.all("rigid"))
     other = dataclasses.replace(rigid, lattice=dataclasses.replace(rigid.lattice, stencil="wide3d"))
     assert "'wide3d' stencil on a 3-D grid" in unsupported_3d(other, None)

@@ -49,7 +49,7 @@ ffi::Error volume_typed(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K, f
                         ffi::Result<ffi::AnyBuffer> rec_o, ffi::Result<ffi::AnyBuffer> ph_re_o,
                         ffi::Result<ffi::AnyBuffer> ph_im_o, ffi::Result<ffi::AnyBuffer> p_max_o,
                         ffi::Result<ffi::AnyBuffer> p_sq_o, ffi::Result<ffi::AnyBuffer> arrival_o, int64_t n_steps,
-                        int64_t threads, int64_t levels, int64_t band, int64_t closed, double threshold) {
+                        int64_t threads, int64_t levels, int64_t band, int64_t closed, int64_t stencil, double threshold) {
   auto dims = p.dimensions();
   if (dims.size() != 3) return ffi::Error::InvalidArgument("difflattice_volume: the field must be 3-D");
   const int64_t nx = dims[0], ny = dims[1], nz = dims[2], n = nx * ny * nz;
@@ -61,6 +61,7 @@ ffi::Error volume_typed(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K, f
   a.n_threads = int(threads);
   a.levels = int(levels);
   a.band = band;
+  a.iso = stencil == 1;
   bool ok = pp.element_count() == size_t(n);
   if (K.element_count() == 1) a.k = *reinterpret_cast<const T*>(K.untyped_data());
   else a.K = full_or_null<T>(K, size_t(n), &ok);
@@ -68,12 +69,13 @@ ffi::Error volume_typed(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K, f
   a.by = full_or_null<T>(by, size_t(nx * (ny + 1) * nz), &ok);
   a.bz = full_or_null<T>(bz, size_t(nx * ny * (nz + 1)), &ok);
   ok = ok && (a.bx != nullptr) == (a.by != nullptr) && (a.bx != nullptr) == (a.bz != nullptr);
-  ok = ok && (K.element_count() == 1 || a.K != nullptr);
+  ok = ok && (K.element_count() == 1 || a.K != nullptr) && !(a.iso && a.bx != nullptr);
   a.keep = full_or_null<T>(keep, size_t(n), &ok);
   a.sponge = full_or_null<T>(sponge, size_t(n), &ok);
   if (!ok)
     return ffi::Error::InvalidArgument(
-        "difflattice_volume: K is not a scalar or a grid, or a face or cell array does not have its full shape");
+        "difflattice_volume: K is not a scalar or a grid, or a face or cell array does not have its full shape, or "
+        "face arrays with the isotropic stencil");
   const int64_t plane = ny * nz;
   if (!vol_inside(src_cells, nx, plane) || !vol_inside(rec_cells, nx, plane) || !vol_inside(ph_cells, nx, plane))
     return ffi::Error::InvalidArgument("difflattice_volume: a source or sensor cell lies outside the grid");
@@ -113,11 +115,11 @@ ffi::Error volume_impl(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K, ff
                        ffi::Result<ffi::AnyBuffer> rec_o, ffi::Result<ffi::AnyBuffer> ph_re_o,
                        ffi::Result<ffi::AnyBuffer> ph_im_o, ffi::Result<ffi::AnyBuffer> p_max_o,
                        ffi::Result<ffi::AnyBuffer> p_sq_o, ffi::Result<ffi::AnyBuffer> arrival_o, int64_t n_steps,
-                       int64_t threads, int64_t levels, int64_t band, int64_t closed, double threshold) {
+                       int64_t threads, int64_t levels, int64_t band, int64_t closed, int64_t stencil, double threshold) {
 #define DL_ARGS                                                                                                   \
   p, pp, K, bx, by, bz, keep, sponge, src_cells, src_hard, src_vals, rec_cells, ph_cells, ph_cos, ph_sin, ph_re, \
       ph_im, p_max, p_sq, arrival, n0, p_o, pp_o, rec_o, ph_re_o, ph_im_o, p_max_o, p_sq_o, arrival_o, n_steps,  \
-      threads, levels, band, closed, threshold
+      threads, levels, band, closed, stencil, threshold
   switch (p.element_type()) {
     case ffi::DataType::F32:
       return volume_typed<float>(DL_ARGS);
@@ -138,7 +140,8 @@ ffi::Error volume_impl(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K, ff
 // args: p pp K bx by bz keep | sponge src_cells src_hard src_vals rec_cells ph_cells ph_cos |
 //       ph_sin ph_re ph_im p_max p_sq arrival n0
 // rets: p pp rec ph_re ph_im p_max p_sq arrival
-// attrs: closed = bit s set for a rigid window side s (x_lo x_hi y_lo y_hi z_lo z_hi) with unit faces
+// attrs: closed = bit s set for a rigid window side s (x_lo x_hi y_lo y_hi z_lo z_hi) with unit faces;
+//        stencil = 0 (standard 7-point) or 1 (isotropic 19-point, unit faces only)
 XLA_FFI_DEFINE_HANDLER_SYMBOL(DifflatticeVolume, volume_impl,
                               ffi::Ffi::Bind() DL_VBUFS_7 DL_VBUFS_7 DL_VBUFS_7 DL_VRETS_4 DL_VRETS_4
                                   .Attr<int64_t>("n_steps")
@@ -146,4 +149,5 @@ XLA_FFI_DEFINE_HANDLER_SYMBOL(DifflatticeVolume, volume_impl,
                                   .Attr<int64_t>("levels")
                                   .Attr<int64_t>("band")
                                   .Attr<int64_t>("closed")
+                                  .Attr<int64_t>("stencil")
                                   .Attr<double>("threshold"));

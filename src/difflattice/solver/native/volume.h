@@ -26,6 +26,7 @@ struct VolumeArgs {
   int64_t nx, ny, nz, n_steps;
   int n_threads, levels;
   int64_t band = 0;  // rows of a plane's bands (0: whole planes; band_pipeline)
+  bool iso = false;  // the isotropic 19-point stencil (uniform faces only: no bx, by, bz)
   T* p;   // P(t) in, the latest field out
   T* pp;  // P(t-1) in, the previous field out
   const T* K = nullptr;  // full (nx, ny, nz) or nullptr: the scalar k
@@ -98,6 +99,66 @@ inline void volume_row(const VolRow<T>& r, int64_t nz, T k, bool zlo, bool zhi) 
   cell(nz - 1, c[nz - 2], ghi ? c[nz - 1] : T(0));
 }
 
+// the isotropic 19-point stencil on uniform faces (lattice.operators._isotropic_uniform_3d):
+//   L(q) = (sum of the 6 axis neighbours) / 3 + (sum of the 12 face-diagonal neighbours) / 6 - 4 q
+// a neighbour beyond a rigid side is the boundary cell itself (the even mirror; across two sides
+// only if both are rigid), beyond any other side 0: the row pointers carry the x and y ghosts
+// (`VolRowIso`), `zlo`/`zhi` the z ones
+template <typename T>
+struct VolRowIso {
+  const T *c, *xm, *xp, *ym, *yp;       // rows (i, j), (i -+ 1, j), (i, j -+ 1)
+  const T *xmym, *xmyp, *xpym, *xpyp;  // the diagonal rows (i -+ 1, j -+ 1)
+  const T *kr, *sr;
+  T* o;
+};
+
+template <typename T, bool KFULL, bool SPONGE>
+inline void volume_row_iso(const VolRowIso<T>& r, int64_t nz, T k, bool zlo, bool zhi) {
+  const T* __restrict c = r.c;
+  const T* __restrict xm = r.xm;
+  const T* __restrict xp = r.xp;
+  const T* __restrict ym = r.ym;
+  const T* __restrict yp = r.yp;
+  const T* __restrict mm = r.xmym;
+  const T* __restrict mp = r.xmyp;
+  const T* __restrict pm = r.xpym;
+  const T* __restrict pp = r.xpyp;
+  T* __restrict o = r.o;
+  const T third = T(1) / T(3), sixth = T(1) / T(6);
+  // (z neighbours of c, xm, xp, ym, yp: below, above)
+  auto cell = [&](int64_t j, T cz0, T cz1, T xmz0, T xmz1, T xpz0, T xpz1, T ymz0, T ymz1, T ypz0, T ypz1)
+      __attribute__((always_inline)) {
+    const T q = c[j];
+    const T axis = ((((xp[j] + xm[j]) + yp[j]) + ym[j]) + cz1) + cz0;
+    // _FACE_DIAGONALS' order: (-1,-1,0) (-1,0,-1) (-1,0,1) (-1,1,0) (0,-1,-1) (0,-1,1) (0,1,-1) (0,1,1)
+    // (1,-1,0) (1,0,-1) (1,0,1) (1,1,0)
+    const T diag = (((((((((((mm[j] + xmz0) + xmz1) + mp[j]) + ymz0) + ymz1) + ypz0) + ypz1) + pm[j]) + xpz0) + xpz1) +
+                   pp[j]);
+    const T lap = (axis * third + diag * sixth) - T(4) * q;
+    T kk = k;
+    if constexpr (KFULL) kk = r.kr[j];
+    const T d = kk * lap;
+    if constexpr (SPONGE) {
+      const T s = r.sr[j];
+      o[j] = ((T(2) * q - (T(1) - s) * o[j]) + d) / (T(1) + s);
+    } else {
+      o[j] = (T(2) * q - o[j]) + d;
+    }
+  };
+  auto lo = [&](const T* row) { return zlo ? row[0] : T(0); };            // the ghost below k = 0
+  auto hi = [&](const T* row) { return zhi ? row[nz - 1] : T(0); };       // above k = nz - 1
+  if (nz == 1) {
+    cell(0, lo(c), hi(c), lo(xm), hi(xm), lo(xp), hi(xp), lo(ym), hi(ym), lo(yp), hi(yp));
+    return;
+  }
+  cell(0, lo(c), c[1], lo(xm), xm[1], lo(xp), xp[1], lo(ym), ym[1], lo(yp), yp[1]);
+#pragma GCC ivdep
+  for (int64_t j = 1; j < nz - 1; ++j)
+    cell(j, c[j - 1], c[j + 1], xm[j - 1], xm[j + 1], xp[j - 1], xp[j + 1], ym[j - 1], ym[j + 1], yp[j - 1], yp[j + 1]);
+  const int64_t e = nz - 1;
+  cell(e, c[e - 1], hi(c), xm[e - 1], hi(xm), xp[e - 1], hi(xp), ym[e - 1], hi(ym), yp[e - 1], hi(yp));
+}
+
 // The pipeline of threads.h over the x planes, each plane cut into bands of `band` rows along y
 // (0: whole planes), skewed by one row per step: in a block of steps, band b of the block's g-th
 // step (0-based) is the rows [b band - g, (b + 1) band - g), so a band's steps read only rows of
@@ -157,7 +218,7 @@ void band_pipeline(int64_t nx, int64_t ny, int64_t band, int64_t n_steps, int n_
   });
 }
 
-template <typename T, bool FACES, bool KFULL, bool SPONGE>
+template <typename T, bool FACES, bool KFULL, bool SPONGE, bool ISO = false>
 void volume_steps(const VolumeArgs<T>& a) {
   const int64_t nx = a.nx, ny = a.ny, nz = a.nz, S = ny * nz;
   const CellPlan<T> cplan(a.cells, nx);
@@ -173,8 +234,32 @@ void volume_steps(const VolumeArgs<T>& a) {
       const T* PM = i > 0 ? P0 - S : (!FACES && a.closed[0] ? P0 : zero.data());
       const T* PP = i + 1 < nx ? P0 + S : (!FACES && a.closed[1] ? P0 : zero.data());
       T* out = pp + i * S;
+      if constexpr (ISO) {  // uniform faces only (FACES false): ghost rows as the ghost planes
+        auto row_of = [&](const T* plane, int64_t jj, int64_t j) {
+          if (jj < 0) return a.closed[2] ? plane + j * nz : zero.data();
+          if (jj >= ny) return a.closed[3] ? plane + j * nz : zero.data();
+          return plane + jj * nz;
+        };
+        VolRowIso<T> r{};
+        for (int64_t j = j0; j < j1; ++j) {
+          const int64_t off = j * nz;
+          r.c = P0 + off;
+          r.xm = PM + off;
+          r.xp = PP + off;
+          r.ym = row_of(P0, j - 1, j);
+          r.yp = row_of(P0, j + 1, j);
+          r.xmym = row_of(PM, j - 1, j);
+          r.xmyp = row_of(PM, j + 1, j);
+          r.xpym = row_of(PP, j - 1, j);
+          r.xpyp = row_of(PP, j + 1, j);
+          r.o = out + off;
+          if constexpr (KFULL) r.kr = a.K + i * S + off;
+          if constexpr (SPONGE) r.sr = a.sponge + i * S + off;
+          volume_row_iso<T, KFULL, SPONGE>(r, nz, a.k, a.closed[4], a.closed[5]);
+        }
+      }
       VolRow<T> r{};
-      for (int64_t j = j0; j < j1; ++j) {
+      for (int64_t j = ISO ? j1 : j0; j < j1; ++j) {
         const int64_t off = j * nz;
         r.c = P0 + off;
         r.xm = PM + off;
@@ -215,6 +300,13 @@ void volume_steps(const VolumeArgs<T>& a) {
 template <typename T>
 void volume(const VolumeArgs<T>& a) {
   const bool faces = a.bx != nullptr, kfull = a.K != nullptr, sponge = a.sponge != nullptr;
+  if (a.iso) {  // uniform faces (the caller checks)
+    const int w = (kfull ? 2 : 0) + (sponge ? 1 : 0);
+    if (w == 0) return volume_steps<T, false, false, false, true>(a);
+    if (w == 1) return volume_steps<T, false, false, true, true>(a);
+    if (w == 2) return volume_steps<T, false, true, false, true>(a);
+    return volume_steps<T, false, true, true, true>(a);
+  }
   const int which = (faces ? 4 : 0) + (kfull ? 2 : 0) + (sponge ? 1 : 0);
   switch (which) {
     case 0: return volume_steps<T, false, false, false>(a);

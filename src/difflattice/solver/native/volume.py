@@ -4,8 +4,9 @@ its schedule, and one chunk of steps as one FFI call.
 It runs the JAX 3-D loop's leapfrog with the standard 7-point stencil: homogeneous air (a scalar
 K, no coefficient array: memory-lean) or K and the three face-conductance arrays of obstacles,
 cut cells and media, rigid and soft window sides, sponge edges, soft cells (`keep`), with the
-sources, probes, phasors and field statistics inside the loop. What it does not run is refused by
-name (`unsupported_3d`), and the JAX loop runs it as before.
+sources, probes, phasors and field statistics inside the loop; and the isotropic 19-point stencil
+on uniform faces (air in a window of rigid, soft or sponge sides: `_isotropic_uniform_3d`). What
+it does not run is refused by name (`unsupported_3d`), and the JAX loop runs it as before.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import numpy as np
 from ..stepper import LeapfrogState, State, Stepper
 
 # the stencils the kernel implements, by `Grid.stencil` name
-STENCILS_3D = ("standard",)
+STENCILS_3D = ("standard", "isotropic")
 # Temporal blocking: each thread advances LEVELS_3D steps per sweep over the x planes, so the planes
 # in flight (about levels + 3 of each field a step reads) stay in cache: whole planes where they fit
 # CACHE_BUDGET_BYTES (L2 and a share of L3), else bands of rows (`band_3d`). Measured on the 2-core
@@ -52,6 +53,11 @@ def unsupported_3d(stepper: Stepper, state: State | None) -> str | None:
         return (
             f"the {lat.stencil!r} stencil on a 3-D grid (the native 3-D kernel runs "
             f"{', '.join(repr(s) for s in STENCILS_3D)} only)"
+        )
+    if lat.stencil == "isotropic" and lat.bx is not None:
+        return (
+            "the 'isotropic' stencil with face conductances (obstacles, a density contrast) on a 3-D grid "
+            "(the native 3-D kernel runs it on uniform faces: air with rigid or soft window sides)"
         )
     if stepper.staggered or lat.pml is not None:
         return "PML edges on a 3-D grid (the native 3-D kernel has no split-field layers yet: rigid, soft or sponge)"
@@ -139,6 +145,7 @@ class VolumeChunk:
             levels=np.int64(levels),
             band=np.int64(band),
             closed=np.int64(closed),
+            stencil=np.int64(lat.stencil == "isotropic"),
             threshold=float(sens.arrival_threshold_pa or 0.0),
         )
         srcs = stepper.sources

@@ -1,7 +1,8 @@
 """The native 3-D kernel (`difflattice.solver.native.volume`, FFI target `difflattice_volume`)
 against the JAX 3-D loop, the reference: the same fields, probes, phasors and statistics to
 rounding for homogeneous air and for obstacles with cut cells, a medium change, soft cells and
-every window side kind it runs, in float32 and float64; threads and temporal blocking never change
+every window side kind it runs (PML layers included), with the standard and (on uniform faces)
+the isotropic stencil, in float32 and float64; threads and temporal blocking never change
 a result (bit for bit); what it does not run is refused by name and falls back to the JAX loop.
 
 Tolerance: both loops evaluate the same update (~10 operations per cell: three axis terms, their
@@ -60,6 +61,8 @@ def _scene(kind, dtype):
         return g, Medium(343.0, 1.2), edges
     g = _grid(dtype, kind="3d")
     h = g.dx_m
+    if kind == "pml":  # the split-field layers on six boxes
+        return g, Medium(343.0, 1.2), Edges.all("pml", thickness_cells=4)
     if kind == "homogeneous":
         return g, Medium(343.0, 1.2), Edges.all("rigid")
     if kind == "homogeneous_mixed":
@@ -71,6 +74,9 @@ def _scene(kind, dtype):
     if kind == "obstacle_medium":  # cut cells (a smooth sphere) and a denser, slower slab of gas
         med = Medium(jnp.where(x > 18, 300.0, 343.0), jnp.where(x > 18, 1.8, 1.2), rigid=rigid)
         return g, med, MIXED
+    if kind == "pml_obstacle":  # cut cells, a medium change and PML on five sides
+        med = Medium(jnp.where(x > 18, 300.0, 343.0), jnp.where(x > 18, 1.8, 1.2), rigid=rigid)
+        return g, med, Edges(x_lo="rigid", thickness_cells=3)
     if kind == "soft_obstacle":
         soft = ((x > 16) & (x < 18)).astype(g.jnp_dtype)
         return g, Medium(343.0, 1.2, rigid=rigid, soft=soft), Edges.all("soft")
@@ -85,6 +91,8 @@ KINDS = (
     "soft_obstacle",
     "isotropic_mixed",
     "isotropic_sponge",
+    "pml",
+    "pml_obstacle",
 )
 
 
@@ -115,6 +123,10 @@ def test_native_3d_equals_the_jax_loop_float32(kind):
     _close(got.final.phasor_re, ref.final.phasor_re, jnp.float32, peak * N)
     _close(got.final.phasor_im, ref.final.phasor_im, jnp.float32, peak * N)
     _close(got.probes, ref.probes, jnp.float32, peak)
+    if st.staggered:  # the layers' parts (pressure-like) and face fluxes (bounded by the peak's differences)
+        for lg, lr in zip(got.final.layers, ref.final.layers):
+            for a, b in zip(lg.parts + lg.fluxes, lr.parts + lr.fluxes):
+                _close(a, b, jnp.float32, 2 * peak)
     _close(got.peak_history, ref.peak_history, jnp.float32, peak)
     # first arrivals: the same step wherever |p| is not within rounding of the threshold at it
     a_ref, a_got = np.asarray(ref.final.arrival), np.asarray(got.final.arrival)
@@ -122,7 +134,7 @@ def test_native_3d_equals_the_jax_loop_float32(kind):
     assert int(got.final.n) == N
 
 
-@pytest.mark.parametrize("kind", ("homogeneous_mixed", "obstacle_medium", "isotropic_mixed"))
+@pytest.mark.parametrize("kind", ("homogeneous_mixed", "obstacle_medium", "isotropic_mixed", "pml_obstacle"))
 def test_native_3d_equals_the_jax_loop_float64(kind):
     jax.config.update("jax_enable_x64", True)
     try:
@@ -152,7 +164,7 @@ def test_snapshots_and_chunks_of_a_native_3d_run():
     _close(got.probes, ref.probes, jnp.float32, peak)
 
 
-@pytest.mark.parametrize("kind", ("homogeneous_mixed", "obstacle_medium", "sponge", "isotropic_mixed"))
+@pytest.mark.parametrize("kind", ("homogeneous_mixed", "obstacle_medium", "sponge", "isotropic_mixed", "pml_obstacle"))
 def test_threads_levels_and_bands_never_change_a_3d_result(kind):
     st = _build(kind, "float32")
     s0 = st.init()
@@ -178,13 +190,13 @@ def test_threads_levels_and_bands_never_change_a_3d_result(kind):
 def test_what_the_3d_kernel_does_not_run_is_refused_by_name():
     g = _grid(kind="3d")
     med = Medium(343.0, 1.2)
-    pml = Stepper.build(g, med, edges=Edges.all("pml", thickness_cells=4))
-    assert "PML edges on a 3-D grid" in native.why_not(pml)
-    with pytest.raises(ValueError, match="PML edges on a 3-D grid"):
+    g_iso = _grid(kind="3d", stencil="isotropic")
+    pml = Stepper.build(g_iso, med, edges=Edges.all("pml", thickness_cells=4))
+    assert "PML edges with the 'isotropic' stencil on a 3-D grid" in native.why_not(pml)
+    with pytest.raises(ValueError, match="PML edges with the 'isotropic' stencil"):
         run(pml, 3, backend="native")
     auto = run(pml, 3)  # backend="auto": the JAX loop runs it
     assert isinstance(auto.final, type(pml.init()))
-    g_iso = _grid(kind="3d", stencil="isotropic")
     ball = rasterise3d(Sphere(jnp.array([11.0, 9.0, 8.0]) * g.dx_m, jnp.asarray(3.0 * g.dx_m)), g_iso)
     iso = Stepper.build(g_iso, Medium(343.0, 1.2, rigid=ball), edges=Edges.all("rigid"))
     assert "'isotropic' stencil with face conductances" in native.why_not(iso)

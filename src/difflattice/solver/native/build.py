@@ -38,6 +38,7 @@ TARGETS = {
     "difflattice_layered": "DifflatticeLayered",
     "difflattice_adjoint_chunk": "DifflatticeAdjointChunk",
     "difflattice_volume": "DifflatticeVolume",
+    "difflattice_volume_layered": "DifflatticeVolumeLayered",
 }
 COMPILE_TIMEOUT_S = 300
 

@@ -39,6 +39,13 @@ const T* full_or_null(const ffi::AnyBuffer& b, size_t n, bool* ok) {
   return reinterpret_cast<const T*>(b.untyped_data());
 }
 
+// the PML layers' buffers of a difflattice_volume_layered call
+struct VolumeLayerBind {
+  ffi::AnyBuffer lp, lw, boxes;
+  ffi::AnyBuffer fac[12];  // a_cell b_cell a_face b_face of x, then y, then z
+  ffi::Result<ffi::AnyBuffer>*lp_o, *lw_o;
+};
+
 template <typename T>
 ffi::Error volume_typed(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K, ffi::AnyBuffer bx, ffi::AnyBuffer by,
                         ffi::AnyBuffer bz, ffi::AnyBuffer keep, ffi::AnyBuffer sponge, ffi::AnyBuffer src_cells,
@@ -49,7 +56,8 @@ ffi::Error volume_typed(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K, f
                         ffi::Result<ffi::AnyBuffer> rec_o, ffi::Result<ffi::AnyBuffer> ph_re_o,
                         ffi::Result<ffi::AnyBuffer> ph_im_o, ffi::Result<ffi::AnyBuffer> p_max_o,
                         ffi::Result<ffi::AnyBuffer> p_sq_o, ffi::Result<ffi::AnyBuffer> arrival_o, int64_t n_steps,
-                        int64_t threads, int64_t levels, int64_t band, int64_t closed, int64_t stencil, double threshold) {
+                        int64_t threads, int64_t levels, int64_t band, int64_t closed, int64_t stencil, double threshold,
+                        VolumeLayerBind* lb) {
   auto dims = p.dimensions();
   if (dims.size() != 3) return ffi::Error::InvalidArgument("difflattice_volume: the field must be 3-D");
   const int64_t nx = dims[0], ny = dims[1], nz = dims[2], n = nx * ny * nz;
@@ -102,6 +110,39 @@ ffi::Error volume_typed(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K, f
   c.arrival = vol_out<int32_t>(arrival_o, arrival);
   c.threshold = T(threshold);
   c.n0 = *reinterpret_cast<const int32_t*>(n0.untyped_data());
+  dl::VolumeLayers<T> la;
+  if (lb) {
+    if (a.iso || a.sponge)
+      return ffi::Error::InvalidArgument("difflattice_volume_layered: no isotropic stencil or sponge with PML layers");
+    la.n_boxes = int64_t(lb->boxes.element_count() / 6);
+    la.boxes = reinterpret_cast<const int32_t*>(lb->boxes.untyped_data());
+    int64_t np = 0, nf = 0;
+    for (int64_t b = 0; b < la.n_boxes; ++b) {
+      const int32_t* x = la.boxes + 6 * b;
+      const int64_t X = x[1] - x[0], Y = x[3] - x[2], Z = x[5] - x[4];
+      if (x[0] < 0 || x[1] > nx || x[2] < 0 || x[3] > ny || x[4] < 0 || x[5] > nz || X <= 0 || Y <= 0 || Z <= 0)
+        return ffi::Error::InvalidArgument("difflattice_volume_layered: a layer box outside the grid");
+      la.part_at.push_back(np);
+      la.flux_at.push_back(nf);
+      np += 3 * X * Y * Z;
+      nf += (X + 1) * Y * Z + X * (Y + 1) * Z + X * Y * (Z + 1);
+    }
+    const int64_t len[3] = {nx, ny, nz};
+    bool fine = int64_t(lb->lp.element_count()) == np && int64_t(lb->lw.element_count()) == nf;
+    for (int ax = 0; ax < 3; ++ax) {
+      const ffi::AnyBuffer* f = lb->fac + 4 * ax;
+      fine = fine && int64_t(f[0].element_count()) == len[ax] && int64_t(f[1].element_count()) == len[ax] &&
+             int64_t(f[2].element_count()) == len[ax] + 1 && int64_t(f[3].element_count()) == len[ax] + 1;
+      la.a_cell[ax] = reinterpret_cast<const T*>(f[0].untyped_data());
+      la.b_cell[ax] = reinterpret_cast<const T*>(f[1].untyped_data());
+      la.a_face[ax] = reinterpret_cast<const T*>(f[2].untyped_data());
+      la.b_face[ax] = reinterpret_cast<const T*>(f[3].untyped_data());
+    }
+    if (!fine) return ffi::Error::InvalidArgument("difflattice_volume_layered: layer fields or factors of the wrong size");
+    la.parts = vol_out<T>(*lb->lp_o, lb->lp);
+    la.fluxes = vol_out<T>(*lb->lw_o, lb->lw);
+    a.layers = &la;
+  }
   dl::volume<T>(a);
   return ffi::Error::Success();
 }
@@ -119,7 +160,7 @@ ffi::Error volume_impl(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K, ff
 #define DL_ARGS                                                                                                   \
   p, pp, K, bx, by, bz, keep, sponge, src_cells, src_hard, src_vals, rec_cells, ph_cells, ph_cos, ph_sin, ph_re, \
       ph_im, p_max, p_sq, arrival, n0, p_o, pp_o, rec_o, ph_re_o, ph_im_o, p_max_o, p_sq_o, arrival_o, n_steps,  \
-      threads, levels, band, closed, stencil, threshold
+      threads, levels, band, closed, stencil, threshold, nullptr
   switch (p.element_type()) {
     case ffi::DataType::F32:
       return volume_typed<float>(DL_ARGS);
@@ -127,6 +168,36 @@ ffi::Error volume_impl(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K, ff
       return volume_typed<double>(DL_ARGS);
     default:
       return ffi::Error::InvalidArgument("difflattice_volume: float32 or float64 fields only");
+  }
+#undef DL_ARGS
+}
+
+// a volume call with PML layers: the volume's arguments, then lp lw boxes and the 12 factor profiles
+ffi::Error volume_layered_impl(
+    ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K, ffi::AnyBuffer bx, ffi::AnyBuffer by, ffi::AnyBuffer bz,
+    ffi::AnyBuffer keep, ffi::AnyBuffer sponge, ffi::AnyBuffer src_cells, ffi::AnyBuffer src_hard,
+    ffi::AnyBuffer src_vals, ffi::AnyBuffer rec_cells, ffi::AnyBuffer ph_cells, ffi::AnyBuffer ph_cos,
+    ffi::AnyBuffer ph_sin, ffi::AnyBuffer ph_re, ffi::AnyBuffer ph_im, ffi::AnyBuffer p_max, ffi::AnyBuffer p_sq,
+    ffi::AnyBuffer arrival, ffi::AnyBuffer n0, ffi::AnyBuffer lp, ffi::AnyBuffer lw, ffi::AnyBuffer boxes,
+    ffi::AnyBuffer f0, ffi::AnyBuffer f1, ffi::AnyBuffer f2, ffi::AnyBuffer f3, ffi::AnyBuffer f4, ffi::AnyBuffer f5,
+    ffi::AnyBuffer f6, ffi::AnyBuffer f7, ffi::AnyBuffer f8, ffi::AnyBuffer f9, ffi::AnyBuffer f10, ffi::AnyBuffer f11,
+    ffi::Result<ffi::AnyBuffer> p_o, ffi::Result<ffi::AnyBuffer> pp_o, ffi::Result<ffi::AnyBuffer> rec_o,
+    ffi::Result<ffi::AnyBuffer> ph_re_o, ffi::Result<ffi::AnyBuffer> ph_im_o, ffi::Result<ffi::AnyBuffer> p_max_o,
+    ffi::Result<ffi::AnyBuffer> p_sq_o, ffi::Result<ffi::AnyBuffer> arrival_o, ffi::Result<ffi::AnyBuffer> lp_o,
+    ffi::Result<ffi::AnyBuffer> lw_o, int64_t n_steps, int64_t threads, int64_t levels, int64_t band, int64_t closed,
+    int64_t stencil, double threshold) {
+  VolumeLayerBind lb{lp, lw, boxes, {f0, f1, f2, f3, f4, f5, f6, f7, f8, f9, f10, f11}, &lp_o, &lw_o};
+#define DL_ARGS                                                                                                   \
+  p, pp, K, bx, by, bz, keep, sponge, src_cells, src_hard, src_vals, rec_cells, ph_cells, ph_cos, ph_sin, ph_re, \
+      ph_im, p_max, p_sq, arrival, n0, p_o, pp_o, rec_o, ph_re_o, ph_im_o, p_max_o, p_sq_o, arrival_o, n_steps,  \
+      threads, levels, band, closed, stencil, threshold, &lb
+  switch (p.element_type()) {
+    case ffi::DataType::F32:
+      return volume_typed<float>(DL_ARGS);
+    case ffi::DataType::F64:
+      return volume_typed<double>(DL_ARGS);
+    default:
+      return ffi::Error::InvalidArgument("difflattice_volume_layered: float32 or float64 fields only");
   }
 #undef DL_ARGS
 }
@@ -144,6 +215,21 @@ ffi::Error volume_impl(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K, ff
 //        stencil = 0 (standard 7-point) or 1 (isotropic 19-point, unit faces only)
 XLA_FFI_DEFINE_HANDLER_SYMBOL(DifflatticeVolume, volume_impl,
                               ffi::Ffi::Bind() DL_VBUFS_7 DL_VBUFS_7 DL_VBUFS_7 DL_VRETS_4 DL_VRETS_4
+                                  .Attr<int64_t>("n_steps")
+                                  .Attr<int64_t>("threads")
+                                  .Attr<int64_t>("levels")
+                                  .Attr<int64_t>("band")
+                                  .Attr<int64_t>("closed")
+                                  .Attr<int64_t>("stencil")
+                                  .Attr<double>("threshold"));
+
+// args: the volume's 21 | lp lw boxes | ax_cell bx_cell ax_face bx_face, ay_..., az_... (12 profiles)
+// rets: the volume's 8 | lp lw
+XLA_FFI_DEFINE_HANDLER_SYMBOL(DifflatticeVolumeLayered, volume_layered_impl,
+                              ffi::Ffi::Bind() DL_VBUFS_7 DL_VBUFS_7 DL_VBUFS_7 DL_VBUFS_7 DL_VBUFS_7
+                                  .Arg<ffi::AnyBuffer>() DL_VRETS_4 DL_VRETS_4
+                                  .Ret<ffi::AnyBuffer>()
+                                  .Ret<ffi::AnyBuffer>()
                                   .Attr<int64_t>("n_steps")
                                   .Attr<int64_t>("threads")
                                   .Attr<int64_t>("levels")

@@ -27,6 +27,7 @@ struct VolumeArgs {
   int n_threads, levels;
   int64_t band = 0;  // rows of a plane's bands (0: whole planes; band_pipeline)
   bool iso = false;  // the isotropic 19-point stencil (uniform faces only: no bx, by, bz)
+  const void* layers = nullptr;  // VolumeLayers<T> (PML layers; standard stencil, no sponge) or nullptr
   T* p;   // P(t) in, the latest field out
   T* pp;  // P(t-1) in, the previous field out
   const T* K = nullptr;  // full (nx, ny, nz) or nullptr: the scalar k
@@ -97,6 +98,115 @@ inline void volume_row(const VolRow<T>& r, int64_t nz, T k, bool zlo, bool zhi) 
 #pragma GCC ivdep
   for (int64_t j = 1; j < nz - 1; ++j) cell(j, c[j - 1], c[j + 1]);
   cell(nz - 1, c[nz - 2], ghi ? c[nz - 1] : T(0));
+}
+
+// PML layers (lattice.pml, stepper._layer_step): the split-field form on the layer's boxes, whose
+// cells' new pressure replaces the leapfrog's. Per box (x0 x1 y0 y1 z0 z1, cells [lo, hi) per axis)
+// the parts px, py, pz (box shape) and the face fluxes wx, wy, wz (one more face along their axis),
+// packed box after box (kernels._pack_layers' order); the factors a, b per axis as profiles along it
+template <typename T>
+struct VolumeLayers {
+  int64_t n_boxes = 0;
+  const int32_t* boxes = nullptr;      // (n_boxes, 6)
+  std::vector<int64_t> part_at, flux_at;  // offsets of each box's fields in parts, fluxes
+  T* parts = nullptr;
+  T* fluxes = nullptr;
+  const T* a_cell[3] = {nullptr, nullptr, nullptr};  // (n_axis,) profiles
+  const T* b_cell[3] = {nullptr, nullptr, nullptr};
+  const T* a_face[3] = {nullptr, nullptr, nullptr};  // (n_axis + 1,)
+  const T* b_face[3] = {nullptr, nullptr, nullptr};
+};
+
+// plane i, rows [j0, j1) of step L's layer cells: q = P(n) (planes qm, q0, qp: i - 1, i, i + 1, zero
+// beyond the window), out = the new plane (the leapfrog's values, replaced in the boxes)
+template <typename T, bool FACES, bool KFULL>
+void volume_layers(const VolumeArgs<T>& a, const VolumeLayers<T>& la, int64_t i, int64_t j0, int64_t j1,
+                   const T* qm, const T* q0, const T* qp, T* out) {
+  const int64_t nx = a.nx, ny = a.ny, nz = a.nz, S = ny * nz;
+  // face conductances: the arrays, or unit faces closed on rigid window sides
+  auto cx = [&](int64_t f, int64_t j, int64_t k) -> T {
+    if constexpr (FACES) return a.bx[(f * ny + j) * nz + k];
+    return ((f == 0 && a.closed[0]) || (f == nx && a.closed[1])) ? T(0) : T(1);
+  };
+  auto cy = [&](int64_t f, int64_t j, int64_t k) -> T {
+    if constexpr (FACES) return a.by[(i * (ny + 1) + f) * nz + k];
+    return ((f == 0 && a.closed[2]) || (f == ny && a.closed[3])) ? T(0) : T(1);
+  };
+  auto cz = [&](int64_t f, int64_t j, int64_t k) -> T {
+    if constexpr (FACES) return a.bz[(i * ny + j) * (nz + 1) + f];
+    return ((f == 0 && a.closed[4]) || (f == nz && a.closed[5])) ? T(0) : T(1);
+  };
+  for (int64_t bi = 0; bi < la.n_boxes; ++bi) {
+    const int32_t* bx = la.boxes + 6 * bi;
+    const int64_t x0 = bx[0], x1 = bx[1], y0 = bx[2], y1 = bx[3], z0 = bx[4], z1 = bx[5];
+    if (i < x0 || i >= x1) continue;
+    const int64_t r0 = std::max(j0, y0), r1 = std::min(j1, y1);
+    if (r0 >= r1) continue;
+    const int64_t X = x1 - x0, Y = y1 - y0, Z = z1 - z0, n = X * Y * Z;
+    T* px = la.parts + la.part_at[bi];
+    T* py = px + n;
+    T* pz = py + n;
+    T* wx = la.fluxes + la.flux_at[bi];  // (X + 1, Y, Z)
+    T* wy = wx + (X + 1) * Y * Z;        // (X, Y + 1, Z)
+    T* wz = wy + X * (Y + 1) * Z;        // (X, Y, Z + 1)
+    const int64_t u = i - x0;
+    for (int64_t j = r0; j < r1; ++j) {
+      const int64_t v = j - y0;
+      const T* qr = q0 + j * nz;
+      const T* qxm = qm + j * nz;
+      const T* qxp = qp + j * nz;
+      const T* qym = j > 0 ? qr - nz : nullptr;
+      const T* qyp = j + 1 < ny ? qr + nz : nullptr;
+      // x faces: face i + 1 here (and the box's first face on its first plane)
+      for (int64_t f = (i == x0 ? i : i + 1); f <= i + 1; ++f) {
+        const T* lo = f == i ? qxm : qr;
+        const T* hi = f == i ? qr : qxp;
+        const T af = la.a_face[0][f], bf = la.b_face[0][f];
+        T* w = wx + ((f - x0) * Y + v) * Z - z0;
+        for (int64_t k = z0; k < z1; ++k) w[k] = af * w[k] + bf * (cx(f, j, k) * (hi[k] - lo[k]));
+      }
+      // y faces: face j + 1 here (and the box's first face on its first row)
+      for (int64_t f = (j == y0 ? j : j + 1); f <= j + 1; ++f) {
+        const T* lo = f == j ? qym : qr;
+        const T* hi = f == j ? qr : qyp;
+        const T af = la.a_face[1][f], bf = la.b_face[1][f];
+        T* w = wy + (u * (Y + 1) + (f - y0)) * Z - z0;
+        for (int64_t k = z0; k < z1; ++k)
+          w[k] = af * w[k] + bf * (cy(f, j, k) * ((hi ? hi[k] : T(0)) - (lo ? lo[k] : T(0))));
+      }
+      // z faces of the row: z0 .. z1
+      T* wzr = wz + (u * Y + v) * (Z + 1) - z0;
+      for (int64_t f = z0; f <= z1; ++f) {
+        const T lo = f > 0 ? qr[f - 1] : T(0), hi = f < nz ? qr[f] : T(0);
+        wzr[f] = la.a_face[2][f] * wzr[f] + la.b_face[2][f] * (cz(f, j, f) * (hi - lo));
+      }
+      // the parts, then P = px + py + pz
+      const T* wxl = wx + (u * Y + v) * Z - z0;
+      const T* wxh = wxl + Y * Z;
+      const T* wyl = wy + (u * (Y + 1) + v) * Z - z0;
+      const T* wyh = wyl + Z;
+      const int64_t c0 = ((u * Y) + v) * Z - z0;
+      const T axc = la.a_cell[0][i], bxc = la.b_cell[0][i];
+      const T ayc = la.a_cell[1][j], byc = la.b_cell[1][j];
+      T* o = out + j * nz;
+      for (int64_t k = z0; k < z1; ++k) {
+        const T kk = KFULL ? a.K[i * S + j * nz + k] : a.k;
+        T sx = axc * px[c0 + k] + bxc * (kk * (wxh[k] - wxl[k]));
+        T sy = ayc * py[c0 + k] + byc * (kk * (wyh[k] - wyl[k]));
+        T sz = la.a_cell[2][k] * pz[c0 + k] + la.b_cell[2][k] * (kk * (wzr[k + 1] - wzr[k]));
+        if (a.keep) {
+          const T kp = a.keep[i * S + j * nz + k];
+          sx = kp * sx;
+          sy = kp * sy;
+          sz = kp * sz;
+        }
+        px[c0 + k] = sx;
+        py[c0 + k] = sy;
+        pz[c0 + k] = sz;
+        o[k] = (sx + sy) + sz;
+      }
+    }
+  }
 }
 
 // the isotropic 19-point stencil on uniform faces (lattice.operators._isotropic_uniform_3d):
@@ -283,6 +393,14 @@ void volume_steps(const VolumeArgs<T>& a) {
         const T* kp = a.keep + i * S;
 #pragma GCC ivdep
         for (int64_t j = c0; j < c1; ++j) out[j] = kp[j] * out[j];
+      }
+      if constexpr (!ISO && !SPONGE) {
+        if (a.layers) {  // zero ghost planes for the layers' gradients (closed faces carry b = 0)
+          const T* qm = i > 0 ? P0 - S : zero.data();
+          const T* qp = i + 1 < nx ? P0 + S : zero.data();
+          volume_layers<T, FACES, KFULL>(a, *static_cast<const VolumeLayers<T>*>(a.layers), i, j0, j1, qm, P0, qp,
+                                         out);
+        }
       }
       if (cplan.busy[i]) leapfrog_cells(a.cells, cplan, i, L - 1, pp, c0, c1);
       if (stats) row_stats(a.cells, i, L - 1, out, c0, c1);

@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from ..stepper import LeapfrogState, State, Stepper
+from ..stepper import LeapfrogState, StaggeredState, State, Stepper
 
 # the stencils the kernel implements, by `Grid.stencil` name
 STENCILS_3D = ("standard", "isotropic")
@@ -59,8 +59,13 @@ def unsupported_3d(stepper: Stepper, state: State | None) -> str | None:
             "the 'isotropic' stencil with face conductances (obstacles, a density contrast) on a 3-D grid "
             "(the native 3-D kernel runs it on uniform faces: air with rigid or soft window sides)"
         )
-    if stepper.staggered or lat.pml is not None:
-        return "PML edges on a 3-D grid (the native 3-D kernel has no split-field layers yet: rigid, soft or sponge)"
+    if stepper.staggered and lat.stencil != "standard":
+        return (
+            f"PML edges with the {lat.stencil!r} stencil on a 3-D grid (the native 3-D kernel's layers run the "
+            "'standard' stencil; rigid, soft or sponge sides run the isotropic one)"
+        )
+    if stepper.staggered != (lat.pml is not None):
+        return "a PML stepper without PML factors (or factors without the layers)"
     if lat.relax is not None:
         return "air absorption (Medium(air=...)) on a 3-D grid"
     if lat.eta != 0:
@@ -71,7 +76,7 @@ def unsupported_3d(stepper: Stepper, state: State | None) -> str | None:
         return "a ring metric or Mur edges on a 3-D grid"
     if (lat.bx is None) != (lat.by is None) or (lat.bx is None) != (lat.bz is None):
         return "face conductances on some axes only"
-    if state is not None and not isinstance(state, LeapfrogState):
+    if state is not None and stepper.staggered != isinstance(state, StaggeredState):
         return "a start state of the other stepper"
     return None
 
@@ -148,6 +153,17 @@ class VolumeChunk:
             stencil=np.int64(lat.stencil == "isotropic"),
             threshold=float(sens.arrival_threshold_pa or 0.0),
         )
+        self.layered = stepper.staggered
+        if self.layered:  # PML layers: the boxes and the factors' profiles along their axes
+            pml = lat.pml
+            assert pml is not None
+            self.boxes = jnp.asarray(np.array([[v for r in b for v in r] for b in pml.boxes], np.int32).reshape(-1, 6))
+            self.factors = []
+            for axis, n in enumerate(shape):
+                for where, m in (("cell", n), ("face", n + 1)):
+                    for v in pml.factors(axis, where):
+                        shp = tuple(m if a == axis else 1 for a in range(3))
+                        self.factors.append(jnp.broadcast_to(jnp.asarray(v, dt), shp).reshape(-1))
         srcs = stepper.sources
         self.src_cells = (
             _plane_cells(jnp.concatenate([jnp.asarray(s.cells, jnp.int32).reshape(-1, 3) for s in srcs]), shape)
@@ -168,7 +184,7 @@ class VolumeChunk:
 
     def advance(self, st: State, length: int):
         """`length` steps from `st`; returns the new state and the probes (length, n) or None."""
-        assert isinstance(st, LeapfrogState)  # unsupported_3d() refuses other states
+        assert isinstance(st, (LeapfrogState, StaggeredState))  # unsupported_3d() refuses other states
         vals, cos, sin = self.tables(st.n, length)
         stats = self._stats(self, st)
         args = [
@@ -196,10 +212,24 @@ class VolumeChunk:
             *(jax.ShapeDtypeStruct(a.shape, a.dtype) for a in stats),
         ]
         aliases = {0: 0, 1: 1, 15: 3, 16: 4, 17: 5, 18: 6, 19: 7}
-        out = jax.ffi.ffi_call("difflattice_volume", shapes, input_output_aliases=aliases, vmap_method="sequential")(
+        target = "difflattice_volume"
+        if self.layered:
+            assert isinstance(st, StaggeredState)
+            from .kernels import _pack_layers, _unpack_layers
+
+            lp, lw, _ = _pack_layers(st.layers, self.dt)
+            args += [lp, lw, self.boxes, *self.factors]
+            shapes += [jax.ShapeDtypeStruct(lp.shape, lp.dtype), jax.ShapeDtypeStruct(lw.shape, lw.dtype)]
+            aliases.update({21: 8, 22: 9})
+            target = "difflattice_volume_layered"
+        out = jax.ffi.ffi_call(target, shapes, input_output_aliases=aliases, vmap_method="sequential")(
             *args, n_steps=np.int64(length), **self.attrs
         )
-        p, p_prev, rec, *stats_out = out
+        if self.layered:
+            assert isinstance(st, StaggeredState)
+            empty = jnp.zeros((0,), self.dt)
+            st = eqx.tree_at(lambda s: s.layers, st, _unpack_layers(st.layers, (out[8], out[9], empty)))
+        p, p_prev, rec, *stats_out = out[:8]
         names = ("phasor_re", "phasor_im", "p_max", "p_sq", "arrival")
         keys = ("p", "p_prev", "n", *(k for k in names if getattr(st, k) is not None))
         new = {"p": p, "p_prev": p_prev, "n": st.n + length, **dict(zip(names, stats_out))}

@@ -121,7 +121,7 @@ struct VolumeLayers {
 // beyond the window), out = the new plane (the leapfrog's values, replaced in the boxes)
 template <typename T, bool FACES, bool KFULL>
 void volume_layers(const VolumeArgs<T>& a, const VolumeLayers<T>& la, int64_t i, int64_t j0, int64_t j1,
-                   const T* qm, const T* q0, const T* qp, T* out) {
+                   const T* qm, const T* q0, const T* qp, T* out, const T* zero) {
   const int64_t nx = a.nx, ny = a.ny, nz = a.nz, S = ny * nz;
   // face conductances: the arrays, or unit faces closed on rigid window sides
   auto cx = [&](int64_t f, int64_t j, int64_t k) -> T {
@@ -155,8 +155,8 @@ void volume_layers(const VolumeArgs<T>& a, const VolumeLayers<T>& la, int64_t i,
       const T* qr = q0 + j * nz;
       const T* qxm = qm + j * nz;
       const T* qxp = qp + j * nz;
-      const T* qym = j > 0 ? qr - nz : nullptr;
-      const T* qyp = j + 1 < ny ? qr + nz : nullptr;
+      const T* qym = j > 0 ? qr - nz : zero;  // zero beyond the window
+      const T* qyp = j + 1 < ny ? qr + nz : zero;
       // x faces: face i + 1 here (and the box's first face on its first plane)
       for (int64_t f = (i == x0 ? i : i + 1); f <= i + 1; ++f) {
         const T* lo = f == i ? qxm : qr;
@@ -172,14 +172,15 @@ void volume_layers(const VolumeArgs<T>& a, const VolumeLayers<T>& la, int64_t i,
         const T af = la.a_face[1][f], bf = la.b_face[1][f];
         T* w = wy + (u * (Y + 1) + (f - y0)) * Z - z0;
         for (int64_t k = z0; k < z1; ++k)
-          w[k] = af * w[k] + bf * (cy(f, j, k) * ((hi ? hi[k] : T(0)) - (lo ? lo[k] : T(0))));
+          w[k] = af * w[k] + bf * (cy(f, j, k) * (hi[k] - lo[k]));
       }
       // z faces of the row: z0 .. z1
       T* wzr = wz + (u * Y + v) * (Z + 1) - z0;
-      for (int64_t f = z0; f <= z1; ++f) {
-        const T lo = f > 0 ? qr[f - 1] : T(0), hi = f < nz ? qr[f] : T(0);
-        wzr[f] = la.a_face[2][f] * wzr[f] + la.b_face[2][f] * (cz(f, j, f) * (hi - lo));
-      }
+      auto zface = [&](int64_t f, T lo, T hi) { wzr[f] = la.a_face[2][f] * wzr[f] + la.b_face[2][f] * (cz(f, j, f) * (hi - lo)); };
+      const int64_t f0 = std::max<int64_t>(z0, 1), f1 = std::min<int64_t>(z1, nz - 1);
+      if (z0 == 0) zface(0, T(0), nz > 0 ? qr[0] : T(0));
+      for (int64_t f = f0; f <= f1; ++f) zface(f, qr[f - 1], qr[f]);
+      if (z1 == nz) zface(nz, qr[nz - 1], T(0));
       // the parts, then P = px + py + pz
       const T* wxl = wx + (u * Y + v) * Z - z0;
       const T* wxh = wxl + Y * Z;
@@ -188,22 +189,34 @@ void volume_layers(const VolumeArgs<T>& a, const VolumeLayers<T>& la, int64_t i,
       const int64_t c0 = ((u * Y) + v) * Z - z0;
       const T axc = la.a_cell[0][i], bxc = la.b_cell[0][i];
       const T ayc = la.a_cell[1][j], byc = la.b_cell[1][j];
-      T* o = out + j * nz;
-      for (int64_t k = z0; k < z1; ++k) {
-        const T kk = KFULL ? a.K[i * S + j * nz + k] : a.k;
-        T sx = axc * px[c0 + k] + bxc * (kk * (wxh[k] - wxl[k]));
-        T sy = ayc * py[c0 + k] + byc * (kk * (wyh[k] - wyl[k]));
-        T sz = la.a_cell[2][k] * pz[c0 + k] + la.b_cell[2][k] * (kk * (wzr[k + 1] - wzr[k]));
-        if (a.keep) {
-          const T kp = a.keep[i * S + j * nz + k];
-          sx = kp * sx;
-          sy = kp * sy;
-          sz = kp * sz;
-        }
-        px[c0 + k] = sx;
-        py[c0 + k] = sy;
-        pz[c0 + k] = sz;
+      // (local restrict pointers and values: the loop vectorises)
+      T* __restrict o = out + j * nz;
+      T* __restrict sxp = px + c0;
+      T* __restrict syp = py + c0;
+      T* __restrict szp = pz + c0;
+      const T* __restrict kr = KFULL ? a.K + i * S + j * nz : nullptr;
+      const T* __restrict keep = a.keep ? a.keep + i * S + j * nz : nullptr;
+      const T* __restrict azc = la.a_cell[2];
+      const T* __restrict bzc = la.b_cell[2];
+      const T ks = a.k;
+      auto part = [&](int64_t k, T kp) __attribute__((always_inline)) {
+        T kk = ks;
+        if constexpr (KFULL) kk = kr[k];
+        const T sx = kp * (axc * sxp[k] + bxc * (kk * (wxh[k] - wxl[k])));
+        const T sy = kp * (ayc * syp[k] + byc * (kk * (wyh[k] - wyl[k])));
+        const T sz = kp * (azc[k] * szp[k] + bzc[k] * (kk * (wzr[k + 1] - wzr[k])));
+        sxp[k] = sx;
+        syp[k] = sy;
+        szp[k] = sz;
         o[k] = (sx + sy) + sz;
+      };
+      if (keep) {
+#pragma GCC ivdep
+        for (int64_t k = z0; k < z1; ++k) part(k, keep[k]);
+      } else {
+        // without soft cells: no factor (kp * s with kp = 1 is exact: the same values)
+#pragma GCC ivdep
+        for (int64_t k = z0; k < z1; ++k) part(k, T(1));
       }
     }
   }
@@ -335,6 +348,19 @@ void volume_steps(const VolumeArgs<T>& a) {
   const bool stats = a.cells.p_max || a.cells.p_sq || a.cells.arrival;
   const std::vector<T> zero(S, T(0));
   T* buf[2] = {a.p, a.pp};  // step L lives in buf[L % 2] (step 0 = P(t) in buf[0])
+  // rows (i, j) that a PML box covers whole (all of z): the layer writes them, the leapfrog skips them
+  std::vector<char> covered;
+  if (a.layers) {
+    const auto& la = *static_cast<const VolumeLayers<T>*>(a.layers);
+    covered.assign(nx * ny, 0);
+    for (int64_t b = 0; b < la.n_boxes; ++b) {
+      const int32_t* x = la.boxes + 6 * b;
+      if (x[4] != 0 || x[5] != nz) continue;
+      for (int64_t i = x[0]; i < x[1]; ++i)
+        for (int64_t j = x[2]; j < x[3]; ++j) covered[i * ny + j] = 1;
+    }
+  }
+  const char* skip = covered.empty() ? nullptr : covered.data();
   auto make_worker = [&](int) {
     return [&](int64_t L, int64_t i, int64_t j0, int64_t j1) {
       const T* p = buf[(L - 1) & 1];  // step L - 1
@@ -370,6 +396,7 @@ void volume_steps(const VolumeArgs<T>& a) {
       }
       VolRow<T> r{};
       for (int64_t j = ISO ? j1 : j0; j < j1; ++j) {
+        if (skip && skip[i * ny + j]) continue;  // a layer row: the boxes write it
         const int64_t off = j * nz;
         r.c = P0 + off;
         r.xm = PM + off;
@@ -399,7 +426,7 @@ void volume_steps(const VolumeArgs<T>& a) {
           const T* qm = i > 0 ? P0 - S : zero.data();
           const T* qp = i + 1 < nx ? P0 + S : zero.data();
           volume_layers<T, FACES, KFULL>(a, *static_cast<const VolumeLayers<T>*>(a.layers), i, j0, j1, qm, P0, qp,
-                                         out);
+                                         out, zero.data());
         }
       }
       if (cplan.busy[i]) leapfrog_cells(a.cells, cplan, i, L - 1, pp, c0, c1);

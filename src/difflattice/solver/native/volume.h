@@ -157,16 +157,16 @@ void volume_layers(const VolumeArgs<T>& a, const VolumeLayers<T>& la, int64_t i,
       const T* qxp = qp + j * nz;
       const T* qym = j > 0 ? qr - nz : zero;  // zero beyond the window
       const T* qyp = j + 1 < ny ? qr + nz : zero;
-      // x faces: face i + 1 here (and the box's first face on its first plane)
-      for (int64_t f = (i == x0 ? i : i + 1); f <= i + 1; ++f) {
+      // x faces: the box's first face on its first plane (face i + 1: in the fused loop below)
+      for (int64_t f = i; f == x0; ++f) {
         const T* lo = f == i ? qxm : qr;
         const T* hi = f == i ? qr : qxp;
         const T af = la.a_face[0][f], bf = la.b_face[0][f];
         T* w = wx + ((f - x0) * Y + v) * Z - z0;
         for (int64_t k = z0; k < z1; ++k) w[k] = af * w[k] + bf * (cx(f, j, k) * (hi[k] - lo[k]));
       }
-      // y faces: face j + 1 here (and the box's first face on its first row)
-      for (int64_t f = (j == y0 ? j : j + 1); f <= j + 1; ++f) {
+      // y faces: the box's first face on its first row (face j + 1: in the fused loop below)
+      for (int64_t f = j; f == y0; ++f) {
         const T* lo = f == j ? qym : qr;
         const T* hi = f == j ? qr : qyp;
         const T af = la.a_face[1][f], bf = la.b_face[1][f];
@@ -182,10 +182,8 @@ void volume_layers(const VolumeArgs<T>& a, const VolumeLayers<T>& la, int64_t i,
       for (int64_t f = f0; f <= f1; ++f) zface(f, qr[f - 1], qr[f]);
       if (z1 == nz) zface(nz, qr[nz - 1], T(0));
       // the parts, then P = px + py + pz
-      const T* wxl = wx + (u * Y + v) * Z - z0;
-      const T* wxh = wxl + Y * Z;
-      const T* wyl = wy + (u * (Y + 1) + v) * Z - z0;
-      const T* wyh = wyl + Z;
+      const T* __restrict wxl = wx + (u * Y + v) * Z - z0;  // faces i and j (new: updated before)
+      const T* __restrict wyl = wy + (u * (Y + 1) + v) * Z - z0;
       const int64_t c0 = ((u * Y) + v) * Z - z0;
       const T axc = la.a_cell[0][i], bxc = la.b_cell[0][i];
       const T ayc = la.a_cell[1][j], byc = la.b_cell[1][j];
@@ -199,11 +197,41 @@ void volume_layers(const VolumeArgs<T>& a, const VolumeLayers<T>& la, int64_t i,
       const T* __restrict azc = la.a_cell[2];
       const T* __restrict bzc = la.b_cell[2];
       const T ks = a.k;
+      // faces i + 1 and j + 1 of the row, updated in the loop of the parts (one loop a row: the
+      // z-slab boxes' rows are short, and a loop's set-up cost was most of their time)
+      T* __restrict wxn = wx + ((i + 1 - x0) * Y + v) * Z - z0;
+      T* __restrict wyn = wy + (u * (Y + 1) + (j + 1 - y0)) * Z - z0;
+      const T* __restrict qh = qxp;
+      const T* __restrict qyh = qyp;
+      const T* __restrict qc = qr;
+      const T afx = la.a_face[0][i + 1], bfx = la.b_face[0][i + 1];
+      const T afy = la.a_face[1][j + 1], bfy = la.b_face[1][j + 1];
+      const T* __restrict cxr = nullptr;
+      const T* __restrict cyr = nullptr;
+      T cxs = T(1), cys = T(1);
+      if constexpr (FACES) {
+        cxr = a.bx + ((i + 1) * ny + j) * nz;
+        cyr = a.by + (i * (ny + 1) + j + 1) * nz;
+      } else {
+        cxs = cx(i + 1, j, 0);
+        cys = cy(j + 1, j, 0);
+      }
       auto part = [&](int64_t k, T kp) __attribute__((always_inline)) {
+        T gx = qh[k] - qc[k], gy = qyh[k] - qc[k];
+        if constexpr (FACES) {
+          gx = cxr[k] * gx;
+          gy = cyr[k] * gy;
+        } else {
+          gx = cxs * gx;
+          gy = cys * gy;
+        }
+        const T wxk = afx * wxn[k] + bfx * gx, wyk = afy * wyn[k] + bfy * gy;
+        wxn[k] = wxk;
+        wyn[k] = wyk;
         T kk = ks;
         if constexpr (KFULL) kk = kr[k];
-        const T sx = kp * (axc * sxp[k] + bxc * (kk * (wxh[k] - wxl[k])));
-        const T sy = kp * (ayc * syp[k] + byc * (kk * (wyh[k] - wyl[k])));
+        const T sx = kp * (axc * sxp[k] + bxc * (kk * (wxk - wxl[k])));
+        const T sy = kp * (ayc * syp[k] + byc * (kk * (wyk - wyl[k])));
         const T sz = kp * (azc[k] * szp[k] + bzc[k] * (kk * (wzr[k + 1] - wzr[k])));
         sxp[k] = sx;
         syp[k] = sy;

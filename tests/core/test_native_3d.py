@@ -136,19 +136,16 @@ def test_native_3d_equals_the_jax_loop_float32(kind):
 
 @pytest.mark.parametrize("kind", ("homogeneous_mixed", "obstacle_medium", "isotropic_mixed", "pml_obstacle"))
 def test_native_3d_equals_the_jax_loop_float64(kind):
-    jax.config.update("jax_enable_x64", True)
-    try:
-        st = _build(kind, "float64")
-        assert native.why_not(st) is None
-        ref = run(st, N, backend="jax")
-        got = run(st, N, backend="native")
-        peak = float(jnp.max(ref.final.p_max))
-        for name in ("p", "p_prev", "p_max"):
-            _close(getattr(got.final, name), getattr(ref.final, name), jnp.float64, peak)
-        _close(got.probes, ref.probes, jnp.float64, peak)
-        assert np.array_equal(np.asarray(got.final.arrival), np.asarray(ref.final.arrival))
-    finally:
-        jax.config.update("jax_enable_x64", False)
+    # (tests/conftest.py enables float64 for the whole session)
+    st = _build(kind, "float64")
+    assert native.why_not(st) is None
+    ref = run(st, N, backend="jax")
+    got = run(st, N, backend="native")
+    peak = float(jnp.max(ref.final.p_max))
+    for name in ("p", "p_prev", "p_max"):
+        _close(getattr(got.final, name), getattr(ref.final, name), jnp.float64, peak)
+    _close(got.probes, ref.probes, jnp.float64, peak)
+    assert np.array_equal(np.asarray(got.final.arrival), np.asarray(ref.final.arrival))
 
 
 def test_snapshots_and_chunks_of_a_native_3d_run():

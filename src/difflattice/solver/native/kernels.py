@@ -13,7 +13,6 @@ runs that are not differentiated execute the native kernel. Reverse mode at nati
 from __future__ import annotations
 
 import dataclasses
-import math
 import os
 
 import equinox as eqx
@@ -25,6 +24,7 @@ from ...lattice.coefficients import Lattice
 from ...lattice.operators import _face_coefficients
 from ..scan import Result, chunking, run_jax
 from ..stepper import LeapfrogState, StaggeredState, State, Stepper
+from .chunk_io import pack_layers, stats_in, step_tables, unpack_layers
 from .volume import VolumeChunk, schedule_3d, unsupported_3d
 
 # Lattice fields the kernels implement; a field added to `Lattice` later is refused (the JAX loop
@@ -297,36 +297,11 @@ class _Chunk:
         self.n_probes, self.n_ph = sens.n_probes, sens.n_phasors
 
     def tables(self, n0, length):
-        """Per-step source values (length, n_src) and phasor cos/sin (length,), as the stepper
-        computes them for steps n0 + 1 .. n0 + length."""
-        st, grid, sens = self.stepper, self.stepper.grid, self.stepper.sensors
-        ns = n0 + 1 + jnp.arange(length, dtype=jnp.int32)
-        if st.sources:
-            vals = jax.vmap(st._source_values)(ns)
-            vals = jnp.concatenate([v.reshape(length, -1) for v in vals], axis=1).astype(self.dt)
-        else:
-            vals = jnp.zeros((length, 0), self.dt)
-        if self.n_ph:
-            f = sens.phasor_frequency_hz or grid.frequency_hz
-            w = grid.hz_to_lattice_omega(f)
-            ang = (ns.astype(self.dt) * w) % (2 * math.pi)
-            cos, sin = jnp.cos(ang), jnp.sin(ang)
-            start = getattr(sens, "phasor_from_step", 0)
-            if start:  # the stepper adds 0 * cos up to that step
-                cos, sin = jnp.where(ns > start, cos, 0.0), jnp.where(ns > start, sin, 0.0)
-        else:
-            cos = sin = jnp.zeros((length,), self.dt)
-        return vals, cos, sin
+        """Per-step source values (length, n_src) and phasor cos/sin (length,) (`chunk_io.step_tables`)."""
+        return step_tables(self.stepper, self.dt, self.n_ph, n0, length)
 
     def _stats_in(self, st: State):
-        dt = self.dt
-        return [
-            _absent(dt) if st.phasor_re is None else st.phasor_re,
-            _absent(dt) if st.phasor_im is None else st.phasor_im,
-            _absent(dt) if st.p_max is None else st.p_max,
-            _absent(dt) if st.p_sq is None else st.p_sq,
-            _absent(jnp.int32) if st.arrival is None else st.arrival,
-        ]
+        return stats_in(self.dt, st)
 
     def advance(self, st: State, length: int):
         """`length` steps from `st`; returns the new state and the probes (length, n) or None."""
@@ -490,36 +465,7 @@ class _Chunk:
         return out[0], out[1], out[2], tuple(out[3:])
 
 
-def _pack_layers(layers, dt):
-    """The layer boxes' fields as the kernel's three flat arrays: parts (px, py per box), faces
-    (wx, wy per box), ring corrections (the boxes that have one)."""
-    flat = lambda xs: jnp.concatenate([x.reshape(-1) for x in xs]) if xs else jnp.zeros((0,), dt)
-    return (
-        flat([x for f in layers for x in f.parts]),
-        flat([x for f in layers for x in f.fluxes]),
-        flat([f.c_r for f in layers if f.c_r is not None]),
-    )
-
-
-def _unpack_layers(layers, packed):
-    """`_pack_layers` undone: new `LayerFields` shaped like `layers` from the kernel's arrays."""
-    offsets = [0, 0, 0]
-
-    def take(k, like):
-        n = int(np.prod(like.shape))
-        v = packed[k][offsets[k] : offsets[k] + n].reshape(like.shape)
-        offsets[k] += n
-        return v
-
-    out = []
-    for f in layers:
-        parts = tuple(take(0, x) for x in f.parts)
-        fluxes = tuple(take(1, x) for x in f.fluxes)
-        c_r = None if f.c_r is None else take(2, f.c_r)
-        out.append(
-            eqx.tree_at(lambda g: (g.parts, g.fluxes, g.c_r), f, (parts, fluxes, c_r), is_leaf=lambda x: x is None)
-        )
-    return tuple(out)
+_pack_layers, _unpack_layers = pack_layers, unpack_layers  # (the names of old)
 
 
 # ------------------------------------------------------------------------------------------

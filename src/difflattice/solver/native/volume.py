@@ -12,8 +12,6 @@ it does not run is refused by name (`unsupported_3d`), and the JAX loop runs it 
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
-from typing import Any
 
 import equinox as eqx
 import jax
@@ -21,6 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..stepper import LeapfrogState, StaggeredState, State, Stepper
+from .chunk_io import absent, pack_layers, stats_in, step_tables, unpack_layers
 
 # the stencils the kernel implements, by `Grid.stencil` name
 STENCILS_3D = ("standard", "isotropic")
@@ -32,10 +31,6 @@ STENCILS_3D = ("standard", "isotropic")
 # 1620-2290; bands of 16-32 rows in L2 were no faster than whole planes (1010-1580).
 CACHE_BUDGET_BYTES = 8 * 1024 * 1024
 LEVELS_3D = 8
-
-
-def absent(dtype):
-    return jnp.zeros((0,), dtype)
 
 
 def cpus() -> int:
@@ -125,11 +120,6 @@ class VolumeChunk:
     """The constant inputs of the 3-D kernel's calls for one stepper (built once per trace)."""
 
     def __init__(self, stepper: Stepper, threads: int, levels: int, band: int = 0):
-        from .kernels import _Chunk  # the per-step tables and statistics are the 2-D chunk's
-
-        # (duck-typed: they read stepper, dt and n_ph, which this chunk has too)
-        self._tables: Callable[..., Any] = _Chunk.tables
-        self._stats: Callable[..., Any] = _Chunk._stats_in
         self.stepper = stepper
         grid, lat, sens = stepper.grid, stepper.lattice, stepper.sensors
         self.dt = dt = grid.jnp_dtype
@@ -180,13 +170,13 @@ class VolumeChunk:
         self.n_probes, self.n_ph = sens.n_probes, sens.n_phasors
 
     def tables(self, n0, length):
-        return self._tables(self, n0, length)
+        return step_tables(self.stepper, self.dt, self.n_ph, n0, length)
 
     def advance(self, st: State, length: int):
         """`length` steps from `st`; returns the new state and the probes (length, n) or None."""
         assert isinstance(st, (LeapfrogState, StaggeredState))  # unsupported_3d() refuses other states
         vals, cos, sin = self.tables(st.n, length)
-        stats = self._stats(self, st)
+        stats = stats_in(self.dt, st)
         args = [
             st.p,
             st.p_prev,
@@ -215,9 +205,7 @@ class VolumeChunk:
         target = "difflattice_volume"
         if self.layered:
             assert isinstance(st, StaggeredState)
-            from .kernels import _pack_layers, _unpack_layers
-
-            lp, lw, _ = _pack_layers(st.layers, self.dt)
+            lp, lw, _ = pack_layers(st.layers, self.dt)
             args += [lp, lw, self.boxes, *self.factors]
             shapes += [jax.ShapeDtypeStruct(lp.shape, lp.dtype), jax.ShapeDtypeStruct(lw.shape, lw.dtype)]
             aliases.update({21: 8, 22: 9})
@@ -228,7 +216,7 @@ class VolumeChunk:
         if self.layered:
             assert isinstance(st, StaggeredState)
             empty = jnp.zeros((0,), self.dt)
-            st = eqx.tree_at(lambda s: s.layers, st, _unpack_layers(st.layers, (out[8], out[9], empty)))
+            st = eqx.tree_at(lambda s: s.layers, st, unpack_layers(st.layers, (out[8], out[9], empty)))
         p, p_prev, rec, *stats_out = out[:8]
         names = ("phasor_re", "phasor_im", "p_max", "p_sq", "arrival")
         keys = ("p", "p_prev", "n", *(k for k in names if getattr(st, k) is not None))

@@ -9,11 +9,14 @@ order alternates), each process timing the median of 3 runs after a compile/warm
 - `jax_pml`: difflattice, homogeneous air, 12-cell PML on every side (split-field, 6 fields);
 - `jax_wall_pml`: difflattice with a rigid wall as cut cells (K and three face-conductance maps)
   and PML: what a pulse-echo scene runs;
+- `native_leapfrog`, `native_leapfrog_1t`, `native_wall_pml`: the same scenes on the native 3-D
+  kernel (`solver/native/volume.cc`; two threads, one thread), issue 29; the `jax_*` cases run the
+  JAX loop (`backend="jax"`) whatever the machine;
 - `numba_serial`, `numba_parallel` (2 threads): `benchmarks/reference_kernels_3d.py` in its own
   venv `.venv-bench` (numba is never a dependency of difflattice).
 
 MLUPS = n^3 x steps / median time / 1e6. Agreement: a 34^3 difflattice leapfrog with Dirichlet
-(soft) edges against numba's interior of a 36^3 grid after 40 steps from the same impulse (the two
+(soft) edges (the native kernel where it is available: `backend="auto"`) against numba's interior of a 36^3 grid after 40 steps from the same impulse (the two
 index the same cells). Writes `docs/benchmarks/kernel_3d.json` and `kernel_3d.md` (median of the
 rounds' medians per case), with the load average at start and end: figures taken at a load
 average above the core count are provisional.
@@ -33,7 +36,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "docs" / "benchmarks"
-JAX_CASES = ("jax_leapfrog", "jax_pml", "jax_wall_pml")
+JAX_CASES = ("jax_leapfrog", "jax_pml", "jax_wall_pml", "native_leapfrog", "native_leapfrog_1t", "native_wall_pml")
+
 NUMBA_CASES = ("numba_serial", "numba_parallel")
 
 
@@ -51,6 +55,11 @@ def jax_case(case: str, n: int, steps: int) -> dict:
     from difflattice.lattice.grid import make_grid
     from difflattice.solver import Stepper, run
 
+    name = case
+    if case == "native_leapfrog_1t":
+        os.environ["DIFFLATTICE_NATIVE_THREADS"] = "1"
+    backend = "native" if case.startswith("native") else "jax"
+    case = case.replace("native_", "jax_").replace("_1t", "")  # the scene
     load0 = list(os.getloadavg())
     g = make_grid(frequency_hz=40e3, cells_per_wavelength=20, c_max_m_s=343.0, shape=(n, n, n), kind="3d")
     med = Medium(343.0, 1.2)
@@ -61,7 +70,7 @@ def jax_case(case: str, n: int, steps: int) -> dict:
     st = Stepper.build(g, med, edges=edges)
     st0 = st.init()
     st0 = st0.__class__(**{**st0.__dict__, "p": st0.p.at[n // 2, n // 2, n // 2].set(1.0)})  # both states carry P
-    f = jax.jit(lambda s, s0: run(s, steps, state=s0).final)
+    f = jax.jit(lambda s, s0: run(s, steps, state=s0, backend=backend).final)
     t0 = time.perf_counter()
     jax.block_until_ready(f(st, st0))
     compile_s = time.perf_counter() - t0
@@ -74,7 +83,8 @@ def jax_case(case: str, n: int, steps: int) -> dict:
     t = statistics.median(times)
     p = out.pressure
     return {
-        "case": case,
+        "case": name,
+        "backend": backend,
         "n": n,
         "steps": steps,
         "dtype": "float32",
@@ -152,6 +162,7 @@ def main():
     ap.add_argument("--agreement", default=None, help="(internal) write the agreement field here")
     ap.add_argument("--numba-agreement", default=None, help="(internal, in .venv-bench)")
     ap.add_argument("--no-write", action="store_true")
+    ap.add_argument("--cases", default=None, help="comma-separated subset of the cases (default: all)")
     args = ap.parse_args()
     if args.case:
         print(json.dumps(jax_case(args.case, args.n, args.steps)))
@@ -164,10 +175,15 @@ def main():
         return
 
     py = sys.executable
-    bench_py = str(ROOT / ".venv-bench" / "bin" / "python")
+    bench_py = str(Path(os.environ.get("DIFFLATTICE_BENCH_VENV", ROOT / ".venv-bench")) / "bin" / "python")
     load_start = list(os.getloadavg())
     rows = []
     cases = list(JAX_CASES) + list(NUMBA_CASES)
+    if args.cases:
+        unknown = set(args.cases.split(",")) - set(cases)
+        if unknown:
+            raise SystemExit(f"unknown cases {sorted(unknown)}; known: {', '.join(cases)}")
+        cases = [c for c in cases if c in args.cases.split(",")]
     for rnd in range(args.rounds):
         order = cases if rnd % 2 == 0 else cases[::-1]
         for case in order:

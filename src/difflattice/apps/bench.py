@@ -44,7 +44,12 @@ class Case:
     ny: int
     steps: int
     dtype: str = "float32"
-    kind: str = "2d"  # "2d" or "rz" (the axisymmetric lattice: nx along z, ny rings)
+    kind: str = "2d"  # "2d", "rz" (the axisymmetric lattice: nx along z, ny rings) or "3d"
+    nz: int = 1  # cells along z of a 3-D case
+
+    @property
+    def cells(self) -> int:
+        return self.nx * self.ny * self.nz
 
     @property
     def lattice(self) -> LatticeKind:
@@ -54,6 +59,8 @@ class Case:
 
     @property
     def grid(self) -> str:
+        if self.kind == "3d":
+            return f"{self.nx}x{self.ny}x{self.nz}"
         return f"{self.nx}x{self.ny}" + (f" {self.kind}" if self.lattice.ring_metric else "")
 
 
@@ -64,6 +71,9 @@ CPU_CASES = (
     Case("homogeneous", 840, 630, 1000, kind="rz"),
     Case("full", 840, 630, 1000, kind="rz"),
 )
+# the 3-D leapfrog (issue 29): homogeneous air, rigid window, a 6 x 6 patch source; not in the
+# default run (`python -m difflattice.apps.bench --cases 3d`, or `bench(cases=CPU_CASES_3D)`)
+CPU_CASES_3D = (Case("homogeneous", 256, 256, 100, kind="3d", nz=256),)
 GPU_CASES = (Case("homogeneous", 4096, 4096, 200),)
 OWN_IMPLS = ("native", "native-1thread", "jax")
 REFERENCE_IMPLS = ("numba-1thread", "numba", "numpy")
@@ -90,6 +100,8 @@ def scene(case: Case):
     from ..solver.sensors import Sensors
     from ..solver.sources import ToneBurst, disc_transducer, line_transducer
 
+    if case.kind == "3d":
+        return _scene_3d(case)
     nx, ny = case.nx, case.ny
     rz = case.lattice.ring_metric
     g = make_grid(
@@ -121,6 +133,33 @@ def scene(case: Case):
     arc = np.array([(nx // 2, j) for j in range(30, ny - 30, 10)])
     sens = Sensors(probes=probes, phasor_cells=arc)  # type: ignore[arg-type]
     return g, Medium(c, rho, rigid=rigid), src, sens, Edges.axisymmetric() if rz else Edges()
+
+
+def _scene_3d(case: Case):
+    """(grid, medium, sources, sensors, edges) of a 3-D case: the bare leapfrog (homogeneous)."""
+    import jax.numpy as jnp
+    import numpy as np
+
+    from ..lattice import Edges
+    from ..lattice.grid import make_grid
+    from ..lattice.medium import Medium
+    from ..solver.sensors import Sensors
+    from ..solver.sources import PointSources, ToneBurst
+
+    if case.name != "homogeneous":
+        raise ValueError(f"3-D bench case {case.name!r}: only 'homogeneous' is defined")
+    g = make_grid(
+        frequency_hz=50e3,
+        cells_per_wavelength=20,
+        c_max_m_s=343.0,
+        shape=(case.nx, case.ny, case.nz),
+        dtype=case.dtype,  # type: ignore[arg-type]
+        kind="3d",
+    )
+    j, k = np.meshgrid(np.arange(6) + case.ny // 2 - 3, np.arange(6) + case.nz // 2 - 3, indexing="ij")
+    cells = np.stack([np.full(36, min(20, case.nx // 4)), j.ravel(), k.ravel()], axis=1)
+    src = PointSources(cells, ToneBurst(50e3, 5), jnp.ones(36), jnp.zeros(36))
+    return g, Medium(343.0, 1.2), src, Sensors(), Edges.all("rigid")
 
 
 def time_run(stepper, steps: int, backend: str, repeats: int) -> tuple[float, list[float]]:
@@ -159,7 +198,7 @@ def time_case(case: Case, impl: str, repeats: int = INNER_REPEATS) -> dict:
         "times_s": times,
         "compile_s": compile_s,
         "device": jax.devices()[0].platform,
-        "mlups": case.nx * case.ny * case.steps / t / 1e6,
+        "mlups": case.cells * case.steps / t / 1e6,
     }
 
 
@@ -171,6 +210,23 @@ def _child(case: Case, impl: str) -> dict:
     load = os.getloadavg()[0]
     if impl in OWN_IMPLS:
         cmd = [sys.executable, "-m", "difflattice.apps.bench", "--child", json.dumps([case.__dict__, impl])]
+    elif case.kind == "3d":  # benchmarks/reference_kernels_3d.py: an n^3 cube (its outer layer counted)
+        script = reference_script()
+        assert script is not None and case.nx == case.ny == case.nz
+        cmd = [
+            sys.executable,
+            str(script.with_name("reference_kernels_3d.py")),
+            "--kernel",
+            "numba_serial" if impl == "numba-1thread" else "numba_parallel",
+            "--n",
+            str(case.nx),
+            "--steps",
+            str(case.steps),
+            "--dtype",
+            case.dtype,
+            "--threads",
+            str(1 if impl == "numba-1thread" else _cpus()),
+        ]
     else:
         script = reference_script()
         kernel = {"numba-1thread": "numba_serial", "numba": "numba_parallel", "numpy": "numpy_inplace"}[impl]
@@ -197,6 +253,7 @@ def _child(case: Case, impl: str) -> dict:
     if "rows" in out:  # reference_kernels.py
         row = out["rows"][0]
         out = {"time_s": row["time_s"], "times_s": row["times_s"], "mlups": row["mlups"], "device": "cpu"}
+    out.setdefault("device", "cpu")
     out["load_avg"] = load
     return out
 
@@ -235,7 +292,7 @@ def bench(
     gpu = jax.default_backend() != "cpu"
     cases = list(cases or (GPU_CASES + CPU_CASES[:1] if gpu else CPU_CASES))
     if quick:  # a tenth of the steps (a check that everything runs, not a measurement)
-        cases = [Case(c.name, c.nx, c.ny, max(1, c.steps // 10), c.dtype, c.kind) for c in cases]
+        cases = [Case(c.name, c.nx, c.ny, max(1, c.steps // 10), c.dtype, c.kind, c.nz) for c in cases]
     impls = list(impls or (("jax",) if gpu else OWN_IMPLS))
     if reference and not gpu:
         if reference_script() is None:
@@ -246,7 +303,7 @@ def bench(
         for case in cases:
             for impl in impls:
                 if impl in REFERENCE_IMPLS and (
-                    case.name != "homogeneous" or (impl == "numpy" and case.lattice.ring_metric)
+                    case.name != "homogeneous" or (impl == "numpy" and (case.lattice.ring_metric or case.kind == "3d"))
                 ):
                     continue  # the reference loops: the bare homogeneous leapfrog (rz: numba only)
                 samples.setdefault((case, impl), []).append(_child(case, impl))
@@ -350,14 +407,32 @@ def markdown(result: dict) -> str:
 
 
 def main(argv=None) -> int:
-    """The child process: `python -m difflattice.apps.bench --child '[case, impl]'`."""
+    """The child process: `python -m difflattice.apps.bench --child '[case, impl]'`; or a run of the
+    3-D case (not in `difflattice bench`'s default set): `python -m difflattice.apps.bench --cases 3d
+    [--reference] [--rounds N] [--force] [--quick] [--out DIR]`."""
     import argparse
 
     ap = argparse.ArgumentParser()
-    ap.add_argument("--child", required=True)
+    ap.add_argument("--child", default=None)
+    ap.add_argument("--cases", choices=("3d",), default=None)
+    ap.add_argument("--reference", action="store_true")
+    ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--force", action="store_true")
+    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--out", type=Path, default=None)
     args = ap.parse_args(argv)
-    case_kw, impl = json.loads(args.child)
-    print(json.dumps(time_case(Case(**case_kw), impl)))
+    if args.child:
+        case_kw, impl = json.loads(args.child)
+        print(json.dumps(time_case(Case(**case_kw), impl)))
+        return 0
+    if args.cases is None:
+        ap.error("give --child (internal) or --cases 3d (use `difflattice bench` for the default cases)")
+    result = bench(reference=args.reference, rounds=args.rounds, force=args.force, quick=args.quick, cases=CPU_CASES_3D)
+    if args.out is not None:
+        args.out.mkdir(parents=True, exist_ok=True)
+        (args.out / "bench3d.json").write_text(json.dumps(result, indent=2) + "\n")
+        (args.out / "bench3d.md").write_text(markdown(result))
+    print(markdown(result))
     return 0
 
 

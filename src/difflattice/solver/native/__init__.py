@@ -5,8 +5,10 @@ on one core. These kernels advance a chunk of steps per call with temporal block
 pipeline of threads (all cores), for the leapfrog (homogeneous, conservative with coefficient
 maps, speed-zero, sponge, soft cells, absorption) with the split-field PML on the layer's cells
 only (`difflattice_layered`), with humid air's relaxation (`Medium(air=...)`: two memory
-fields), with sources, probes, phasors and field statistics inside the loop. The JAX loop stays the reference (tests
-compare the two), the path for GPUs, and the path of derivatives: a native run's JVP is the JAX
+fields), with sources, probes, phasors and field statistics inside the loop; on 3-D grids
+`volume.cc` (`volume.py`: the 7-point leapfrog with coefficient arrays, PML layers on their
+boxes, the isotropic 19-point stencil on uniform faces; x planes as the pipeline's rows). The JAX
+loop stays the reference (tests compare the two), the path for GPUs, and the path of derivatives: a native run's JVP is the JAX
 loop's, so `jax.grad` through it gives JAX's gradients; `adjoint="lattice"` runs its forward and
 backward passes (the adjoint wave equation) on these kernels instead.
 

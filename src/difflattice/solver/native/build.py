@@ -1,8 +1,8 @@
 """Compile the native kernels for the machine they run on, cache the library, register its XLA
 FFI targets.
 
-The C++ source ships as package data (`lattice.cc` and the headers it includes, one translation
-unit). At first use it is compiled with the C++
+The C++ source ships as package data (`lattice.cc`, `volume.cc` and the headers they include, two
+translation units). At first use it is compiled with the C++
 compiler found (`$CXX`, else `c++`, `g++`, `clang++`) for this processor (`-march=native`: not
 portable, hence compiled where it runs) against XLA's FFI headers from the installed jaxlib, and
 cached in ``$DIFFLATTICE_NATIVE_CACHE`` (default ``~/.cache/difflattice/native``) under a hash of
@@ -31,10 +31,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 SOURCE = Path(__file__).with_name("lattice.cc")
+# the translation units of the library: the 2-D and rz kernels, the 3-D kernel (volume.cc)
+SOURCES = (SOURCE, SOURCE.with_name("volume.cc"))
 TARGETS = {
     "difflattice_leapfrog": "DifflatticeLeapfrog",
     "difflattice_layered": "DifflatticeLayered",
     "difflattice_adjoint_chunk": "DifflatticeAdjointChunk",
+    "difflattice_volume": "DifflatticeVolume",
+    "difflattice_volume_layered": "DifflatticeVolumeLayered",
 }
 COMPILE_TIMEOUT_S = 300
 
@@ -128,7 +132,7 @@ def _compile(cxx: str, out: Path, include_dir: str) -> str | None:
     for native_arch in (True, False):  # a compiler without -march=native: a generic build
         fd, tmp = tempfile.mkstemp(suffix=".so", dir=out.parent)
         os.close(fd)
-        cmd = [cxx, *_flags(include_dir, native_arch), str(SOURCE), "-o", tmp]
+        cmd = [cxx, *_flags(include_dir, native_arch), *map(str, SOURCES), "-o", tmp]
         try:
             r = subprocess.run(cmd, capture_output=True, text=True, timeout=COMPILE_TIMEOUT_S)
         except (OSError, subprocess.SubprocessError) as e:
@@ -169,8 +173,8 @@ def _load() -> Library | str:
         return "no C++ compiler found: install g++ or clang++, or set CXX"
     key = hashlib.sha256()
     for part in (
-        SOURCE.read_bytes(),
-        *(h.read_bytes() for h in sorted(SOURCE.parent.glob("*.h"))),  # its headers (one translation unit)
+        *(src.read_bytes() for src in SOURCES),
+        *(h.read_bytes() for h in sorted(SOURCE.parent.glob("*.h"))),  # their headers
         " ".join(_flags(include_dir, True)).encode(),
         _compiler_version(cxx).encode(),
         jaxlib.__version__.encode(),
@@ -197,7 +201,7 @@ def _load() -> Library | str:
                 f"difflattice: native kernels compiled in {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True
             )
         if err is not None:
-            reason = f"compiling {SOURCE.name} with {cxx} failed: {err}"
+            reason = f"compiling {', '.join(s.name for s in SOURCES)} with {cxx} failed: {err}"
             try:
                 failed.write_text(reason + "\n")
             except OSError:

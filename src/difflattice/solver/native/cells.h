@@ -117,12 +117,17 @@ struct CellPlan {
   }
 };
 
-// row i of step s (0-based in the call) of the leapfrog, on the new field nw
+// row i of step s (0-based in the call) of the leapfrog, on the new field nw; the cells of columns
+// [col0, col1) only where col1 >= 0 (the 3-D kernel's bands of a plane)
 template <typename T>
-void leapfrog_cells(const CellOps<T>& c, const CellPlan<T>& pl, int64_t i, int64_t s, T* nw) {
+void leapfrog_cells(const CellOps<T>& c, const CellPlan<T>& pl, int64_t i, int64_t s, T* nw, int64_t col0 = 0,
+                    int64_t col1 = -1) {
   const int64_t ny = c.ny;
+  if (col1 < 0) col1 = ny;
+  auto out = [&](const int32_t* cells, int64_t k) { return cells[2 * k + 1] < col0 || cells[2 * k + 1] >= col1; };
   for (int64_t u = pl.src.start[i]; u < pl.src.start[i + 1]; ++u) {
     const int64_t k = pl.src.item[u];
+    if (out(c.src_cells, k)) continue;
     const int64_t at = i * ny + c.src_cells[2 * k + 1];
     const T v = c.src_vals[s * c.n_src + k];
     if (c.src_hard[k]) nw[at] = v;
@@ -130,16 +135,19 @@ void leapfrog_cells(const CellOps<T>& c, const CellPlan<T>& pl, int64_t i, int64
   }
   for (int64_t u = pl.rec.start[i]; u < pl.rec.start[i + 1]; ++u) {
     const int64_t k = pl.rec.item[u];
+    if (out(c.rec_cells, k)) continue;
     c.rec_out[s * c.n_rec + k] = nw[i * ny + c.rec_cells[2 * k + 1]];
   }
   for (int64_t u = pl.zer.start[i]; u < pl.zer.start[i + 1]; ++u) {
     const int64_t k = pl.zer.item[u];
+    if (out(c.zero_cells, k)) continue;
     nw[i * ny + c.zero_cells[2 * k + 1]] = T(0);
   }
   if (pl.pha.start[i] != pl.pha.start[i + 1]) {
     const T cs = c.ph_cos[s], sn = c.ph_sin[s];
     for (int64_t u = pl.pha.start[i]; u < pl.pha.start[i + 1]; ++u) {
       const int64_t k = pl.pha.item[u];
+      if (out(c.ph_cells, k)) continue;
       const T v = nw[i * ny + c.ph_cells[2 * k + 1]];
       c.ph_re[k] = c.ph_re[k] + v * cs;
       c.ph_im[k] = c.ph_im[k] + v * sn;
@@ -147,25 +155,27 @@ void leapfrog_cells(const CellOps<T>& c, const CellPlan<T>& pl, int64_t i, int64
   }
 }
 
-// statistics of one row of the new field p (ny values), at step s
+// statistics of one row of the new field p (ny values), at step s; columns [j0, j1) of it where
+// j1 >= 0 (p then points at the row's column 0 still)
 template <typename T>
-void row_stats(const CellOps<T>& c, int64_t i, int64_t s, const T* p) {
+void row_stats(const CellOps<T>& c, int64_t i, int64_t s, const T* p, int64_t j0 = 0, int64_t j1 = -1) {
   const int64_t ny = c.ny;
+  const int64_t lo = j0, hi = j1 < 0 ? ny : j1;
   if (c.p_max) {
     T* m = c.p_max + i * ny;
-    for (int64_t j = 0; j < ny; ++j) {
+    for (int64_t j = lo; j < hi; ++j) {
       const T v = std::abs(p[j]);
       m[j] = (v > m[j] || v != v) ? v : m[j];  // jnp.maximum: NaN wins
     }
   }
   if (c.p_sq) {
     T* q = c.p_sq + i * ny;
-    for (int64_t j = 0; j < ny; ++j) q[j] = q[j] + p[j] * p[j];
+    for (int64_t j = lo; j < hi; ++j) q[j] = q[j] + p[j] * p[j];
   }
   if (c.arrival) {
     int32_t* a = c.arrival + i * ny;
     const int32_t n_next = int32_t(c.n0 + s + 1);
-    for (int64_t j = 0; j < ny; ++j)
+    for (int64_t j = lo; j < hi; ++j)
       if (a[j] < 0 && std::abs(p[j]) > c.threshold) a[j] = n_next;
   }
 }

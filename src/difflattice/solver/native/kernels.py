@@ -13,7 +13,6 @@ runs that are not differentiated execute the native kernel. Reverse mode at nati
 from __future__ import annotations
 
 import dataclasses
-import math
 import os
 
 import equinox as eqx
@@ -25,6 +24,8 @@ from ...lattice.coefficients import Lattice
 from ...lattice.operators import _face_coefficients
 from ..scan import Result, chunking, run_jax
 from ..stepper import LeapfrogState, StaggeredState, State, Stepper
+from .chunk_io import pack_layers, stats_in, step_tables, unpack_layers
+from .volume import VolumeChunk, schedule_3d, unsupported_3d
 
 # Lattice fields the kernels implement; a field added to `Lattice` later is refused (the JAX loop
 # runs) until the kernels learn it
@@ -76,6 +77,7 @@ KNOWN_SENSOR_FIELDS = frozenset(
         "arrival_threshold_pa",
         "snapshot_every",
         "phasor_from_step",
+        "snapshot_slices",  # 3-D grids: the planes kept (`Sensors.snapshot_of`, taken outside the kernels)
     }
 )
 KNOWN_INJECTIONS = frozenset({"soft", "hard", "velocity"})
@@ -90,17 +92,15 @@ def unsupported(stepper: Stepper, state: State | None, sharding) -> str | None:
     if jax.default_backend() != "cpu":
         return f"the {jax.default_backend()} backend (the native kernels run on CPUs)"
     grid, lat = stepper.grid, stepper.lattice
-    if len(grid.shape) != 2:
-        return f"a {len(grid.shape)}-D grid (the native kernels are 2-D)"
+    rank = len(grid.shape)
+    if rank not in (2, 3):
+        return f"a {rank}-D grid (the native kernels are 2-D, rz and 3-D)"
     if grid.dtype not in ("float32", "float64"):
         return f"dtype {grid.dtype}"
     if type(stepper) is not Stepper or type(lat) is not Lattice:
         return f"a custom stepper ({type(stepper).__name__})"
-    extra = [
-        f.name
-        for f in dataclasses.fields(lat)
-        if f.name not in KNOWN_LATTICE_FIELDS and getattr(lat, f.name) is not None
-    ]
+    known = KNOWN_LATTICE_FIELDS | ({"bz"} if rank == 3 else set())
+    extra = [f.name for f in dataclasses.fields(lat) if f.name not in known and getattr(lat, f.name) is not None]
     if extra:
         return f"lattice terms the kernels do not implement ({', '.join(extra)})"
     sens = stepper.sensors
@@ -120,6 +120,8 @@ def unsupported(stepper: Stepper, state: State | None, sharding) -> str | None:
     ]
     if new_state:
         return f"carried state the kernels do not update ({', '.join(new_state)})"
+    if rank == 3:
+        return unsupported_3d(stepper, state)
     if any(lat.mur):
         return "Mur edges"
     why = _relax_unsupported(stepper)
@@ -295,36 +297,11 @@ class _Chunk:
         self.n_probes, self.n_ph = sens.n_probes, sens.n_phasors
 
     def tables(self, n0, length):
-        """Per-step source values (length, n_src) and phasor cos/sin (length,), as the stepper
-        computes them for steps n0 + 1 .. n0 + length."""
-        st, grid, sens = self.stepper, self.stepper.grid, self.stepper.sensors
-        ns = n0 + 1 + jnp.arange(length, dtype=jnp.int32)
-        if st.sources:
-            vals = jax.vmap(st._source_values)(ns)
-            vals = jnp.concatenate([v.reshape(length, -1) for v in vals], axis=1).astype(self.dt)
-        else:
-            vals = jnp.zeros((length, 0), self.dt)
-        if self.n_ph:
-            f = sens.phasor_frequency_hz or grid.frequency_hz
-            w = grid.hz_to_lattice_omega(f)
-            ang = (ns.astype(self.dt) * w) % (2 * math.pi)
-            cos, sin = jnp.cos(ang), jnp.sin(ang)
-            start = getattr(sens, "phasor_from_step", 0)
-            if start:  # the stepper adds 0 * cos up to that step
-                cos, sin = jnp.where(ns > start, cos, 0.0), jnp.where(ns > start, sin, 0.0)
-        else:
-            cos = sin = jnp.zeros((length,), self.dt)
-        return vals, cos, sin
+        """Per-step source values (length, n_src) and phasor cos/sin (length,) (`chunk_io.step_tables`)."""
+        return step_tables(self.stepper, self.dt, self.n_ph, n0, length)
 
     def _stats_in(self, st: State):
-        dt = self.dt
-        return [
-            _absent(dt) if st.phasor_re is None else st.phasor_re,
-            _absent(dt) if st.phasor_im is None else st.phasor_im,
-            _absent(dt) if st.p_max is None else st.p_max,
-            _absent(dt) if st.p_sq is None else st.p_sq,
-            _absent(jnp.int32) if st.arrival is None else st.arrival,
-        ]
+        return stats_in(self.dt, st)
 
     def advance(self, st: State, length: int):
         """`length` steps from `st`; returns the new state and the probes (length, n) or None."""
@@ -488,36 +465,7 @@ class _Chunk:
         return out[0], out[1], out[2], tuple(out[3:])
 
 
-def _pack_layers(layers, dt):
-    """The layer boxes' fields as the kernel's three flat arrays: parts (px, py per box), faces
-    (wx, wy per box), ring corrections (the boxes that have one)."""
-    flat = lambda xs: jnp.concatenate([x.reshape(-1) for x in xs]) if xs else jnp.zeros((0,), dt)
-    return (
-        flat([x for f in layers for x in f.parts]),
-        flat([x for f in layers for x in f.fluxes]),
-        flat([f.c_r for f in layers if f.c_r is not None]),
-    )
-
-
-def _unpack_layers(layers, packed):
-    """`_pack_layers` undone: new `LayerFields` shaped like `layers` from the kernel's arrays."""
-    offsets = [0, 0, 0]
-
-    def take(k, like):
-        n = int(np.prod(like.shape))
-        v = packed[k][offsets[k] : offsets[k] + n].reshape(like.shape)
-        offsets[k] += n
-        return v
-
-    out = []
-    for f in layers:
-        parts = tuple(take(0, x) for x in f.parts)
-        fluxes = tuple(take(1, x) for x in f.fluxes)
-        c_r = None if f.c_r is None else take(2, f.c_r)
-        out.append(
-            eqx.tree_at(lambda g: (g.parts, g.fluxes, g.c_r), f, (parts, fluxes, c_r), is_leaf=lambda x: x is None)
-        )
-    return tuple(out)
+_pack_layers, _unpack_layers = pack_layers, unpack_layers  # (the names of old)
 
 
 # ------------------------------------------------------------------------------------------
@@ -527,13 +475,17 @@ def _unpack_layers(layers, packed):
 def _native_loop(stepper: Stepper, state: State, n_steps: int, chunk: int, threads: int, levels: int, bands: bool):
     """(final state, probes, peak history, snapshots) of `loop.run`, on the native kernels."""
     sens = stepper.sensors
-    kern = _Chunk(stepper, threads, levels, bands)
+    kern = (
+        _Chunk(stepper, threads, levels, bands)
+        if stepper.grid.ndim == 2
+        else VolumeChunk(stepper, *schedule_3d(stepper))
+    )
     n_chunks, rem = divmod(n_steps, chunk)
 
     def outer(st, _):
         st, ys = kern.advance(st, chunk)
         p = st.pressure
-        return st, (ys, jnp.max(jnp.abs(p)), p if sens.snapshot_every is not None else None)
+        return st, (ys, jnp.max(jnp.abs(p)), sens.snapshot_of(p) if sens.snapshot_every is not None else None)
 
     state, (ys, peaks, snaps) = jax.lax.scan(outer, state, None, length=n_chunks)
     if ys is not None:
@@ -543,8 +495,9 @@ def _native_loop(stepper: Stepper, state: State, n_steps: int, chunk: int, threa
         peaks = jnp.concatenate([peaks, jnp.max(jnp.abs(state.pressure))[None]])
         if ys is not None:
             ys = jnp.concatenate([ys, ys_r.reshape(rem, -1)], axis=0)
-        if snaps is not None:
-            snaps = jnp.concatenate([snaps, state.pressure[None]], axis=0)
+        if snaps is not None:  # a 3-D grid's snapshots: a tuple of planes (`Sensors.snapshot_of`)
+            last = sens.snapshot_of(state.pressure)
+            snaps = jax.tree_util.tree_map(lambda a, b: jnp.concatenate([a, b[None]], axis=0), snaps, last)
     return state, ys, peaks, snaps
 
 
@@ -566,6 +519,8 @@ def _loop_jvp(primals, tangents, *, n_steps, chunk, checkpoint, unroll, threads,
 
 def schedule(stepper: Stepper) -> tuple[int, int, bool]:
     """(threads, levels, bands) of the kernels for this stepper's grid."""
+    if stepper.grid.ndim == 3:
+        return (*schedule_3d(stepper)[:2], False)
     nx, ny = stepper.grid.shape
     extra = 0 if stepper.lattice.relax is None else 2  # Q_O, Q_N
     # PML layers: the leapfrog's rows (the layer's fields are a few columns of most rows)
@@ -574,8 +529,10 @@ def schedule(stepper: Stepper) -> tuple[int, int, bool]:
     return _threads(nx, 0 if bands else levels), levels, bands
 
 
-def chunk_kernel(stepper: Stepper) -> _Chunk:
-    """The FFI calls of one stepper (forward chunks, adjoint steps)."""
+def chunk_kernel(stepper: Stepper) -> _Chunk | VolumeChunk:
+    """The FFI calls of one stepper (forward chunks; adjoint steps on 2-D and rz grids)."""
+    if stepper.grid.ndim == 3:
+        return VolumeChunk(stepper, *schedule_3d(stepper))
     return _Chunk(stepper, *schedule(stepper))
 
 
@@ -584,7 +541,8 @@ def adjoint_supported(stepper: Stepper) -> bool:
     and face conductances only (no q_scale, keep, sponge or viscous term; 5-point stencil)."""
     lat = stepper.lattice
     return (
-        not stepper.staggered
+        stepper.grid.ndim == 2
+        and not stepper.staggered
         and lat.stencil == "standard"
         and lat.q_scale is None
         and lat.keep is None

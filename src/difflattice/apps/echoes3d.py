@@ -27,7 +27,8 @@ THRESHOLDS_DB = (-20.0, -30.0, -40.0, -50.0, -60.0)
 def surfaces(scene, grid, centre_m=None) -> list[dict[str, Any]]:
     """The reflecting surfaces of a 3-D scene seen from its first transducer's centre (or
     `centre_m`: where its cells lie on the lattice, e.g. their mean): name, the
-    nearest point (m), the one-way distance d (m) and the unit direction to it. Window sides that
+    nearest point (m), the one-way distance d (m), the unit direction to it and which it is
+    (`object`: its index in `scene.objects`, or `side`: the window side, e.g. "x_hi"). Window sides that
     pass within a transducer radius of the centre (a symmetry plane through the transducer) are
     left out: they give no echo of their own."""
     import jax
@@ -61,6 +62,7 @@ def surfaces(scene, grid, centre_m=None) -> list[dict[str, Any]]:
                 "distance_m": d,
                 "point_m": point.tolist(),
                 "direction": ((point - c) / max(d, 1e-30)).tolist(),
+                "object": i,
                 "nearest": nearest,
             }
         )
@@ -87,6 +89,7 @@ def surfaces(scene, grid, centre_m=None) -> list[dict[str, Any]]:
                     "distance_m": float(d),
                     "point_m": point.tolist(),
                     "direction": u.tolist(),
+                    "side": key,
                     "nearest": functools.partial(_on_plane, axis=axis, plane=plane),
                 }
             )

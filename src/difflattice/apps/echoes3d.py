@@ -66,7 +66,7 @@ def surfaces(scene, grid, centre_m=None) -> list[dict[str, Any]]:
                 "nearest": nearest,
             }
         )
-    sides = {k for k in ("x_lo", "x_hi", "y_lo", "y_hi", "z_lo", "z_hi") if getattr(scene.edges, k) == "rigid"}
+    sides = {k for k in ("x_lo", "x_hi", "y_lo", "y_hi", "z_lo", "z_hi") if _side_kind(scene, k) == "rigid"}
     lo = -0.5 * grid.dx_m
     for axis, n in enumerate(grid.shape):
         hi = (n - 0.5) * grid.dx_m
@@ -96,6 +96,11 @@ def surfaces(scene, grid, centre_m=None) -> list[dict[str, Any]]:
     return sorted(out, key=lambda s: s["distance_m"])
 
 
+def _side_kind(scene, key: str) -> str:
+    """A window side's edge kind: its own, or the `[edges] kind` of every side."""
+    return getattr(scene.edges, key) or scene.edges.kind
+
+
 def _on_plane(x, *, axis: int, plane: float) -> np.ndarray:
     p = np.array(x, float)
     p[axis] = plane
@@ -109,7 +114,7 @@ def _rigid_planes(scene, grid, centre_m=None) -> list[tuple[np.ndarray, np.ndarr
     out = []
     for axis, n in enumerate(grid.shape):
         for side, plane in (("lo", -0.5 * grid.dx_m), ("hi", (n - 0.5) * grid.dx_m)):
-            if getattr(scene.edges, f"{'xyz'[axis]}_{side}") == "rigid":
+            if _side_kind(scene, f"{'xyz'[axis]}_{side}") == "rigid":
                 image = c.copy()
                 image[axis] = 2 * plane - c[axis]
                 out.append((image, c))

@@ -37,6 +37,7 @@ is the time of flight (L + 1) dt.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
 from pathlib import Path
@@ -45,6 +46,11 @@ from typing import Any
 import numpy as np
 
 from . import echoes3d
+
+ESTIMATORS = ("matched", "envelope")
+"""The arrival measures: the matched-filtered echo's envelope peak, or the echo's own."""
+PRIMARY = "matched"
+"""The one the table's top-level fields give (the other under `by_estimator`)."""
 
 ARRIVAL = (
     "peak of the Hilbert envelope of the isolated echo matched-filtered with the drive burst (parabolic "
@@ -61,17 +67,28 @@ def _spectra(ref: np.ndarray, n: int) -> tuple[int, np.ndarray]:
     return n_fft, np.fft.rfft(ref, n_fft)
 
 
-def matched_peak(x: np.ndarray, ref: np.ndarray, lo: float, hi: float) -> tuple[float, float]:
-    """(lag in samples, value) of the envelope peak of ``x`` cross-correlated with ``ref`` within
-    lags [lo, hi), parabolic refinement."""
+def _ref_centre(ref: np.ndarray) -> float:
+    """Where the reference's own envelope peaks (samples): the zero of the raw envelope's lag."""
+    k, _, _ = echoes3d._peak(echoes3d.envelope(np.concatenate([ref, np.zeros_like(ref)])), 1, 2 * len(ref) - 1)
+    return k
+
+
+def arrival_lag(x: np.ndarray, ref: np.ndarray, lo: float, hi: float, *, matched: bool = True) -> tuple[float, float]:
+    """(lag in samples, envelope value) of the peak of the Hilbert envelope of `x` matched-filtered
+    with `ref` (`matched`), or of `x` itself less the reference's own envelope centre, within
+    lags [lo, hi); parabolic refinement."""
     n_fft, r = _spectra(ref, len(x))
-    corr = np.fft.irfft(np.fft.rfft(x, n_fft) * np.conj(r), n_fft)
-    k, v, _ = echoes3d._peak(echoes3d.envelope(corr), int(math.floor(lo)), int(math.ceil(hi)))
-    return k, v
+    spec = np.fft.rfft(x, n_fft)
+    y = np.fft.irfft(spec * np.conj(r) if matched else spec, n_fft)
+    zero = 0.0 if matched else _ref_centre(ref)
+    k, v, _ = echoes3d._peak(echoes3d.envelope(y), int(math.floor(lo + zero)), int(math.ceil(hi + zero)))
+    return k - zero, v
 
 
-def model_lag_steps(grid, ref: np.ndarray, n: int, paths_m, weights, direction, *, lattice: bool) -> float:
-    """The matched-filter lag (steps) of the model echo: `ref` carried along `paths_m` (summed with
+def model_lag_steps(
+    grid, ref: np.ndarray, n: int, paths_m, weights, direction, *, lattice: bool, matched: bool = True
+) -> float:
+    """`arrival_lag` (steps) of the model echo: `ref` carried along `paths_m` (summed with
     `weights`) with the lattice's dispersion relation along `direction`, or the air's speed."""
     from ..observe.analytic3d import lattice_wavenumber_3d
 
@@ -91,10 +108,11 @@ def model_lag_steps(grid, ref: np.ndarray, n: int, paths_m, weights, direction, 
             k = w[j] / grid.courant
         slowness[j] = k / w[j]
     phase = sum(wt * np.exp(-1j * w * slowness * p / grid.dx_m) for p, wt in zip(paths_m, weights))
-    corr = np.fft.irfft(np.where(keep, np.abs(r) ** 2 * phase, 0.0), n_fft)
-    guess = min(paths_m) / grid.dx_m / grid.courant
-    k, _, _ = echoes3d._peak(echoes3d.envelope(corr), int(guess - 4 * len(ref)), int(guess + 4 * len(ref)))
-    return k
+    y = np.fft.irfft(np.where(keep, (np.abs(r) ** 2 if matched else r) * phase, 0.0), n_fft)
+    zero = 0.0 if matched else _ref_centre(ref)
+    guess = min(paths_m) / grid.dx_m / grid.courant + zero
+    k, _, _ = echoes3d._peak(echoes3d.envelope(y), int(guess - 4 * len(ref)), int(guess + 4 * len(ref)))
+    return k - zero
 
 
 def rasterised_offset_m(surface: dict, occupied, centre_m, grid, wavelength_m: float) -> float:
@@ -122,11 +140,18 @@ def rasterised_offset_m(surface: dict, occupied, centre_m, grid, wavelength_m: f
             ray = q - c
             s0 = float(np.linalg.norm(ray))
             ray /= s0
-            s = s0 + np.arange(-1.5 * dx, 1.5 * dx, dx / 64)
-            cells = np.rint((c[None, :] + s[:, None] * ray[None, :]) / dx)
-            hit = np.flatnonzero(occupied(cells * dx))
-            if len(hit):
-                offsets.append(float(s[hit[0]] - s0))
+
+            def inside(s, ray=ray):
+                return occupied(np.rint((c[None, :] + s[:, None] * ray[None, :]) / dx) * dx)
+
+            s = s0 + np.arange(-1.5 * dx, 1.5 * dx, dx / 16)
+            hit = np.flatnonzero(inside(s))
+            if len(hit) and hit[0] > 0:
+                lo, hi = float(s[hit[0] - 1]), float(s[hit[0]])
+                for _ in range(20):  # bisect the entry to dx / 16 / 2^20
+                    mid = 0.5 * (lo + hi)
+                    lo, hi = (lo, mid) if inside(np.array([mid]))[0] else (mid, hi)
+                offsets.append(hi - s0)
     return float(np.mean(offsets)) if offsets else 0.0
 
 
@@ -218,6 +243,24 @@ def _receiver(sr) -> tuple[Any, np.ndarray, np.ndarray, np.ndarray]:
     return r, np.asarray(t, float), np.asarray(a, float), centre * sr.grid.dx_m
 
 
+def _measure(echo, ref, model, dt: float, f0: float, burst_steps: float, *, matched: bool) -> dict[str, Any]:
+    """One estimator's arrival (time of flight: the lag + the soft source's one-step lead) of the
+    isolated echo, searched within half a burst of the model's lattice delay, against the model's
+    lattice and air delays (same estimator)."""
+    lag_lat = model(lattice=True, matched=matched)
+    lag_air = model(lattice=False, matched=matched)
+    lag, _ = arrival_lag(echo, ref, lag_lat - 1 - 0.5 * burst_steps, lag_lat - 1 + 0.5 * burst_steps, matched=matched)
+    arrival = (lag + 1) * dt
+    return {
+        "delay_lattice_s": lag_lat * dt,
+        "delay_air_s": lag_air * dt,
+        "arrival_s": arrival,
+        "error_periods": (lag + 1 - lag_lat) * dt * f0,
+        "error_periods_air": (lag + 1 - lag_air) * dt * f0,
+        "resolved": bool(abs(lag + 1 - lag_lat) < 0.5 * burst_steps - 1),
+    }
+
+
 def _on_mirrors(scene, grid, centre_m) -> np.ndarray:
     """The transducer's centre put on each rigid window side that passes within its radius: such a
     side is a symmetry plane (the cells on this side of it and their mirror images make the disc)."""
@@ -246,12 +289,12 @@ def _check_pulse_echo(scene) -> float:
     return float(t.cycles)
 
 
-def isolate_echoes(scene, out_dir, *, full=None, quiet: bool = True, log=None) -> dict[str, Any]:
+def isolate_echoes(scene, out_dir, *, full=None, only=None, quiet: bool = True, log=None) -> dict[str, Any]:
     """Each surface's first echo isolated by a difference of runs (module docstring): the scene run
     as it is (or `full`, its `SceneRun3D` already run) and once without each surface whose echo
     comes after the transmit; its arrival against the lattice and air delays. Writes
-    OUT/echoes_isolated.json and echoes_isolated.png; returns the table. `log(str)` is told of each
-    run."""
+    OUT/echoes_isolated.json and echoes_isolated.png; returns the table. `only`: the surfaces to
+    isolate (names as in echoes.json; default all). `log(str)` is told of each run."""
     from ..solver.sources import ToneBurst
     from .scene3d_run import run_scene3d
 
@@ -268,36 +311,37 @@ def isolate_echoes(scene, out_dir, *, full=None, quiet: bool = True, log=None) -
     wavelength = grid.dx_m * grid.cells_per_wavelength
     mirrors = echoes3d._rigid_planes(scene, grid, centre)
     rows, traces = [], {}
-    for s in echoes3d.surfaces(scene, grid, centre):
+    found = echoes3d.surfaces(scene, grid, centre)
+    if only is not None:
+        unknown = set(only) - {s["surface"] for s in found}
+        if unknown:
+            raise ValueError(f"only = {sorted(unknown)}: no such surface; the scene's: {[s['surface'] for s in found]}")
+        found = [s for s in found if s["surface"] in only]
+    for s in found:
         offset = rasterised_offset_m(s, _occupied(scene, grid, s), centre, grid, wavelength)
         paths, weights = echoes3d._merged_paths(s, mirrors, cycles * wavelength)
         paths = [p + 2 * offset for p in paths]
-        lag_lat = model_lag_steps(grid, ref, len(a), paths, weights, s["direction"], lattice=True)
-        lag_air = model_lag_steps(grid, ref, len(a), paths, weights, s["direction"], lattice=False)
-        if lag_lat < r.gate_start_step:
+        model = functools.partial(model_lag_steps, grid, ref, len(a), paths, weights, s["direction"])
+        if model(lattice=True) < r.gate_start_step:
             continue  # inside the transmit: no echo of its own (a floor beside the transducer)
         say(f"isolating {s['surface']!r}: the scene without it ...")
         sr_wo = run_scene3d(without(scene, grid, s, cycles), quiet=True)
         _, _, a_wo, _ = _receiver(sr_wo)
         echo = a - a_wo
-        lag, _ = matched_peak(echo, ref, lag_lat - 0.5 * burst_steps, lag_lat + 0.5 * burst_steps)
-        env = echoes3d.envelope(echo)
-        lo = int(lag_lat)
-        level = float(env[lo : lo + int(2 * burst_steps)].max()) if lo < len(env) else 0.0
-        arrival = (lag + 1) * dt
+        got = {m: _measure(echo, ref, model, dt, f0, burst_steps, matched=m == "matched") for m in ESTIMATORS}
+        lo = int(got[PRIMARY]["delay_lattice_s"] / dt)
+        level = float(echoes3d.envelope(echo)[lo : lo + int(2 * burst_steps)].max()) if lo < len(echo) else 0.0
         rows.append(
             {k: v for k, v in s.items() if k != "nearest"}
             | {
                 "rasterised_offset_m": offset,
                 "path_m": paths[0],
                 "merged_paths_m": [float(p) for p in paths],
-                "delay_lattice_s": lag_lat * dt,
-                "delay_air_s": lag_air * dt,
-                "arrival_s": arrival,
-                "error_periods": (arrival - lag_lat * dt) * f0,
-                "error_periods_air": (arrival - lag_air * dt) * f0,
-                "resolved": bool(abs(lag + 1 - lag_lat) < 0.5 * burst_steps - 1),
+            }
+            | got[PRIMARY]
+            | {
                 "level_db": 20 * math.log10(max(level, 1e-300) / transmit),
+                "by_estimator": got,
                 "without_shape": list(sr_wo.grid.shape),
             }
         )

@@ -261,6 +261,43 @@ def _measure(echo, ref, model, dt: float, f0: float, burst_steps: float, *, matc
     }
 
 
+def _directivity(axis, direction, ka: float) -> float:
+    """The far-field directivity 2 J1(x) / x, x = ka sin(theta), of a disc whose axis is `axis`
+    towards `direction` (signed: the side lobes' phase)."""
+    from scipy.special import j1
+
+    a = np.asarray(axis, float) / np.linalg.norm(axis)
+    d = np.asarray(direction, float) / np.linalg.norm(direction)
+    x = ka * math.sqrt(max(0.0, 1.0 - float(a @ d) ** 2))
+    return 1.0 if x < 1e-9 else float(2 * j1(x) / x)
+
+
+def _weighted_paths(s: dict, mirrors, within_m: float, transducer, wavelength_m: float):
+    """The round trips of `echoes3d._merged_paths` (direct, and via the transducer's image T' in
+    each rigid window side: T -> S -> T' both ways, T' -> S -> T'), each weighted by the disc's
+    directivity at the drive frequency out of its source and into its receiver (the image's axis
+    mirrored): a path that leaves the beam counts for what the disc sends and hears along it."""
+    nearest, d = s["nearest"], s["distance_m"]
+    axis = np.asarray(transducer.axis, float)
+    ka = math.pi * float(transducer.diameter_m or 0.0) / wavelength_m
+    paths = [2 * d]
+    weights = [_directivity(axis, s["direction"], ka) ** 2]
+    for image, c in mirrors:
+        flip = np.where(np.abs(image - c) > 1e-12, -1.0, 1.0)
+        axis_i = axis * flip
+        pm = nearest(0.5 * (image + c))
+        cross = float(np.linalg.norm(pm - c) + np.linalg.norm(pm - image))
+        pd = nearest(image)
+        double = 2 * float(np.linalg.norm(pd - image))
+        if 1e-6 < cross - 2 * d < within_m:
+            paths += [cross, double]
+            weights += [
+                2 * _directivity(axis, pm - c, ka) * _directivity(axis_i, pm - image, ka),
+                _directivity(axis_i, pd - image, ka) ** 2,
+            ]
+    return paths, weights
+
+
 def _on_mirrors(scene, grid, centre_m) -> np.ndarray:
     """The transducer's centre put on each rigid window side that passes within its radius: such a
     side is a symmetry plane (the cells on this side of it and their mirror images make the disc)."""
@@ -293,7 +330,8 @@ def isolate_echoes(scene, out_dir, *, full=None, only=None, quiet: bool = True, 
     """Each surface's first echo isolated by a difference of runs (module docstring): the scene run
     as it is (or `full`, its `SceneRun3D` already run) and once without each surface whose echo
     comes after the transmit; its arrival against the lattice and air delays. Writes
-    OUT/echoes_isolated.json and echoes_isolated.png; returns the table. `only`: the surfaces to
+    OUT/echoes_isolated.json, echoes_isolated.png and echoes_isolated.npz (t_s, surfaces, echoes:
+    the isolated A-scans); returns the table. `only`: the surfaces to
     isolate (names as in echoes.json; default all). `log(str)` is told of each run."""
     from ..solver.sources import ToneBurst
     from .scene3d_run import run_scene3d
@@ -319,7 +357,7 @@ def isolate_echoes(scene, out_dir, *, full=None, only=None, quiet: bool = True, 
         found = [s for s in found if s["surface"] in only]
     for s in found:
         offset = rasterised_offset_m(s, _occupied(scene, grid, s), centre, grid, wavelength)
-        paths, weights = echoes3d._merged_paths(s, mirrors, cycles * wavelength)
+        paths, weights = _weighted_paths(s, mirrors, cycles * wavelength, scene.transducers[0], wavelength)
         paths = [p + 2 * offset for p in paths]
         model = functools.partial(model_lag_steps, grid, ref, len(a), paths, weights, s["direction"])
         if model(lattice=True) < r.gate_start_step:
@@ -362,6 +400,9 @@ def isolate_echoes(scene, out_dir, *, full=None, only=None, quiet: bool = True, 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "echoes_isolated.json").write_text(json.dumps(doc, indent=1, default=float))
+    np.savez_compressed(  # the isolated echoes themselves, to measure again without running
+        out / "echoes_isolated.npz", t_s=t, surfaces=np.array(list(traces)), echoes=np.array(list(traces.values()))
+    )
     plot_isolated(t, traces, doc, transmit, out / "echoes_isolated.png")
     return doc
 

@@ -427,7 +427,7 @@ def plot_isolated(t_s, traces: dict, doc: dict, transmit: float, path):
     ax.set_ylabel("isolated echo envelope (dB re transmit peak)")
     ax.legend(fontsize=7)
     ax.set_title("each surface's echo: the scene minus the scene without it", fontsize=9)
-    bx.axhspan(-0.1, 0.1, color="0.9")
+    bx.axvspan(-0.1, 0.1, color="0.9")
     y = np.arange(len(rows))
     bx.plot([e["error_periods"] for e in rows], y, "o", label="vs lattice delay")
     bx.set_yticks(y, [e["surface"] for e in rows], fontsize=7)

@@ -6,8 +6,11 @@ walls at one range), so its envelope peak is not its own. Here the scene is run 
 once without each surface, on the same lattice with the same transducer; the difference of the two
 A-scans is that surface's scattered field (its interactions with the rest included, later). An
 object is removed from `[[objects]]`; a rigid window side (a wall) is moved out: the window
-grown on that side by the absorbing layer's depth plus half a burst, the side made a sponge
-(the grown cells lie beyond the wall, so the sponge's own weak echo comes a burst later).
+grown on that side by the absorbing layer's depth plus half a burst, the side made absorbing
+(the scene's absorbing kind; the grown cells lie beyond the wall, so the layer's own weak echo
+comes a burst later). The difference contains what the surface adds: its echo and, by
+construction, its interactions with the rest (double bounces, shadowing), which the image-source
+delay does not model.
 
 **The arrival measure** is the peak of the Hilbert envelope of the matched-filtered echo (the
 isolated echo cross-correlated with the drive burst), refined by a parabola through its
@@ -25,7 +28,7 @@ the round trip(s) frequency by frequency with the lattice's dispersion relation 
 (`analytic3d.lattice_wavenumber_3d`: its group delay and the spread over the band), or with the
 air's speed. The paths are the image-source / nearest-point round trip from the transducer's
 centre (the weighted mean of its cells) and those via its image in each rigid window side (a floor
-under it) within a burst of it. The surface is the rasterised one: the cells whose centre lies
+under it) within a burst of it, weighted by the disc's directivity out and in. The surface is the rasterised one: the cells whose centre lies
 inside (hard rasterisation) present their faces, so the distance is taken to those faces, the mean
 over the rays to the surface's first Fresnel zone (exact for a plane along the cells' faces).
 Times of flight: the soft source adds v(n dt) to the pressure of step n, i.e. the forcing of the

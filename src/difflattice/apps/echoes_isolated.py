@@ -425,7 +425,7 @@ def plot_isolated(t_s, traces: dict, doc: dict, transmit: float, path):
         x = traces[e["surface"]]
         env = echoes3d.envelope(np.concatenate([x, np.zeros_like(x)]))[: len(x)]  # padded: no wrap-around
         ax.plot(t_ms, 20 * np.log10(np.maximum(env / transmit, 1e-6)), lw=0.8, color=f"C{i}", label=e["surface"])
-        ax.axvline(e["delay_lattice_s"] * 1e3, color=f"C{i}", lw=0.6, ls="--")
+        ax.axvline(e["delay_lattice_s"] * 1e3, color=f"C{i}", lw=0.6, ls="--")  # time of flight: the echo starts
     ax.set_ylim(-100, 0)
     ax.set_xlabel("t (ms)")
     ax.set_ylabel("isolated echo envelope (dB re transmit peak)")

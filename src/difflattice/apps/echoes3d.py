@@ -27,7 +27,8 @@ THRESHOLDS_DB = (-20.0, -30.0, -40.0, -50.0, -60.0)
 def surfaces(scene, grid, centre_m=None) -> list[dict[str, Any]]:
     """The reflecting surfaces of a 3-D scene seen from its first transducer's centre (or
     `centre_m`: where its cells lie on the lattice, e.g. their mean): name, the
-    nearest point (m), the one-way distance d (m) and the unit direction to it. Window sides that
+    nearest point (m), the one-way distance d (m), the unit direction to it and which it is
+    (`object`: its index in `scene.objects`, or `side`: the window side, e.g. "x_hi"). Window sides that
     pass within a transducer radius of the centre (a symmetry plane through the transducer) are
     left out: they give no echo of their own."""
     import jax
@@ -61,10 +62,11 @@ def surfaces(scene, grid, centre_m=None) -> list[dict[str, Any]]:
                 "distance_m": d,
                 "point_m": point.tolist(),
                 "direction": ((point - c) / max(d, 1e-30)).tolist(),
+                "object": i,
                 "nearest": nearest,
             }
         )
-    sides = {k for k in ("x_lo", "x_hi", "y_lo", "y_hi", "z_lo", "z_hi") if getattr(scene.edges, k) == "rigid"}
+    sides = {k for k in ("x_lo", "x_hi", "y_lo", "y_hi", "z_lo", "z_hi") if _side_kind(scene, k) == "rigid"}
     lo = -0.5 * grid.dx_m
     for axis, n in enumerate(grid.shape):
         hi = (n - 0.5) * grid.dx_m
@@ -87,10 +89,16 @@ def surfaces(scene, grid, centre_m=None) -> list[dict[str, Any]]:
                     "distance_m": float(d),
                     "point_m": point.tolist(),
                     "direction": u.tolist(),
+                    "side": key,
                     "nearest": functools.partial(_on_plane, axis=axis, plane=plane),
                 }
             )
     return sorted(out, key=lambda s: s["distance_m"])
+
+
+def _side_kind(scene, key: str) -> str:
+    """A window side's edge kind: its own, or the `[edges] kind` of every side."""
+    return getattr(scene.edges, key) or scene.edges.kind
 
 
 def _on_plane(x, *, axis: int, plane: float) -> np.ndarray:
@@ -106,7 +114,7 @@ def _rigid_planes(scene, grid, centre_m=None) -> list[tuple[np.ndarray, np.ndarr
     out = []
     for axis, n in enumerate(grid.shape):
         for side, plane in (("lo", -0.5 * grid.dx_m), ("hi", (n - 0.5) * grid.dx_m)):
-            if getattr(scene.edges, f"{'xyz'[axis]}_{side}") == "rigid":
+            if _side_kind(scene, f"{'xyz'[axis]}_{side}") == "rigid":
                 image = c.copy()
                 image[axis] = 2 * plane - c[axis]
                 out.append((image, c))

@@ -1,0 +1,151 @@
+"""Each surface's echo isolated by a difference of runs (`apps.echoes_isolated`): the arrival
+estimator against bursts placed at known delays (no lattice), the scene without a surface, and on
+a small lattice a wall's isolated echo against its image-source delay on the lattice.
+
+Tolerances. The estimator (envelope peak of the matched-filtered echo, parabolic refinement) is
+exact for a symmetric envelope up to the parabola's bias, ~1e-4 sample for the 16-period
+matched envelope sampled 7 times a period: 1e-3 period is asserted. On the lattice the model
+(the drive carried along the image path with the lattice's dispersion relation, the one-step
+lead of the soft source, the floor's image paths) is exact to round-off for a plane wave; what it
+leaves out is the 4 mm disc's aperture (path spread a^2 / 4 d: 2e-4 period), float32 rounding
+(1e-6 of the echo) and the diffraction from the wall's edges where the window's PML truncates it
+(edge paths 1.2 wavelengths and more longer, a few % of the specular echo: a shift of the
+envelope peak of at most amplitude x delay, ~0.05 period). Hence 0.1 period, the issue's figure,
+with that budget (measured: +0.005 period)."""
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from difflattice.apps import echoes_isolated as ei
+from difflattice.lattice.grid import make_grid
+from difflattice.observe.analytic3d import group_velocity_3d
+from difflattice.scene import load_scene
+from difflattice.solver.sources import ToneBurst
+
+WALL = """
+[grid]
+kind = "3d"
+frequency_hz = 40000.0
+cells_per_wavelength = 6.0
+size_m = [0.13, 0.1, 0.09]
+dtype = "float32"
+
+[medium]
+background = "air"
+rasterise = "hard"
+
+[edges]
+kind = "pml"
+thickness_cells = 12
+x_hi = "rigid"
+z_lo = "rigid"
+
+[[transducers]]
+name = "sonar"
+type = "disc"
+centre_m = [0.03, 0.05, 0.006]
+axis = [1.0, 0.0, 0.0]
+diameter_m = 0.004
+signal = "burst"
+cycles = 8.0
+receive = true
+gate_start_s = 0.00025
+
+[[objects]]
+name = "post"
+shape = "cylinder"
+material = "rigid"
+centre_m = [0.09, 0.02, 0.0]
+axis = [0.0, 0.0, 1.0]
+radius_m = 0.006
+length_m = 0.3
+
+[sensors]
+p_max = false
+
+[run]
+duration_s = 0.001
+"""
+
+
+def _grid(shape=(64, 8, 8)):
+    return make_grid(
+        frequency_hz=40e3,
+        cells_per_wavelength=6.0,
+        c_max_m_s=343.21,
+        shape=shape,
+        courant=0.86,
+        kind="3d",
+        stencil="isotropic",
+    )
+
+
+def test_estimator_recovers_known_delays():
+    """Bursts shifted by fractional delays (sampled from the drive, the soft source's one-step lead
+    included) come back as their times of flight to 1e-3 period, matched or raw; the model at the
+    air's speed gives path / c."""
+    g = _grid()
+    dt, f0 = g.dt_s, g.frequency_hz
+    n = 600
+    t = np.arange(1, n + 1) * dt
+    burst = ToneBurst(f0, 8.0)
+    ref = np.asarray(burst(t))[: int(math.ceil(8 / f0 / dt)) + 2]
+    for tau_steps in (150.0, 151.37, 200.5):
+        echo = np.asarray(burst(t + dt - tau_steps * dt))  # the wave leads the drive by one step
+        for matched in (True, False):
+            lag, _ = ei.arrival_lag(echo, ref, tau_steps - 20, tau_steps + 20, matched=matched)
+            assert (lag + 1 - tau_steps) * dt * f0 == pytest.approx(0.0, abs=1e-3)
+    path = 0.31
+    for matched in (True, False):
+        lag = ei.model_lag_steps(g, ref, n, [path], [1.0], (1.0, 0.0, 0.0), lattice=False, matched=matched)
+        assert lag * dt == pytest.approx(path / 343.21, abs=1e-3 / f0)
+
+
+def test_scene_without_a_surface(tmp_path):
+    """An object is left out; a rigid window side is moved out behind the absorbing layer (the
+    window grown by its depth and half a burst), a low side by moving everything."""
+    p = tmp_path / "wall.toml"
+    p.write_text(WALL.replace('z_lo = "rigid"', 'z_lo = "rigid"\ny_lo = "rigid"'))
+    scene = load_scene(p)
+    dx = 343.21 / (40e3 * 6.0)
+    g = _grid(tuple(int(round(v / dx)) for v in scene.grid.size_m))  # as the scene builds it, no medium
+    names = {s["surface"]: s for s in ei.echoes3d.surfaces(scene, g)}
+    assert {"post", "wall x_hi", "wall y_lo"} <= set(names)
+    assert ei.without(scene, g, names["post"], 8.0).objects == ()
+    hi = ei.without(scene, g, names["wall x_hi"], 8.0)
+    grow = 12 + 24 + 2
+    assert hi.grid.shape == (g.shape[0] + grow, g.shape[1], g.shape[2]) and hi.edges.x_hi == "pml"
+    assert hi.transducers == scene.transducers
+    lo = ei.without(scene, g, names["wall y_lo"], 8.0)
+    assert lo.grid.shape[1] == g.shape[1] + grow and lo.edges.y_lo == "pml"
+    dy = grow * g.dx_m
+    assert lo.transducers[0].centre_m[1] == pytest.approx(0.05 + dy)
+    assert lo.objects[0].centre_m == pytest.approx((0.09, 0.02 + dy, 0.0))
+
+
+@pytest.mark.slow
+def test_isolated_wall_echo_within_a_tenth_of_a_period(tmp_path):
+    """A wall 0.1 m ahead of a 4 mm disc 6 mm above a rigid floor: the wall's echo isolated (the
+    scene minus the scene with the wall moved out) arrives within 0.1 period of its image-source
+    delay on the lattice (module docstring: the budget), and after the delay in air by what the
+    lattice's group velocity along x says. The disc sits low so that the path via the floor's
+    image is within 0.05 wavelength of the direct one (at 20.5 mm, as in the corridor, the two are
+    half a wavelength apart at this range and nearly cancel at the drive frequency: no envelope
+    peak survives that). The post is left out: 24 mm off the axis it shadows the wall's first
+    Fresnel zone, and its double bounces (post - wall, 2 wavelengths longer) belong to the wall's
+    difference too; neither is in an image-source delay (measured in docs/three_d.md)."""
+    p = tmp_path / "wall.toml"
+    p.write_text(WALL)
+    scene = dataclasses.replace(load_scene(p), objects=())
+    doc = ei.isolate_echoes(scene, tmp_path / "out", only=["wall x_hi"])
+    (e,) = doc["echoes"]
+    assert e["resolved"]
+    assert abs(e["error_periods"]) < 0.1, e
+    g = _grid()
+    vg = float(group_velocity_3d(g.omega, g.courant, (1.0, 0.0, 0.0), stencil="isotropic")) / g.courant
+    expect_air = e["path_m"] / 343.21 * (1 / vg - 1) * 40e3  # periods late over the path
+    assert e["error_periods_air"] == pytest.approx(expect_air, abs=0.1)
+    assert (tmp_path / "out" / "echoes_isolated.png").exists()

@@ -208,10 +208,11 @@ def _accuracy(args) -> int:
 
 
 def _bench(args) -> int:  # issue 15: forward speed, interleaved with the reference loops
-    from .apps.bench import bench, markdown
+    from .apps.bench import CPU_CASES_3D, bench, markdown
 
+    cases = {"3d": {"cases": CPU_CASES_3D}}.get(args.cases, {})
     try:
-        result = bench(reference=args.reference, rounds=args.rounds, force=args.force, quick=args.quick)
+        result = bench(reference=args.reference, rounds=args.rounds, force=args.force, quick=args.quick, **cases)
     except RuntimeError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
@@ -438,6 +439,13 @@ def _add_design_and_bench(sub) -> None:
         "--out", type=Path, default=None, help="also write bench.json and bench.md here (default: print only)"
     )
     b.add_argument("--quick", action="store_true", help="a tenth of the steps (checks that it runs; not a measurement)")
+    b.add_argument(
+        "--cases",
+        choices=("2d", "3d"),
+        default="2d",
+        help="2d: the 2-D and rz cases (840x630, 2048^2; homogeneous and full-featured); 3d: 256^3 homogeneous "
+        "(native 1 and 2 threads, JAX; with --reference numba 1 and 2 threads)",
+    )
     b.set_defaults(func=_bench)
 
 

@@ -25,6 +25,7 @@ from ...lattice.operators import _face_coefficients
 from ..scan import Result, chunking, run_jax
 from ..stepper import LeapfrogState, StaggeredState, State, Stepper
 from .chunk_io import pack_layers, stats_in, step_tables, unpack_layers
+from .signatures import ADJOINT_CHUNK, LAYERED, LEAPFROG
 from .volume import VolumeChunk, schedule_3d, unsupported_3d
 
 # Lattice fields the kernels implement; a field added to `Lattice` later is refused (the JAX loop
@@ -238,6 +239,9 @@ def _levels(ny: int, itemsize: int, staggered: bool, extra_fields: int = 0) -> i
 # one chunk of steps = one FFI call
 
 
+_STATS = ("ph_re", "ph_im", "p_max", "p_sq", "arrival")  # the sensors' running records, as the kernels name them
+
+
 def _absent(dtype):
     return jnp.zeros((0,), dtype)
 
@@ -309,62 +313,59 @@ class _Chunk:
         vals, cos, sin = self.tables(st.n, length)
         stats = self._stats_in(st)
         n0 = jnp.asarray(st.n, jnp.int32)
-        rec_shape = jax.ShapeDtypeStruct((length, self.n_probes), self.dt)
-        stat_shapes = [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in stats]
-        # air absorption: the memory fields and coefficients, optional arguments after the others
-        # (a lossless call passes none: the kernels' lossless path)
         rq = [] if st.relax_q is None else [*st.relax_q, self.relax]
-        args = [
-            st.p,
-            st.p_prev,
-            *self.coef,
-            self.sponge,
-            *self.metric,
-            self.src_cells,
-            self.src_hard,
-            vals,
-            self.rec_cells,
-            jnp.zeros((0, 2), jnp.int32),
-            self.ph_cells,
-            cos,
-            sin,
-            *stats,
-            n0,
-        ]
+        args = {
+            "p": st.p,
+            "pp": st.p_prev,
+            **dict(zip(("K", "bx", "by", "qs", "keep"), self.coef)),
+            "sponge": self.sponge,
+            **dict(zip(("my_lo", "my_hi"), self.metric)),
+            "src_cells": self.src_cells,
+            "src_hard": self.src_hard,
+            "src_vals": vals,
+            "rec_cells": self.rec_cells,
+            "zero_cells": jnp.zeros((0, 2), jnp.int32),
+            "ph_cells": self.ph_cells,
+            "ph_cos": cos,
+            "ph_sin": sin,
+            **dict(zip(_STATS, stats)),
+            "n0": n0,
+        }
         field = jax.ShapeDtypeStruct(self.shape, self.dt)
-        shapes = [field, field, rec_shape, *stat_shapes]
-        aliases = {0: 0, 1: 1, 18: 3, 19: 4, 20: 5, 21: 6, 22: 7}
-        target = "difflattice_leapfrog"
-        layered = False
-        if isinstance(
-            st, StaggeredState
-        ):  # PML layers: the boxes' fields packed (parts, faces, ring corrections), then the factors
-            packed = _pack_layers(st.layers, self.dt)
-            args += [*packed, self.boxes, *self.pml, *self.radial]
-            shapes += [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in packed]
-            aliases.update({24: 8, 25: 9, 26: 10})
-            target = "difflattice_layered"
-            layered = True
-        base_in, base_out = len(args), len(shapes)
-        if rq:
-            aliases.update({base_in: base_out, base_in + 1: base_out + 1})
-            shapes += [jax.ShapeDtypeStruct(a.shape, a.dtype) for a in rq[:2]]
-        out = jax.ffi.ffi_call(target, shapes, input_output_aliases=aliases, vmap_method="sequential")(
-            *args,
-            *rq,
+        rets = {
+            "p": field,
+            "pp": field,
+            "rec": jax.ShapeDtypeStruct((length, self.n_probes), self.dt),
+            **{k: jax.ShapeDtypeStruct(a.shape, a.dtype) for k, a in zip(_STATS, stats)},
+        }
+        sig = LEAPFROG
+        layered = isinstance(st, StaggeredState)
+        if layered:  # PML layers: the boxes' fields packed (parts, faces, ring corrections), then the factors
+            packed = dict(zip(("lp", "lw", "lc"), _pack_layers(st.layers, self.dt)))
+            args |= packed | {"boxes": self.boxes}
+            args |= dict(zip(("axc", "bxc", "axf", "bxf", "ayc", "byc", "ayf", "byf"), self.pml))
+            args |= dict(zip(("rad_decay", "rad_drive"), self.radial))
+            rets |= {k: jax.ShapeDtypeStruct(a.shape, a.dtype) for k, a in packed.items()}
+            sig = LAYERED
+        if rq:  # air absorption: the memory fields and coefficients (a lossless call passes none)
+            args |= dict(zip(("rq0", "rq1", "relax"), rq))
+            rets |= {k: jax.ShapeDtypeStruct(a.shape, a.dtype) for k, a in zip(("rq0", "rq1"), rq)}
+        out = sig.call(
+            args,
+            rets,
             n_steps=np.int64(length),
             combine=np.int64(0),
             stencil=np.int64(self.stepper.lattice.stencil == "isotropic"),
             bands=np.int64(0) if layered else self.bands,
             **self.attrs,
         )
-        p, p_prev, rec, *stats_out = out[:8]
-        st = eqx.tree_at(lambda s: (s.p, s.p_prev), st, (p, p_prev))
+        st = eqx.tree_at(lambda s: (s.p, s.p_prev), st, (out["p"], out["pp"]))
         if layered:
             assert isinstance(st, StaggeredState)
-            st = eqx.tree_at(lambda s: s.layers, st, _unpack_layers(st.layers, out[8:11]))
+            st = eqx.tree_at(lambda s: s.layers, st, _unpack_layers(st.layers, (out["lp"], out["lw"], out["lc"])))
         if rq:
-            st = eqx.tree_at(lambda s: s.relax_q, st, tuple(out[base_out : base_out + 2]))
+            st = eqx.tree_at(lambda s: s.relax_q, st, (out["rq0"], out["rq1"]))
+        rec, stats_out = out["rec"], [out[k] for k in _STATS]
         names = ("phasor_re", "phasor_im", "p_max", "p_sq", "arrival")
         present = tuple(k for k in names if getattr(st, k) is not None)
         if present:
@@ -381,46 +382,44 @@ class _Chunk:
         Returns (x, h, records (length, n_rec))."""
         dt = self.dt
         e = _absent(dt)
-        n_rec = int(rec_cells.shape[0])
         field = jax.ShapeDtypeStruct(self.shape, dt)
-        out = jax.ffi.ffi_call(
-            "difflattice_leapfrog",
-            [field, field, jax.ShapeDtypeStruct((length, n_rec), dt)]
-            + [jax.ShapeDtypeStruct((0,), dt)] * 4
-            + [jax.ShapeDtypeStruct((0,), jnp.int32)],
-            input_output_aliases={0: 0, 1: 1},
-            vmap_method="sequential",
-        )(
-            x,
-            h,
-            self.coef[0],
-            self.coef[1],
-            self.coef[2],
-            e,
-            e,
-            e,
-            *self.metric,
-            inj_cells,
-            jnp.zeros((inj_cells.shape[0],), jnp.int32),
-            inj_vals.astype(dt),
-            rec_cells,
-            zero_cells,
-            jnp.zeros((0, 2), jnp.int32),
-            jnp.zeros((length,), dt),
-            jnp.zeros((length,), dt),
-            e,
-            e,
-            e,
-            e,
-            _absent(jnp.int32),
-            jnp.asarray(0, jnp.int32),
+        absent_ret = jax.ShapeDtypeStruct((0,), dt)
+        args = {
+            "p": x,
+            "pp": h,
+            **dict(zip(("K", "bx", "by"), self.coef[:3])),
+            **dict.fromkeys(("qs", "keep", "sponge"), e),
+            **dict(zip(("my_lo", "my_hi"), self.metric)),
+            "src_cells": inj_cells,
+            "src_hard": jnp.zeros((inj_cells.shape[0],), jnp.int32),
+            "src_vals": inj_vals.astype(dt),
+            "rec_cells": rec_cells,
+            "zero_cells": zero_cells,
+            "ph_cells": jnp.zeros((0, 2), jnp.int32),
+            "ph_cos": jnp.zeros((length,), dt),
+            "ph_sin": jnp.zeros((length,), dt),
+            **dict.fromkeys(("ph_re", "ph_im", "p_max", "p_sq"), e),
+            "arrival": _absent(jnp.int32),
+            "n0": jnp.asarray(0, jnp.int32),
+        }
+        rets = {
+            "p": field,
+            "pp": field,
+            "rec": jax.ShapeDtypeStruct((length, int(rec_cells.shape[0])), dt),
+            **dict.fromkeys(("ph_re", "ph_im", "p_max", "p_sq"), absent_ret),
+            "arrival": jax.ShapeDtypeStruct((0,), jnp.int32),
+        }
+        out = LEAPFROG.call(
+            args,
+            rets,
+            aliased=("p", "pp"),
             n_steps=np.int64(length),
             combine=np.int64(2),
             stencil=np.int64(0),
             bands=np.int64(0),
             **self.attrs,
         )
-        return out[0], out[1], out[2]
+        return out["p"], out["pp"], out["rec"]
 
     def adjoint_chunk(self, end, x, h, length: int, n0, faces, metric, inj_cells, inj_vals, rec_cells, zero_cells, acc):
         """The lattice adjoint's backward pass over steps n0 + length .. n0 + 1 with the
@@ -433,36 +432,39 @@ class _Chunk:
         vals, _, _ = self.tables(n0 - 2, length + 2)  # steps n0 - 1 .. n0 + length
         steps = n0 - 1 + jnp.arange(length + 2, dtype=jnp.int32)
         vals = jnp.where((steps >= 1)[:, None], vals, 0.0).astype(dt)  # p(0) = 0: the run starts at rest
-        shapes = [jax.ShapeDtypeStruct(self.shape, dt)] * 2 + [
-            jax.ShapeDtypeStruct((length, int(rec_cells.shape[0])), dt),
-            *(jax.ShapeDtypeStruct(a.shape, dt) for a in acc),
-        ]
-        out = jax.ffi.ffi_call(
-            "difflattice_adjoint_chunk",
-            shapes,
-            input_output_aliases={2: 0, 3: 1, 18: 3, 19: 4, 20: 5},
-            vmap_method="sequential",
-        )(
-            end[0],
-            end[1],
-            x,
-            h,
-            self.coef[0],
-            *faces,
-            *metric,
-            self.src_cells,
-            self.src_hard,
-            vals,
-            inj_cells,
-            inj_vals.astype(dt),
-            rec_cells,
-            zero_cells,
-            *acc,
+        field = jax.ShapeDtypeStruct(self.shape, dt)
+        acc_names = ("dK", "dbx", "dby")
+        args = {
+            "p_end": end[0],
+            "pp_end": end[1],
+            "x": x,
+            "h": h,
+            "K": self.coef[0],
+            **dict(zip(("bx", "by"), faces)),
+            **dict(zip(("ml", "mh", "vol", "area"), metric)),
+            "src_cells": self.src_cells,
+            "src_hard": self.src_hard,
+            "src_vals": vals,
+            "inj_cells": inj_cells,
+            "inj_vals": inj_vals.astype(dt),
+            "rec_cells": rec_cells,
+            "zero_cells": zero_cells,
+            **dict(zip(acc_names, acc)),
+        }
+        rets = {
+            "x": field,
+            "h": field,
+            "rec": jax.ShapeDtypeStruct((length, int(rec_cells.shape[0])), dt),
+            **{k: jax.ShapeDtypeStruct(a.shape, dt) for k, a in zip(acc_names, acc)},
+        }
+        out = ADJOINT_CHUNK.call(
+            args,
+            rets,
             n_steps=np.int64(length),
             threads=self.attrs["threads"],
             levels=np.int64(_levels(self.shape[1], jnp.dtype(dt).itemsize, True)),
         )
-        return out[0], out[1], out[2], tuple(out[3:])
+        return out["x"], out["h"], out["rec"], tuple(out[k] for k in acc_names)
 
 
 _pack_layers, _unpack_layers = pack_layers, unpack_layers  # (the names of old)

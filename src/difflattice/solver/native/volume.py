@@ -20,6 +20,7 @@ import numpy as np
 
 from ..stepper import LeapfrogState, StaggeredState, State, Stepper
 from .chunk_io import absent, pack_layers, stats_in, step_tables, unpack_layers
+from .signatures import VOLUME, VOLUME_LAYERED
 
 # the stencils the kernel implements, by `Grid.stencil` name
 STENCILS_3D = ("standard", "isotropic")
@@ -177,47 +178,45 @@ class VolumeChunk:
         assert isinstance(st, (LeapfrogState, StaggeredState))  # unsupported_3d() refuses other states
         vals, cos, sin = self.tables(st.n, length)
         stats = stats_in(self.dt, st)
-        args = [
-            st.p,
-            st.p_prev,
-            self.K,
-            *self.faces,
-            self.keep,
-            self.sponge,
-            self.src_cells,
-            self.src_hard,
-            vals,
-            self.rec_cells,
-            self.ph_cells,
-            cos,
-            sin,
-            *stats,
-            jnp.asarray(st.n, jnp.int32),
-        ]
+        stat_names = ("ph_re", "ph_im", "p_max", "p_sq", "arrival")
+        args = {
+            "p": st.p,
+            "pp": st.p_prev,
+            "K": self.K,
+            **dict(zip(("bx", "by", "bz"), self.faces)),
+            "keep": self.keep,
+            "sponge": self.sponge,
+            "src_cells": self.src_cells,
+            "src_hard": self.src_hard,
+            "src_vals": vals,
+            "rec_cells": self.rec_cells,
+            "ph_cells": self.ph_cells,
+            "ph_cos": cos,
+            "ph_sin": sin,
+            **dict(zip(stat_names, stats)),
+            "n0": jnp.asarray(st.n, jnp.int32),
+        }
         field = jax.ShapeDtypeStruct(self.shape, self.dt)
-        shapes = [
-            field,
-            field,
-            jax.ShapeDtypeStruct((length, self.n_probes), self.dt),
-            *(jax.ShapeDtypeStruct(a.shape, a.dtype) for a in stats),
-        ]
-        aliases = {0: 0, 1: 1, 15: 3, 16: 4, 17: 5, 18: 6, 19: 7}
-        target = "difflattice_volume"
+        rets = {
+            "p": field,
+            "pp": field,
+            "rec": jax.ShapeDtypeStruct((length, self.n_probes), self.dt),
+            **{k: jax.ShapeDtypeStruct(a.shape, a.dtype) for k, a in zip(stat_names, stats)},
+        }
+        sig = VOLUME
         if self.layered:
             assert isinstance(st, StaggeredState)
             lp, lw, _ = pack_layers(st.layers, self.dt)
-            args += [lp, lw, self.boxes, *self.factors]
-            shapes += [jax.ShapeDtypeStruct(lp.shape, lp.dtype), jax.ShapeDtypeStruct(lw.shape, lw.dtype)]
-            aliases.update({21: 8, 22: 9})
-            target = "difflattice_volume_layered"
-        out = jax.ffi.ffi_call(target, shapes, input_output_aliases=aliases, vmap_method="sequential")(
-            *args, n_steps=np.int64(length), **self.attrs
-        )
+            args |= {"lp": lp, "lw": lw, "boxes": self.boxes, **{f"f{i}": f for i, f in enumerate(self.factors)}}
+            rets |= {"lp": jax.ShapeDtypeStruct(lp.shape, lp.dtype), "lw": jax.ShapeDtypeStruct(lw.shape, lw.dtype)}
+            sig = VOLUME_LAYERED
+        out = sig.call(args, rets, n_steps=np.int64(length), **self.attrs)
         if self.layered:
             assert isinstance(st, StaggeredState)
             empty = jnp.zeros((0,), self.dt)
-            st = eqx.tree_at(lambda s: s.layers, st, unpack_layers(st.layers, (out[8], out[9], empty)))
-        p, p_prev, rec, *stats_out = out[:8]
+            st = eqx.tree_at(lambda s: s.layers, st, unpack_layers(st.layers, (out["lp"], out["lw"], empty)))
+        p, p_prev, rec = out["p"], out["pp"], out["rec"]
+        stats_out = [out[k] for k in stat_names]
         names = ("phasor_re", "phasor_im", "p_max", "p_sq", "arrival")
         keys = ("p", "p_prev", "n", *(k for k in names if getattr(st, k) is not None))
         new = {"p": p, "p_prev": p_prev, "n": st.n + length, **dict(zip(names, stats_out))}

@@ -341,6 +341,7 @@ class _Chunk:
         sig = LEAPFROG
         layered = isinstance(st, StaggeredState)
         if layered:  # PML layers: the boxes' fields packed (parts, faces, ring corrections), then the factors
+            assert isinstance(st, StaggeredState)
             packed = dict(zip(("lp", "lw", "lc"), _pack_layers(st.layers, self.dt)))
             args |= packed | {"boxes": self.boxes}
             args |= dict(zip(("axc", "bxc", "axf", "bxf", "ayc", "byc", "ayf", "byf"), self.pml))
@@ -412,7 +413,7 @@ class _Chunk:
         out = LEAPFROG.call(
             args,
             rets,
-            aliased=("p", "pp"),
+            ("p", "pp"),  # in place: the fields only
             n_steps=np.int64(length),
             combine=np.int64(2),
             stencil=np.int64(0),

@@ -35,8 +35,8 @@ class Signature:
         self,
         args: Mapping[str, Any],
         rets: Mapping[str, jax.ShapeDtypeStruct],
-        *,
         aliased: Collection[str] | None = None,
+        /,
         **attrs: Any,
     ) -> dict[str, jax.Array]:
         """Call the target with `args` (name -> array) for results `rets` (name -> shape and

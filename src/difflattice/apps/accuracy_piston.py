@@ -61,6 +61,22 @@ def piston_courant(cells_per_wavelength: float, stencil: StencilKind = "standard
     return cells_per_wavelength / math.ceil(cells_per_wavelength / limit - 1e-9)
 
 
+def _timed_runs(stepper, n_steps: int, backend, repeats: int):
+    """The run's result and the wall times of `repeats` + 1 runs (the first compiles)."""
+    import jax
+
+    from ..solver.loop import run
+
+    f = jax.jit(lambda s: run(s, n_steps, backend=backend))
+    times = []
+    for _ in range(repeats + 1):
+        t0 = time.perf_counter()
+        res = f(stepper)
+        jax.block_until_ready(res.phasors)
+        times.append(time.perf_counter() - t0)
+    return res, times
+
+
 def run_piston(
     cells_per_wavelength: float,
     *,
@@ -81,7 +97,6 @@ def run_piston(
     complex amplitudes (per rho c u0: the drive's amplitude is rho c u0 = 1 Pa) on the axis (row
     centres from 0 to 5 a^2 / lambda, if `on_axis`), on the scan line and the far-field patterns
     (both transforms), the layout and the run time (median of `repeats` after a compiling run)."""
-    import jax
     import jax.numpy as jnp
 
     from ..lattice.coefficients import Edges
@@ -89,7 +104,6 @@ def run_piston(
     from ..lattice.medium import Medium
     from ..lattice.window import Span, Window
     from ..observe.farfield_rz import CylinderSurface, axis_line, far_field_rz, scan_line
-    from ..solver.loop import run
     from ..solver.sensors import Sensors
     from ..solver.sources import ContinuousWave, disc_transducer
     from ..solver.stepper import Stepper
@@ -148,13 +162,7 @@ def run_piston(
         sensors,
         Edges.axisymmetric("rigid", "pml", "pml", thickness_cells=pml_cells),
     )
-    f = jax.jit(lambda s: run(s, n_steps, backend=backend))
-    times = []
-    for _ in range(repeats + 1):  # the first run compiles
-        t0 = time.perf_counter()
-        res = f(stepper)
-        jax.block_until_ready(res.phasors)
-        times.append(time.perf_counter() - t0)
+    res, times = _timed_runs(stepper, n_steps, backend, repeats)
     amp = np.asarray(res.phasors) * 2 / (n_steps - n_settle)  # complex amplitude, p = Re(A exp(-i omega t))
     parts, start = {}, 0
     for name, c in groups:

@@ -59,7 +59,7 @@ class Case:
 
     @property
     def grid(self) -> str:
-        if self.kind == "3d":
+        if self.lattice.ndim == 3:
             return f"{self.nx}x{self.ny}x{self.nz}"
         return f"{self.nx}x{self.ny}" + (f" {self.kind}" if self.lattice.ring_metric else "")
 
@@ -100,7 +100,7 @@ def scene(case: Case):
     from ..solver.sensors import Sensors
     from ..solver.sources import ToneBurst, disc_transducer, line_transducer
 
-    if case.kind == "3d":
+    if case.lattice.ndim == 3:
         return _scene_3d(case)
     nx, ny = case.nx, case.ny
     rz = case.lattice.ring_metric
@@ -210,7 +210,7 @@ def _child(case: Case, impl: str) -> dict:
     load = os.getloadavg()[0]
     if impl in OWN_IMPLS:
         cmd = [sys.executable, "-m", "difflattice.apps.bench", "--child", json.dumps([case.__dict__, impl])]
-    elif case.kind == "3d":  # benchmarks/reference_kernels_3d.py: an n^3 cube (its outer layer counted)
+    elif case.lattice.ndim == 3:  # benchmarks/reference_kernels_3d.py: an n^3 cube (its outer layer counted)
         script = reference_script()
         assert script is not None and case.nx == case.ny == case.nz
         cmd = [
@@ -303,7 +303,8 @@ def bench(
         for case in cases:
             for impl in impls:
                 if impl in REFERENCE_IMPLS and (
-                    case.name != "homogeneous" or (impl == "numpy" and (case.lattice.ring_metric or case.kind == "3d"))
+                    case.name != "homogeneous"
+                    or (impl == "numpy" and (case.lattice.ring_metric or case.lattice.ndim == 3))
                 ):
                     continue  # the reference loops: the bare homogeneous leapfrog (rz: numba only)
                 samples.setdefault((case, impl), []).append(_child(case, impl))

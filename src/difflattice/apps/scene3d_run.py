@@ -384,3 +384,36 @@ def _json_default(o):
     if isinstance(o, np.ndarray):
         return o.tolist()
     return str(o)
+
+
+def throughput(run: dict) -> str:
+    """'compile 18.2 s + run 2.9 s, 41 MLUPS' from a run summary (MLUPS without the compilation),
+    or 'N MLUPS incl. compile' where the compilation could not be separated."""
+    if run.get("compile_s") is not None and run.get("mlups_excl_compile") is not None:
+        return (
+            f"compile {run['compile_s']:.1f} s + run {run['wall_time_s'] - run['compile_s']:.2f} s, "
+            f"{run['mlups_excl_compile']:.0f} MLUPS"
+        )
+    return f"{run['mlups']:.0f} MLUPS incl. compile"
+
+
+def report_lines(sr) -> list[str]:
+    """A 3-D run's console lines: time against the estimate, peak memory, the A-scans."""
+    from ..solver.estimate import format_bytes
+
+    s = sr.summary
+    r, est, mem = s["run"], s["estimate"], s["memory"]
+    peak = mem.get("device_peak_bytes", mem["host_peak_rss_bytes"])
+    lines = [
+        f"{sr.scene.path}: {r['n_steps']} steps on {' x '.join(map(str, s['grid']['shape']))} cells "
+        f"({s['grid']['cells_per_wavelength']:g} cells per wavelength) in {r['wall_time_s']:.2f} s "
+        f"({throughput(r)}; estimated {est['time_s']:.3g} s); peak memory {format_bytes(peak)} "
+        f"(estimated {format_bytes(est['memory_bytes'])} + runtime); expected phase error "
+        f"{s['accuracy']['expected_phase_error_periods']:.3f} periods"
+    ]
+    for name, rec in s["receivers"].items():
+        lines.append(
+            f"A-scan {name!r}: echo peak {rec['echo_peak']:.3g} at {rec['echo_peak_s'] * 1e6:.1f} µs "
+            f"(window from {rec['gate_start_s'] * 1e6:.1f} µs; transmit peak {rec['transmit_peak']:.3g})"
+        )
+    return lines

@@ -154,28 +154,13 @@ def envelope(x: np.ndarray) -> np.ndarray:
     return np.abs(np.fft.ifft(spec * h))
 
 
-def propagated_envelope_peak_s(
-    grid, path_m, direction, cycles: float, n: int, *, lattice: bool = True, weights=None
-) -> float:
-    """When the envelope of the drive burst (hann, `cycles` cycles) peaks after travelling
-    `path_m` along `direction`: every frequency of the burst delayed by its own phase delay, the
-    lattice's (its dispersion relation along that direction, `analytic3d.lattice_wavenumber_3d`)
-    or the air's (``path / c``); so the group delay and its spread over the band are both in it.
-    `path_m` may be several paths (summed with `weights`: one echo over paths that merge, e.g.
-    via a floor's image). On `n` steps; a soft source's one-step lead included."""
-    paths = np.atleast_1d(np.asarray(path_m, float))
-    wts = np.ones_like(paths) if weights is None else np.asarray(weights, float)
+def path_phase(grid, w: np.ndarray, keep: np.ndarray, paths_m, weights, direction, *, lattice: bool) -> np.ndarray:
+    """The transfer of paths `paths_m` (m, summed with `weights`) along `direction` at lattice
+    frequencies `w` (rad/step): each frequency delayed by its phase delay, the lattice's
+    (`analytic3d.lattice_wavenumber_3d`, the grid's stencil) or the air's. Frequencies above the
+    lattice's band edge are dropped from `keep` (in place)."""
     from ..observe.analytic3d import lattice_wavenumber_3d
-    from ..solver.sources import ToneBurst
 
-    dt = grid.dt_s
-    n_fft = 1 << int(math.ceil(math.log2(2 * n)))
-    t = np.arange(n_fft) * dt
-    s = np.asarray(ToneBurst(grid.frequency_hz, cycles)(t))
-    spec = np.fft.rfft(s)
-    w = 2 * np.pi * np.fft.rfftfreq(n_fft)  # rad/step
-    keep = np.abs(spec) > 1e-6 * np.abs(spec).max()
-    keep[0] = False
     slowness = np.zeros_like(w)  # phase delay per cell, steps
     for j in np.flatnonzero(keep):
         if lattice:
@@ -187,7 +172,31 @@ def propagated_envelope_peak_s(
         else:
             k = w[j] / grid.courant
         slowness[j] = k / w[j]
-    phase = sum(wt * np.exp(-1j * w * slowness * p / grid.dx_m) for p, wt in zip(paths, wts))
+    return sum(wt * np.exp(-1j * w * slowness * p / grid.dx_m) for p, wt in zip(paths_m, weights))
+
+
+def propagated_envelope_peak_s(
+    grid, path_m, direction, cycles: float, n: int, *, lattice: bool = True, weights=None
+) -> float:
+    """When the envelope of the drive burst (hann, `cycles` cycles) peaks after travelling
+    `path_m` along `direction`: every frequency of the burst delayed by its own phase delay, the
+    lattice's (its dispersion relation along that direction, `analytic3d.lattice_wavenumber_3d`)
+    or the air's (``path / c``); so the group delay and its spread over the band are both in it.
+    `path_m` may be several paths (summed with `weights`: one echo over paths that merge, e.g.
+    via a floor's image). On `n` steps; a soft source's one-step lead included."""
+    paths = np.atleast_1d(np.asarray(path_m, float))
+    wts = np.ones_like(paths) if weights is None else np.asarray(weights, float)
+    from ..solver.sources import ToneBurst
+
+    dt = grid.dt_s
+    n_fft = 1 << int(math.ceil(math.log2(2 * n)))
+    t = np.arange(n_fft) * dt
+    s = np.asarray(ToneBurst(grid.frequency_hz, cycles)(t))
+    spec = np.fft.rfft(s)
+    w = 2 * np.pi * np.fft.rfftfreq(n_fft)  # rad/step
+    keep = np.abs(spec) > 1e-6 * np.abs(spec).max()
+    keep[0] = False
+    phase = path_phase(grid, w, keep, paths, wts, direction, lattice=lattice)
     spec = np.where(keep, spec * phase, 0.0)
     env = envelope(np.fft.irfft(spec, n_fft))
     k_pk, _, _ = _peak(env, 1, n_fft - 1)

@@ -93,24 +93,11 @@ def model_lag_steps(
 ) -> float:
     """`arrival_lag` (steps) of the model echo: `ref` carried along `paths_m` (summed with
     `weights`) with the lattice's dispersion relation along `direction`, or the air's speed."""
-    from ..observe.analytic3d import lattice_wavenumber_3d
-
     n_fft, r = _spectra(ref, n)
     w = 2 * np.pi * np.fft.rfftfreq(n_fft)  # rad/step
     keep = np.abs(r) > 1e-6 * np.abs(r).max()
     keep[0] = False
-    slowness = np.zeros_like(w)  # steps per cell
-    for j in np.flatnonzero(keep):
-        if lattice:
-            try:
-                k = float(lattice_wavenumber_3d(w[j], grid.courant, direction, stencil=grid.stencil))
-            except ValueError:  # above the band edge
-                keep[j] = False
-                continue
-        else:
-            k = w[j] / grid.courant
-        slowness[j] = k / w[j]
-    phase = sum(wt * np.exp(-1j * w * slowness * p / grid.dx_m) for p, wt in zip(paths_m, weights))
+    phase = echoes3d.path_phase(grid, w, keep, paths_m, weights, direction, lattice=lattice)
     y = np.fft.irfft(np.where(keep, (np.abs(r) ** 2 if matched else r) * phase, 0.0), n_fft)
     zero = 0.0 if matched else _ref_centre(ref)
     guess = min(paths_m) / grid.dx_m / grid.courant + zero

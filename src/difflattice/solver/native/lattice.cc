@@ -38,6 +38,7 @@
 #include <vector>
 
 #include "adjoint.h"
+#include "ffi_buffers.h"
 #include "leapfrog.h"
 #include "xla/ffi/api/ffi.h"
 
@@ -48,20 +49,8 @@ namespace ffi = xla::ffi;
 
 namespace {
 
-template <typename T>
-T* out_from(ffi::Result<ffi::AnyBuffer>& r, const ffi::AnyBuffer& in) {
-  T* dst = reinterpret_cast<T*>(r->untyped_data());
-  if (in.element_count() && dst != in.untyped_data()) std::memcpy(dst, in.untyped_data(), in.size_bytes());
-  return in.element_count() ? dst : nullptr;
-}
-
-bool inside(const ffi::AnyBuffer& cells, int64_t nx, int64_t ny) {
-  const int32_t* c = reinterpret_cast<const int32_t*>(cells.untyped_data());
-  const int64_t n = int64_t(cells.element_count() / 2);
-  for (int64_t k = 0; k < n; ++k)
-    if (c[2 * k] < 0 || c[2 * k] >= nx || c[2 * k + 1] < 0 || c[2 * k + 1] >= ny) return false;
-  return true;
-}
+using dl::inside;
+using dl::out_from;
 
 const char* kOutside = "difflattice: a source or sensor cell lies outside the grid";
 

@@ -9,6 +9,7 @@
 #include <cstdint>
 #include <cstring>
 
+#include "ffi_buffers.h"
 #include "volume.h"
 #include "xla/ffi/api/ffi.h"
 
@@ -16,21 +17,8 @@ namespace ffi = xla::ffi;
 
 namespace {
 
-template <typename T>
-T* vol_out(ffi::Result<ffi::AnyBuffer>& r, const ffi::AnyBuffer& in) {
-  T* dst = reinterpret_cast<T*>(r->untyped_data());
-  if (in.element_count() && dst != in.untyped_data()) std::memcpy(dst, in.untyped_data(), in.size_bytes());
-  return in.element_count() ? dst : nullptr;
-}
-
-// cells as (plane, index in the plane) pairs
-bool vol_inside(const ffi::AnyBuffer& cells, int64_t nx, int64_t plane) {
-  const int32_t* c = reinterpret_cast<const int32_t*>(cells.untyped_data());
-  const int64_t n = int64_t(cells.element_count() / 2);
-  for (int64_t k = 0; k < n; ++k)
-    if (c[2 * k] < 0 || c[2 * k] >= nx || c[2 * k + 1] < 0 || c[2 * k + 1] >= plane) return false;
-  return true;
-}
+using dl::inside;
+using dl::out_from;
 
 template <typename T>
 const T* full_or_null(const ffi::AnyBuffer& b, size_t n, bool* ok) {
@@ -85,11 +73,11 @@ ffi::Error volume_typed(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K, f
         "difflattice_volume: K is not a scalar or a grid, or a face or cell array does not have its full shape, or "
         "face arrays with the isotropic stencil");
   const int64_t plane = ny * nz;
-  if (!vol_inside(src_cells, nx, plane) || !vol_inside(rec_cells, nx, plane) || !vol_inside(ph_cells, nx, plane))
+  if (!inside(src_cells, nx, plane) || !inside(rec_cells, nx, plane) || !inside(ph_cells, nx, plane))
     return ffi::Error::InvalidArgument("difflattice_volume: a source or sensor cell lies outside the grid");
   for (int s = 0; s < 6; ++s) a.closed[s] = (closed >> s) & 1;
-  a.p = vol_out<T>(p_o, p);
-  a.pp = vol_out<T>(pp_o, pp);
+  a.p = out_from<T>(p_o, p);
+  a.pp = out_from<T>(pp_o, pp);
   dl::CellOps<T>& c = a.cells;
   c.ny = plane;
   c.src_cells = reinterpret_cast<const int32_t*>(src_cells.untyped_data());
@@ -103,11 +91,11 @@ ffi::Error volume_typed(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K, f
   c.n_ph = int64_t(ph_cells.element_count() / 2);
   c.ph_cos = reinterpret_cast<const T*>(ph_cos.untyped_data());
   c.ph_sin = reinterpret_cast<const T*>(ph_sin.untyped_data());
-  c.ph_re = vol_out<T>(ph_re_o, ph_re);
-  c.ph_im = vol_out<T>(ph_im_o, ph_im);
-  c.p_max = vol_out<T>(p_max_o, p_max);
-  c.p_sq = vol_out<T>(p_sq_o, p_sq);
-  c.arrival = vol_out<int32_t>(arrival_o, arrival);
+  c.ph_re = out_from<T>(ph_re_o, ph_re);
+  c.ph_im = out_from<T>(ph_im_o, ph_im);
+  c.p_max = out_from<T>(p_max_o, p_max);
+  c.p_sq = out_from<T>(p_sq_o, p_sq);
+  c.arrival = out_from<int32_t>(arrival_o, arrival);
   c.threshold = T(threshold);
   c.n0 = *reinterpret_cast<const int32_t*>(n0.untyped_data());
   dl::VolumeLayers<T> la;
@@ -139,8 +127,8 @@ ffi::Error volume_typed(ffi::AnyBuffer p, ffi::AnyBuffer pp, ffi::AnyBuffer K, f
       la.b_face[ax] = reinterpret_cast<const T*>(f[3].untyped_data());
     }
     if (!fine) return ffi::Error::InvalidArgument("difflattice_volume_layered: layer fields or factors of the wrong size");
-    la.parts = vol_out<T>(*lb->lp_o, lb->lp);
-    la.fluxes = vol_out<T>(*lb->lw_o, lb->lw);
+    la.parts = out_from<T>(*lb->lp_o, lb->lp);
+    la.fluxes = out_from<T>(*lb->lw_o, lb->lw);
     a.layers = &la;
   }
   dl::volume<T>(a);

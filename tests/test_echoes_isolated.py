@@ -21,6 +21,7 @@ import pytest
 
 from difflattice.apps import echoes_isolated as ei
 from difflattice.lattice.grid import make_grid
+from difflattice.lattice.kinds import VOLUME
 from difflattice.observe.analytic3d import group_velocity_3d
 from difflattice.scene import load_scene
 from difflattice.solver.sources import ToneBurst
@@ -144,8 +145,17 @@ def test_isolated_wall_echo_within_a_tenth_of_a_period(tmp_path):
     (e,) = doc["echoes"]
     assert e["resolved"]
     assert abs(e["error_periods"]) < 0.1, e
-    g = _grid()
-    vg = float(group_velocity_3d(g.omega, g.courant, (1.0, 0.0, 0.0), stencil="isotropic")) / g.courant
+    stencil = VOLUME.default_stencil  # the scene names none: the 3-D default, at its default courant
+    g = make_grid(
+        frequency_hz=40e3,
+        cells_per_wavelength=6.0,
+        c_max_m_s=343.21,
+        shape=(64, 8, 8),
+        courant=VOLUME.default_courant_for(stencil),
+        kind="3d",
+        stencil=stencil,
+    )
+    vg = float(group_velocity_3d(g.omega, g.courant, (1.0, 0.0, 0.0), stencil=stencil)) / g.courant
     expect_air = e["path_m"] / 343.21 * (1 / vg - 1) * 40e3  # periods late over the path
     assert e["error_periods_air"] == pytest.approx(expect_air, abs=0.1)
     assert (tmp_path / "out" / "echoes_isolated.png").exists()

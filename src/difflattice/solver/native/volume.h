@@ -51,6 +51,22 @@ struct VolRow {
   T* o;                                 // P(n-1) in, P(n+1) out
 };
 
+// the leapfrog's new value of cell j from its operand q and Laplacian lap: K (scalar k or the row
+// kr), the sponge's damping (row sr); o[j] holds P(n-1) on entry (every 3-D row kernel ends so)
+template <typename T, bool KFULL, bool SPONGE>
+__attribute__((always_inline)) inline void leapfrog_update(T* __restrict o, const T* __restrict kr,
+                                                           const T* __restrict sr, int64_t j, T q, T k, T lap) {
+  T kk = k;
+  if constexpr (KFULL) kk = kr[j];
+  const T d = kk * lap;
+  if constexpr (SPONGE) {
+    const T s = sr[j];
+    o[j] = ((T(2) * q - (T(1) - s) * o[j]) + d) / (T(1) + s);
+  } else {
+    o[j] = (T(2) * q - o[j]) + d;
+  }
+}
+
 template <typename T, bool FACES, bool KFULL, bool SPONGE>
 inline void volume_row(const VolRow<T>& r, int64_t nz, T k, bool zlo, bool zhi) {
   const T* __restrict c = r.c;
@@ -78,15 +94,7 @@ inline void volume_row(const VolRow<T>& r, int64_t nz, T k, bool zlo, bool zhi) 
       }
       lap = sum - T(6) * q;
     }
-    T kk = k;
-    if constexpr (KFULL) kk = r.kr[j];
-    const T d = kk * lap;
-    if constexpr (SPONGE) {
-      const T s = r.sr[j];
-      o[j] = ((T(2) * q - (T(1) - s) * o[j]) + d) / (T(1) + s);
-    } else {
-      o[j] = (T(2) * q - o[j]) + d;
-    }
+    leapfrog_update<T, KFULL, SPONGE>(o, r.kr, r.sr, j, q, k, lap);
   };
   // ghosts along z: 0 (open, soft or face conductances), the cell itself (a closed side, unit faces)
   const bool glo = !FACES && zlo, ghi = !FACES && zhi;
@@ -286,15 +294,7 @@ inline void volume_row_iso(const VolRowIso<T>& r, int64_t nz, T k, bool zlo, boo
     const T diag = (((((((((((mm[j] + xmz0) + xmz1) + mp[j]) + ymz0) + ymz1) + ypz0) + ypz1) + pm[j]) + xpz0) + xpz1) +
                    pp[j]);
     const T lap = (axis * third + diag * sixth) - T(4) * q;
-    T kk = k;
-    if constexpr (KFULL) kk = r.kr[j];
-    const T d = kk * lap;
-    if constexpr (SPONGE) {
-      const T s = r.sr[j];
-      o[j] = ((T(2) * q - (T(1) - s) * o[j]) + d) / (T(1) + s);
-    } else {
-      o[j] = (T(2) * q - o[j]) + d;
-    }
+    leapfrog_update<T, KFULL, SPONGE>(o, r.kr, r.sr, j, q, k, lap);
   };
   auto lo = [&](const T* row) { return zlo ? row[0] : T(0); };            // the ghost below k = 0
   auto hi = [&](const T* row) { return zhi ? row[nz - 1] : T(0); };       // above k = nz - 1

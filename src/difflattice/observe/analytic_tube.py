@@ -45,6 +45,7 @@ __all__ = [
     "recessed_piston_aperture",
     "recessed_piston_far_field",
     "recessed_piston_lobe_db",
+    "recessed_piston_near_field",
     "opening_reflection",
     "flanged_end_correction",
 ]
@@ -187,6 +188,30 @@ def recessed_piston_lobe_db(
     ang = np.concatenate([[0.0], np.radians(np.asarray(angle_deg, float).reshape(-1))])
     f = recessed_piston_far_field(ang, ka, depth_m / tube_radius_m, b / tube_radius_m, n_modes=n_modes, n_quad=n_quad)
     return (20 * np.log10(np.abs(f[1:]) / np.abs(f[0]))).reshape(np.shape(angle_deg))
+
+
+def recessed_piston_near_field(
+    r, z, ka: float, depth: float, beta: float = 1.0, *, n_modes: int = 40, n_quad: int = 64, x_max: float | None = None
+) -> np.ndarray:
+    """Complex pressure (units of rho c times the piston's velocity) at radius `r` and height `z`
+    > 0 above the opening (both in tube radii; arrays of one shape) of the recessed piston, by the
+    baffled half-space's spectral integral p = K int U(x) J0(x r) exp(i sqrt(K^2 - x^2) z) x dx /
+    sqrt(K^2 - x^2), U the aperture velocity's Hankel transform (the same quadrature as the
+    radiation integrals; beyond x_max the integrand is below exp(-x_max z))."""
+    r, z = np.broadcast_arrays(np.asarray(r, float), np.asarray(z, float))
+    if not np.all(z > 0):
+        raise ValueError(
+            "near-field points need z > 0 (in front of the opening); use the far field on the baffle plane"
+        )
+    v = recessed_piston_aperture(ka, depth, beta, n_modes=n_modes, n_quad=n_quad, x_max=x_max)
+    alpha = duct_mode_numbers(n_modes)
+    x_max = float(x_max if x_max is not None else max(400.0, 6 * alpha[-1] + 40 * ka))
+    x, w, _ = _quadrature(ka, n_quad, x_max)
+    u = v @ _mode_transforms(alpha, x)  # (Q,)
+    kz = np.sqrt(ka * ka - x * x + 0j)  # Im >= 0: evanescent beyond K
+    rr, zz = r.reshape(-1, 1), z.reshape(-1, 1)
+    p = ka * (special.j0(x[None, :] * rr) * np.exp(1j * kz[None, :] * zz)) @ (u * w)
+    return p.reshape(r.shape)
 
 
 def opening_reflection(ka: float, *, n_modes: int = 40, n_quad: int = 64, x_max: float | None = None) -> complex:

@@ -251,6 +251,9 @@ def test_surface_encloses_objects_or_refuses(name):
     with pytest.raises(ValueError, match="absorbing layer"):
         surface_around(g, src, 3, objects=[obj], margin=21)
     assert 2 * s.n_samples == len(s.cells) == 2 * len(s.samples()[0])
+    other = next(k for k, _ in KIND_SURFACES.values() if k != kind)
+    with pytest.raises(ValueError, match=f"surface of {kind.label} grids"):
+        s.check_inside(_real_grid(other, (60,) * other.ndim))
 
 
 @pytest.mark.parametrize("name", list(KIND_SURFACES))

@@ -114,7 +114,14 @@ class FarFieldSurface(eqx.Module):
     # --- checks ---------------------------------------------------------------------------------
     def check_inside(self, grid, margin: int = 0) -> None:
         """Refuse a surface whose outer cells leave the grid (or its shape) or enter a
-        `margin`-cell absorbing layer; an open side may lie on the window face."""
+        `margin`-cell absorbing layer; an open side may lie on the window face. A grid of another
+        kind is refused too."""
+        kind = getattr(grid, "kind", None)
+        if kind is not None and kind != self.kind:
+            raise ValueError(
+                f"{type(self).__name__} is the far-field surface of {self.kind.label} grids, got kind = {kind.name!r}: "
+                "use observe.surfaces.surface_for(grid.kind)"
+            )
         shape = tuple(grid.shape) if hasattr(grid, "shape") else tuple(grid)
         lo, hi = self.box
         open_ = set(self.open_sides)

@@ -107,12 +107,6 @@ class CylinderSurface(FarFieldSurface):
         inner, outer = (np.asarray(a, dtype=np.int64) for a in (inner, outer))
         return inner, outer, np.asarray(pts, float), np.asarray(nrm, float), np.ones(len(pts))
 
-    def check_inside(self, grid: Grid, margin: int = 0) -> None:
-        """Refuse a surface whose outer cells leave the grid or enter an absorbing layer."""
-        if hasattr(grid, "kind") and not grid.kind.ring_metric:
-            raise ValueError(f"CylinderSurface needs an rz grid, got kind = {grid.kind.name!r}")
-        super().check_inside(grid, margin)
-
     def _outside_message(self, shape, margin: int) -> str:
         nz, nr = shape
         return (

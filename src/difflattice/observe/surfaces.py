@@ -5,34 +5,54 @@
 `surface_around(grid, cells, gap, ...)` builds one around a transducer's and every object's cells
 and refuses it, with the reason, where it would leave the grid or enter the absorbing layer.
 The lattice kinds live in a layer below this one (`lattice/kinds.py` imports nothing from
-`observe`), so each surface names its kind (`FarFieldSurface.kind`) and this module looks the
-kind up; a subclass of a kind gets its parent's surface. A new surface: its class, and one entry
-in `SURFACES`.
+`observe`), so this module looks the kind up (`SURFACES`, by the kind's class; a subclass of a
+kind gets its parent's surface) and each surface names its kind (`FarFieldSurface.kind`). A new
+surface: its class, and one entry in `SURFACES`.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from ..lattice.kinds import LatticeKind, as_kind
-from .farfield import BoxContour
-from .farfield3d import BoxSurface
+from ..lattice.kinds import Axisymmetric, LatticeKind, Plane, Volume, as_kind
 from .farfield_base import FarFieldSurface
-from .farfield_rz import CylinderSurface
 
-SURFACES: tuple[type[FarFieldSurface], ...] = (BoxContour, CylinderSurface, BoxSurface)
-"""The far-field surfaces, one per built-in lattice kind."""
+
+# each kind's surface is imported when asked for: a plane scene loads no 3-D module
+def _box_contour() -> type[FarFieldSurface]:
+    from .farfield import BoxContour
+
+    return BoxContour
+
+
+def _cylinder() -> type[FarFieldSurface]:
+    from .farfield_rz import CylinderSurface
+
+    return CylinderSurface
+
+
+def _box_surface() -> type[FarFieldSurface]:
+    from .farfield3d import BoxSurface
+
+    return BoxSurface
+
+
+SURFACES: dict[type[LatticeKind], Callable[[], type[FarFieldSurface]]] = {
+    Plane: _box_contour,
+    Axisymmetric: _cylinder,
+    Volume: _box_surface,
+}
+"""The far-field surface of each built-in lattice kind (by the kind's class; loaded when asked for)."""
 
 
 def surface_for(kind: LatticeKind | str) -> type[FarFieldSurface]:
     """The far-field surface class of a lattice kind (or its name)."""
     k = as_kind(kind)
     for cls in type(k).__mro__:
-        for s in SURFACES:
-            if type(s.kind) is cls:
-                return s
+        if cls in SURFACES:
+            return SURFACES[cls]()
     raise ValueError(
         f"no far-field surface for the {k.label} lattice ({type(k).__name__}): write a FarFieldSurface "
         "subclass with kind = that kind and add it to observe.surfaces.SURFACES (docs/architecture.md)"

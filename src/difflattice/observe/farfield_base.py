@@ -184,8 +184,8 @@ class FarFieldSurface(eqx.Module):
         **kwargs,
     ):
         """The lobe at `angles_deg` (from axis 0 towards axis 1): the complex pressure at
-        `range_m` metres from `centre_cells`, or with `range_m=None` the far-field pattern
-        (module docstring). `plane` = (axis, in_plane) direction vectors picks another lobe plane
+        `range_m` metres from `centre_cells` (default: the surface's centre; on the rz lattice a
+        point of the axis), or with `range_m=None` the far-field pattern (module docstring). `plane` = (axis, in_plane) direction vectors picks another lobe plane
         where the kind has one (the volume). Keyword arguments: `dispersion`, `frequency_hz`,
         `c_lattice`."""
 

@@ -43,7 +43,10 @@ _LAZY: dict[str, tuple[str, str]] = {
     "Stepper": ("difflattice.solver.stepper", "Stepper"),
     "simulate": ("difflattice.solver.loop", "simulate"),
     "run": ("difflattice.solver.loop", "run"),
-    # far field and metrics: 2-D (line), r-z (disc) and 3-D
+    # far field and metrics: each kind's surface (one protocol), and the 2-D (line), r-z (disc) and 3-D functions
+    "FarFieldSurface": ("difflattice.observe.farfield_base", "FarFieldSurface"),
+    "surface_for": ("difflattice.observe.surfaces", "surface_for"),
+    "surface_around": ("difflattice.observe.surfaces", "surface_around"),
     "box_around": ("difflattice.observe.farfield", "box_around"),
     "far_field": ("difflattice.observe.farfield", "far_field"),
     "level_db": ("difflattice.observe.farfield", "level_db"),

@@ -1,6 +1,7 @@
 """Observables of the axisymmetric lattice on analytic fields (no simulation): the Rayleigh
-quadrature reference, the Kirchhoff-Helmholtz transform over a closed cylinder (free and baffled),
-and the scan-line sampler (the disc transducer's geometry: `test_sources_sensors.py`)."""
+quadrature reference and the scan-line sampler (the disc transducer's geometry:
+`test_sources_sensors.py`; the Kirchhoff-Helmholtz transform over a closed cylinder, free and
+baffled, with the other kinds' surfaces in `test_farfield_kinds.py`)."""
 
 import math
 
@@ -10,7 +11,7 @@ import pytest
 
 from difflattice.lattice.grid import make_grid
 from difflattice.observe import analytic as an
-from difflattice.observe.farfield_rz import CylinderSurface, far_field_rz, field_at_rz, field_sampler, scan_line
+from difflattice.observe.farfield_rz import field_sampler, scan_line
 
 
 def _grid(ppw=20, shape=(200, 120)):
@@ -43,45 +44,6 @@ def test_rayleigh_quadrature_is_converged_and_exact_on_axis():
         )
         < 1e-6
     )
-
-
-def _monopole(cells, zs, k, baffled):
-    z, r = cells[:, 0] + 0.5, cells[:, 1] + 0.5
-    R = np.hypot(z - zs, r)
-    p = np.exp(1j * k * R) / (4 * math.pi * R)
-    if baffled:
-        Ri = np.hypot(z + zs, r)
-        p = p + np.exp(1j * k * Ri) / (4 * math.pi * Ri)
-    return p
-
-
-@pytest.mark.parametrize("baffled", [False, True], ids=["free", "baffled"])
-def test_kirchhoff_transform_of_a_monopole(baffled):
-    """A monopole (with its image in the baffle plane z = 0 when baffled) sampled on the cylinder's
-    cells: the transform gives its far field exp(-ik z_s cos t) / 4 pi (+ image) and its field at
-    finite range. The surface quadrature is second order in k dx (cell means for p, a difference
-    for dp/dn, midpoint rule along the faces: ~(k dx)^2 / 8 = 1.2 % at 20 cells per wavelength):
-    < 2 % at 20 and at least 4x smaller at 40 cells per wavelength."""
-    errs = []
-    for ppw in (20, 40):
-        g = _grid(ppw, (10 * ppw, 6 * ppw))
-        k = 2 * math.pi / ppw
-        if baffled:
-            surf, zs = CylinderSurface(0, int(1.5 * ppw), int(1.25 * ppw), baffled=True), 0.31 * ppw
-        else:
-            surf, zs = CylinderSurface(ppw, 3 * ppw, int(1.25 * ppw)), 1.87 * ppw
-        ph = jnp.asarray(_monopole(surf.cells, zs, k, baffled))
-        ang = np.arange(0.0, 91.0, 5.0)
-        F = np.asarray(far_field_rz(ph, surf, g, ang))
-        th = np.radians(ang)
-        ex = np.exp(-1j * k * zs * np.cos(th)) / (4 * math.pi)
-        if baffled:
-            ex = ex + np.exp(1j * k * zs * np.cos(th)) / (4 * math.pi)
-        pts = np.array([[10.0 * ppw, 0.0], [7.5 * ppw, 4.0 * ppw], [15.0 * ppw, 15.0 * ppw]])
-        P = np.asarray(field_at_rz(ph, surf, g, pts))
-        exn = _monopole(pts - 0.5, zs, k, baffled)  # _monopole takes cell indices
-        errs.append(max(np.abs(F - ex).max() / np.abs(ex).max(), (np.abs(P - exn) / np.abs(exn)).max()))
-    assert errs[0] < 0.02 and errs[1] < errs[0] / 4, errs
 
 
 def test_scan_line_interpolation():

@@ -21,8 +21,7 @@ import numpy as np
 from .. import __version__
 from ..lattice.grid import Grid
 from ..observe.analytic import phase_error_rad
-from ..observe.farfield import far_field, level_db
-from ..observe.farfield_rz import CylinderSurface
+from ..observe.farfield import level_db
 from ..observe.observables import lobe_metrics
 from ..scene.model import Scene
 from ..solver.loop import INSTABILITY_MESSAGE, Result, run_pieces
@@ -236,20 +235,10 @@ def _run_plane(scene: Scene, *, progress: bool) -> SceneRun:
         a0, a1, da = ff.angles_deg
         angles = np.arange(a0, a1 + da / 2, da)
         disp = {} if ff.dispersion is None else {"dispersion": ff.dispersion}
-        if isinstance(contour, CylinderSurface):  # an rz grid
-            p = _lobe_rz(
-                result.phasors,
-                contour,
-                grid,
-                angles,
-                ff.range_m,
-                scene.transducers[built.farfield_source].centre_m[0],
-                **disp,
-            )
-        else:
-            src = sources[built.farfield_source]
-            centre = tuple(src.cells_array.mean(0))
-            p = far_field(result.phasors, contour, grid, np.asarray(angles), ff.range_m, centre, **disp)
+        # the kind's surface: angles from axis 0 towards axis 1, at the range from the transducer
+        t, src = scene.transducers[built.farfield_source], sources[built.farfield_source]
+        centre = contour.lobe_centre_cells(src.cells_array, t.centre_m, grid.dx_m)
+        p = contour.far_field(result.phasors, grid, angles, range_m=ff.range_m, centre_cells=centre, **disp)
         lv = np.asarray(level_db(p, floor_db=-100))
         lobe = (angles, lv)
         summary["farfield"] = {"range_m": ff.range_m, "dispersion": ff.dispersion, **lobe_metrics(angles, lv)}
@@ -259,18 +248,6 @@ def _run_plane(scene: Scene, *, progress: bool) -> SceneRun:
         "show_steps": sorted(moments),
     }
     return SceneRun(scene, grid, stepper, result, summary, lobe, snaps, snap_steps, moments, every)
-
-
-def _lobe_rz(phasors, surface, grid: Grid, angles_deg, range_m: float, face_z_m: float, **kwargs):
-    """The lobe of an axisymmetric source at `range_m` from the centre of its face (on the axis at
-    z = `face_z_m`), by the 3-D Kirchhoff-Helmholtz integral over the recorded cylinder: exact at
-    any range. Angles from the +z axis; the pattern is symmetric, so |angle| is used."""
-    from ..observe.farfield_rz import field_at_rz
-
-    th = np.radians(np.asarray(angles_deg, float))
-    r_cells = range_m / grid.dx_m
-    pts = np.stack([face_z_m / grid.dx_m + r_cells * np.cos(th), r_cells * np.abs(np.sin(th))], axis=1)
-    return field_at_rz(phasors, surface, grid, pts, **kwargs)
 
 
 def _mirror_rz(field):

@@ -33,8 +33,8 @@ from ..lattice.grid import Grid, make_grid
 from ..lattice.kinds import AXISYMMETRIC, PLANE, LatticeKind, as_kind
 from ..lattice.medium import Medium, air, material
 from ..lattice.window import Window
-from ..observe.farfield import BoxContour, far_field
-from ..observe.farfield_rz import CylinderSurface, field_at_rz
+from ..observe.farfield_base import FarFieldSurface
+from ..observe.surfaces import surface_for
 from ..solver.loop import simulate
 from ..solver.sensors import Sensors
 from ..solver.sources import PointSources, ToneBurst, line_transducer, ring_fractions
@@ -60,7 +60,7 @@ class DesignProblem(eqx.Module):
     direction_deg: float = eqx.field(static=True)
     cycles: float = eqx.field(static=True)
     wall: str = eqx.field(static=True)
-    contour: BoxContour | CylinderSurface
+    contour: FarFieldSurface
     pml_cells: int = eqx.field(static=True)
     n_steps: int = eqx.field(static=True)
     range_m: float = eqx.field(static=True)
@@ -168,28 +168,15 @@ class DesignProblem(eqx.Module):
         return energy(pats) if ranges_m is None else tuple(energy(p) for p in pats)
 
     def _beam(self, phasors, frequency_hz: float, rng: float):
-        """One frequency's pattern at range `rng` from contour phasors."""
+        """One frequency's pattern at range `rng` from the transducer centre, from the surface's
+        phasors (rz: at polar angle |angle| from +z; the pattern of a body of revolution is even in
+        the angle, so the 2-D angle list is kept)."""
         g = self.grid
-        if self.lattice.ring_metric:
-            return self._beam_rz(phasors, frequency_hz, rng)
-        contour = self.contour
-        assert isinstance(contour, BoxContour)  # a 2-D problem's contour (`_layout`)
         centre = (self.anchor_m[0] / g.dx_m, self.anchor_m[1] / g.dx_m)
         angles = np.asarray(self.angles_deg)
-        return far_field(phasors, contour, g, angles, rng, centre, dispersion="continuum", frequency_hz=frequency_hz)
-
-    def _beam_rz(self, phasors, frequency_hz: float, rng: float):
-        """The rz beam: pressure at `rng` from the disc centre at polar angle |angle| from +z
-        (the pattern of a body of revolution is even in the angle, so the 2-D angle list is kept)."""
-        g = self.grid
-        ang = np.asarray(self.angles_deg)
-        th_u, inv = np.unique(np.abs(ang), return_inverse=True)
-        th = np.radians(th_u)
-        zc = self.anchor_m[0] / g.dx_m
-        rc = rng / g.dx_m
-        pts = np.stack([zc + rc * np.cos(th), rc * np.sin(th)], 1)
-        assert isinstance(self.contour, CylinderSurface)  # an rz problem's surface (`_layout`)
-        return field_at_rz(phasors, self.contour, g, pts, dispersion="continuum", frequency_hz=frequency_hz)[inv]
+        return self.contour.far_field(
+            phasors, g, angles, range_m=rng, centre_cells=centre, dispersion="continuum", frequency_hz=frequency_hz
+        )
 
     def metrics_of(self, pattern) -> dict:
         return pattern_metrics(
@@ -316,10 +303,7 @@ def _finish(
 
 
 def _n_steps(grid: Grid, contour, cycles: float, traversals: float) -> int:
-    if isinstance(contour, CylinderSurface):  # the cylinder's diameter plays the box's height
-        diag = math.hypot(contour.iz1 - contour.iz0, 2 * contour.jr)
-    else:
-        diag = math.hypot(contour.ix1 - contour.ix0, contour.iy1 - contour.iy0)
+    diag = math.hypot(*contour.span_cells)  # a cylinder's diameter plays the box's height
     return int(math.ceil(traversals * diag / grid.courant + (cycles + 6) * grid.steps_per_period))
 
 
@@ -391,9 +375,7 @@ def _layout(
     win = Window.around(lattice, gap=gap_cells, layer=pml_cells, pad=3, pad_hi=2, extent=((back, fwd), (half, half)))
     grid = _grid(frequency_hz, cells_per_wavelength, wall, win.shape, dtype, lattice, stencil)
     (i0, i1), (j0, j1) = win.box
-    if lattice.ring_metric:
-        return grid, CylinderSurface(i0, i1, j1, False), win.source
-    return grid, BoxContour(i0, i1, j0, j1), win.source
+    return grid, surface_for(lattice).from_box((i0, j0), (i1, j1)), win.source
 
 
 def horn_design(

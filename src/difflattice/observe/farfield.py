@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Literal
+from typing import ClassVar, Literal
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -25,15 +25,20 @@ import numpy as np
 from jaxtyping import Array, Complex, Float
 
 from ..lattice.grid import Grid
+from ..lattice.kinds import PLANE, LatticeKind
 from .analytic import lattice_wavenumber
+from .farfield_base import FarFieldSurface, no_plane, split_pairs
 
 
-class BoxContour(eqx.Module):
-    """A rectangle of cells [ix0, ix1] x [iy0, iy1] (inner ring) and its outer ring.
+class BoxContour(FarFieldSurface):
+    """A rectangle of cells [ix0, ix1] x [iy0, iy1] (inner ring) and its outer ring: the plane
+    lattice's far-field surface.
 
     `cells` lists the inner then the outer cells of each contour sample (2M cells); `points`
     are the sample positions (cells), `normals` the outward unit normals.
     """
+
+    kind: ClassVar[LatticeKind] = PLANE
 
     ix0: int = eqx.field(static=True)
     ix1: int = eqx.field(static=True)
@@ -43,6 +48,23 @@ class BoxContour(eqx.Module):
     def __check_init__(self):
         if not (self.ix1 > self.ix0 and self.iy1 > self.iy0):
             raise ValueError(f"empty contour box [{self.ix0}, {self.ix1}] x [{self.iy0}, {self.iy1}]")
+
+    @classmethod
+    def from_box(cls, lo, hi, baffle: str | None = None) -> BoxContour:
+        if baffle is not None:
+            raise ValueError(
+                f"baffle = {baffle!r}: a plane contour is closed (no baffle image on the plane lattice); "
+                "leave baffle out"
+            )
+        return cls(int(lo[0]), int(hi[0]), int(lo[1]), int(hi[1]))
+
+    @property
+    def box(self) -> tuple[tuple[int, ...], tuple[int, ...]]:
+        return (self.ix0, self.iy0), (self.ix1, self.iy1)
+
+    @property
+    def open_sides(self) -> tuple[tuple[int, int], ...]:
+        return ()
 
     def samples(self):
         """(inner (M,2), outer (M,2), points (M,2), normals (M,2)) in cell units."""
@@ -61,27 +83,27 @@ class BoxContour(eqx.Module):
         points = 0.5 * (inner + outer)
         return inner, outer, points, normal.astype(float)
 
-    @property
-    def cells(self) -> np.ndarray:
-        inner, outer, _, _ = self.samples()
-        return np.concatenate([inner, outer], axis=0)
+    def _outside_message(self, shape, margin: int) -> str:
+        return (
+            f"far-field contour [{self.ix0}, {self.ix1}] x [{self.iy0}, {self.iy1}] (plus its outer "
+            f"ring) must lie inside the grid and outside the {margin}-cell absorbing layer"
+        )
 
-    def check_inside(self, grid: Grid, margin: int = 0) -> None:
-        nx, ny = grid.shape
-        if self.ix0 - 1 < margin or self.iy0 - 1 < margin or self.ix1 + 1 >= nx - margin or self.iy1 + 1 >= ny - margin:
-            raise ValueError(
-                f"far-field contour [{self.ix0}, {self.ix1}] x [{self.iy0}, {self.iy1}] (plus its outer "
-                f"ring) must lie inside the grid and outside the {margin}-cell absorbing layer"
-            )
+    def field_at(self, phasors, grid, points_cells, **kwargs):
+        return field_at(phasors, self, grid, points_cells, **kwargs)
+
+    def far_field(self, phasors, grid, angles_deg, *, range_m=None, centre_cells=None, plane=None, **kwargs):
+        no_plane(plane, "plane")
+        if range_m is None:
+            return far_field_pattern(phasors, self, grid, angles_deg, centre_cells=centre_cells, **kwargs)
+        if centre_cells is None:
+            centre_cells = tuple(self.samples()[2].mean(0))
+        return far_field(phasors, self, grid, angles_deg, range_m, centre_cells, **kwargs)
 
 
 def box_around(cells: np.ndarray, gap: int, grid: Grid | None = None) -> BoxContour:
     """The contour box `gap` cells around a set of cells (e.g. a transducer's)."""
-    c = np.asarray(cells).reshape(-1, 2)
-    box = BoxContour(
-        int(c[:, 0].min() - gap), int(c[:, 0].max() + gap), int(c[:, 1].min() - gap), int(c[:, 1].max() + gap)
-    )
-    return box
+    return BoxContour.around(cells, gap)
 
 
 def _hankel(nu: int, z):
@@ -138,12 +160,7 @@ def field_at(
     """Complex pressure at points outside the contour (positions in cells); NumPy phasors give a
     NumPy result (no XLA program), JAX ones a JAX array (differentiable)."""
     inner, outer, pts, normals = contour.samples()
-    m = len(inner)
-    if phasors.shape[-1] != 2 * m:
-        raise ValueError(f"expected {2 * m} contour phasors (inner then outer ring), got {phasors.shape[-1]}")
-    p_in, p_out = phasors[..., :m], phasors[..., m:]
-    p = 0.5 * (p_in + p_out)
-    dpdn = p_out - p_in
+    p, dpdn = split_pairs(phasors, len(inner), "contour phasors (inner then outer ring)")
     omega = grid.hz_to_lattice_omega(frequency_hz or grid.frequency_hz)
     c = grid.courant if c_lattice is None else c_lattice
     obs = np.asarray(points_cells, dtype=float).reshape(-1, 2)
@@ -151,12 +168,7 @@ def field_at(
     R = np.sqrt((d**2).sum(-1))
     centre = pts.mean(0)
     theta = np.arctan2(obs[:, 1] - centre[1], obs[:, 0] - centre[0])
-    if dispersion == "lattice":
-        k = lattice_wavenumber(omega, c, theta, stencil=grid.stencil)
-    elif dispersion == "continuum":
-        k = np.full_like(theta, omega / c)
-    else:
-        raise ValueError(f"dispersion = {dispersion!r}; allowed: 'lattice', 'continuum'")
+    k = _wavenumbers(grid, omega, c, theta, dispersion)
     kR = k[:, None] * R
     if kR.min() < 30:
         raise ValueError("far-field point too close to the contour (k R < 30): use a larger range")
@@ -166,6 +178,47 @@ def field_at(
     # host kernels (NumPy): NumPy phasors give a NumPy field with no XLA program at all
     kernel_p = dG_dR * dR_dn
     kernel_dp = -G
+    return p @ kernel_p.T + dpdn @ kernel_dp.T
+
+
+def _wavenumbers(grid, omega: float, c: float, theta, dispersion: str) -> np.ndarray:
+    if dispersion == "lattice":
+        return lattice_wavenumber(omega, c, theta, stencil=grid.stencil)
+    if dispersion == "continuum":
+        return np.full_like(theta, omega / c)
+    raise ValueError(f"dispersion = {dispersion!r}; allowed: 'lattice', 'continuum'")
+
+
+def far_field_pattern(
+    phasors: Complex[Array, " two_m"] | Complex[np.ndarray, " two_m"],
+    contour: BoxContour,
+    grid: Grid,
+    angles_deg: Sequence[float] | Float[np.ndarray, " a"],
+    *,
+    centre_cells: tuple[float, float] | None = None,
+    c_lattice: float | None = None,
+    dispersion: Literal["lattice", "continuum"] = "lattice",
+    frequency_hz: float | None = None,
+) -> Complex[Array, " a"]:
+    """The plane far-field pattern F(theta) (Pa x cells^(1/2)): p(r, theta) ~ F exp(i k r) / sqrt(r),
+    r in cells from `centre_cells` (default: the contour's centre), at `angles_deg` (0 = +x,
+    towards +y). The Hankel function's leading term, (i/4) H0(k R) ~ C exp(i k R) / sqrt(R) with
+    C = (i/4) sqrt(2 / (pi k)) exp(-i pi/4), and R ~ r - x_hat . x' give
+
+        F = C sum [ -i k (x_hat . n') p - dp/dn' ] exp(-i k x_hat . x') dl'.
+    """
+    inner, _, pts, normals = contour.samples()
+    p, dpdn = split_pairs(phasors, len(inner), "contour phasors (inner then outer ring)")
+    omega = grid.hz_to_lattice_omega(frequency_hz or grid.frequency_hz)
+    c = grid.courant if c_lattice is None else c_lattice
+    theta = np.radians(np.asarray(angles_deg, dtype=float)).reshape(-1)
+    k = _wavenumbers(grid, omega, c, theta, dispersion)[:, None]
+    u = np.stack([np.cos(theta), np.sin(theta)], 1)
+    centre = pts.mean(0) if centre_cells is None else np.asarray(centre_cells, float)
+    C = 0.25j * np.sqrt(2 / (math.pi * k)) * np.exp(-0.25j * math.pi)
+    ph = C * np.exp(-1j * k * (u @ (pts - centre).T))
+    kernel_p = -1j * k * (u @ normals.T) * ph
+    kernel_dp = -ph
     return p @ kernel_p.T + dpdn @ kernel_dp.T
 
 

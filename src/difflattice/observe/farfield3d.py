@@ -28,26 +28,31 @@ wavelength along the normal), the same order as in 2-D.
 from __future__ import annotations
 
 import math
-from typing import Literal
+from typing import ClassVar, Literal
 
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Complex, Float
 
+from ..lattice.kinds import VOLUME, LatticeKind
 from .analytic3d import lattice_wavenumber_3d
+from .farfield_base import FarFieldSurface, split_pairs
 
 MAX_KERNEL_ENTRIES = 4_000_000
 """Observation points x surface samples evaluated at once (memory bound of the dense kernel)."""
 
 
-class BoxSurface(eqx.Module):
-    """The box of cells [lo, hi] (inclusive, per axis; inner shell) and its outer shell.
+class BoxSurface(FarFieldSurface):
+    """The box of cells [lo, hi] (inclusive, per axis; inner shell) and its outer shell: the
+    volume lattice's far-field surface.
 
     Sample s lies on the face between inner cell `inner[s]` and outer cell `outer[s]` (one cell
     outward along the face normal); edge and corner cells of the inner shell appear once per
     face they touch, so the samples tile the closed surface of the box [lo - 1/2, hi + 1/2].
     """
+
+    kind: ClassVar[LatticeKind] = VOLUME
 
     lo: tuple[int, int, int] = eqx.field(static=True)
     hi: tuple[int, int, int] = eqx.field(static=True)
@@ -64,6 +69,18 @@ class BoxSurface(eqx.Module):
                 raise ValueError(
                     f"a box on the {self.baffle} baffle starts at cell 0 along that axis, got lo = {self.lo}"
                 )
+
+    @classmethod
+    def from_box(cls, lo, hi, baffle: str | None = None) -> BoxSurface:
+        return cls((int(lo[0]), int(lo[1]), int(lo[2])), (int(hi[0]), int(hi[1]), int(hi[2])), baffle)
+
+    @property
+    def box(self) -> tuple[tuple[int, ...], tuple[int, ...]]:
+        return self.lo, self.hi
+
+    @property
+    def open_sides(self) -> tuple[tuple[int, int], ...]:
+        return () if self.baffle is None else (self.baffle_axis_side,)
 
     @property
     def baffle_axis_side(self) -> tuple[int, int]:
@@ -117,27 +134,30 @@ class BoxSurface(eqx.Module):
         return full - math.prod(d) // d[a]
 
     @property
-    def cells(self) -> np.ndarray:
-        """(2M, 3) phasor cells: the inner shell's samples, then the outer shell's."""
-        inner, outer, _, _ = self.samples()
-        return np.concatenate([inner, outer], axis=0)
-
-    @property
     def centre_cells(self) -> np.ndarray:
         return 0.5 * (np.asarray(self.lo, float) + np.asarray(self.hi, float))
 
     def check_inside(self, shape, margin: int = 0) -> None:
-        """Refuse a box whose outer shell leaves the grid or enters a `margin`-cell absorbing layer
-        (a baffled side lies on the window face instead)."""
-        for a in range(3):
-            lo_ok = self.lo[a] - 1 >= margin or (self.baffle is not None and self.baffle_axis_side == (a, -1))
-            hi_ok = self.hi[a] + 1 < shape[a] - margin or (self.baffle is not None and self.baffle_axis_side == (a, 1))
-            if not (lo_ok and hi_ok):
-                raise ValueError(
-                    f"far-field box lo = {self.lo}, hi = {self.hi} (plus its outer shell) must lie inside "
-                    f"the {tuple(shape)} grid and outside the {margin}-cell absorbing layer: shrink the "
-                    "gap or enlarge the grid"
-                )
+        """Refuse a box whose outer shell leaves the grid (or a grid's `shape`) or enters a
+        `margin`-cell absorbing layer (a baffled side lies on the window face instead)."""
+        super().check_inside(shape, margin)
+
+    def _outside_message(self, shape, margin: int) -> str:
+        return (
+            f"far-field box lo = {self.lo}, hi = {self.hi} (plus its outer shell) must lie inside "
+            f"the {tuple(shape)} grid and outside the {margin}-cell absorbing layer: shrink the "
+            "gap or enlarge the grid"
+        )
+
+    def field_at(self, phasors, grid, points_cells, **kwargs):
+        return field_at(phasors, self, grid, points_cells, **kwargs)
+
+    def far_field(self, phasors, grid, angles_deg, *, range_m=None, centre_cells=None, plane=None, **kwargs):
+        """The lobe at `angles_deg` in `plane` = (axis, in_plane) (default ((1, 0, 0), (0, 1, 0)):
+        from +x towards +y, as on the plane lattice); see `far_field`."""
+        axis, in_plane = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0)) if plane is None else plane
+        dirs = directions_in_plane(axis, in_plane, np.asarray(angles_deg, float).reshape(-1))
+        return far_field(phasors, self, grid, dirs, range_m, centre_cells, **kwargs)
 
 
 BAFFLE_SIDES = ("x_lo", "x_hi", "y_lo", "y_hi", "z_lo", "z_hi")
@@ -147,21 +167,9 @@ def box_around_3d(cells, gap: int, baffle: str | None = None) -> BoxSurface:
     """The far-field box `gap` cells around a set of (n, 3) cells (e.g. a transducer's); with
     `baffle` (e.g. "x_lo": a rigid window face behind a transducer in the first cell layer) the box
     starts at the baffle on that side."""
-    c = np.asarray(cells).reshape(-1, 3)
-    lo = [int(v) for v in c.min(0) - gap]
-    hi = [int(v) for v in c.max(0) + gap]
-    if baffle is not None:
-        if baffle not in BAFFLE_SIDES:
-            raise ValueError(f"baffle = {baffle!r}; allowed: None or one of {', '.join(BAFFLE_SIDES)}")
-        a = "xyz".index(baffle[0])
-        if baffle.endswith("lo"):
-            lo[a] = 0
-        else:
-            raise ValueError(
-                "baffle on a high window side: give the box explicitly, BoxSurface(lo, hi, baffle=...) "
-                "with hi at the last cell"
-            )
-    return BoxSurface((lo[0], lo[1], lo[2]), (hi[0], hi[1], hi[2]), baffle)
+    if baffle is not None and baffle not in BAFFLE_SIDES:
+        raise ValueError(f"baffle = {baffle!r}; allowed: None or one of {', '.join(BAFFLE_SIDES)}")
+    return BoxSurface.around(cells, gap, baffle)
 
 
 def _with_images(surface: BoxSurface, p, dpdn, pts, normals):
@@ -200,10 +208,7 @@ def _wavenumbers(omega: float, c: float, directions: np.ndarray, dispersion: str
 
 
 def _split(phasors, m: int):
-    if phasors.shape[-1] != 2 * m:
-        raise ValueError(f"expected {2 * m} surface phasors (inner shell then outer shell), got {phasors.shape[-1]}")
-    p_in, p_out = phasors[..., :m], phasors[..., m:]
-    return 0.5 * (p_in + p_out), p_out - p_in
+    return split_pairs(phasors, m, "surface phasors (inner shell then outer shell)")
 
 
 def _omega_c(grid, c_lattice, frequency_hz):

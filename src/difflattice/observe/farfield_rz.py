@@ -27,7 +27,7 @@ JAX through them.
 from __future__ import annotations
 
 import math
-from typing import Literal
+from typing import ClassVar, Literal
 
 import equinox as eqx
 import jax.numpy as jnp
@@ -35,17 +35,22 @@ import numpy as np
 from jaxtyping import Array, Complex, Float
 
 from ..lattice.grid import Grid
+from ..lattice.kinds import AXISYMMETRIC, LatticeKind
 from .analytic import lattice_wavenumber
+from .farfield_base import FarFieldSurface, no_plane, split_pairs
 
 
-class CylinderSurface(eqx.Module):
-    """A closed cylinder of ring cells on an rz grid: rows `iz0` .. `iz1`, rings 0 .. `jr`.
+class CylinderSurface(FarFieldSurface):
+    """A closed cylinder of ring cells on an rz grid: rows `iz0` .. `iz1`, rings 0 .. `jr`: the rz
+    lattice's far-field surface.
 
     The surface runs along the cell faces just outside those cells: the caps at z = iz0 (lower,
     normal -z) and z = iz1 + 1 (upper, +z) in cells, the side at r = jr + 1 (+r). Each sample is
     the pair (inner cell, outer cell) across its face. With `baffled` the lower cap is left out and
     the side runs down to the rigid baffle z = 0 (`iz0` must be 0).
     """
+
+    kind: ClassVar[LatticeKind] = AXISYMMETRIC
 
     iz0: int = eqx.field(static=True)
     iz1: int = eqx.field(static=True)
@@ -59,6 +64,27 @@ class CylinderSurface(eqx.Module):
             raise ValueError(f"a baffled cylinder starts at the baffle (iz0 = 0), got iz0 = {self.iz0}")
         if not self.baffled and self.iz0 < 1:
             raise ValueError("an unbaffled cylinder needs iz0 >= 1 (its lower cap's outer cells are row iz0 - 1)")
+
+    @classmethod
+    def from_box(cls, lo, hi, baffle: str | None = None) -> CylinderSurface:
+        """The cylinder of rows lo[0] .. hi[0] and rings 0 .. hi[1] (a surface of revolution spans
+        the axis: lo[1] plays no part); `baffle` can only be "z_lo", the rigid window face z = 0."""
+        if baffle is not None and cls.side(baffle) != (0, -1):
+            raise ValueError(f"baffle = {baffle!r}: an rz cylinder's baffle is the z_lo window face (or none)")
+        return cls(int(lo[0]), int(hi[0]), int(hi[1]), baffle is not None)
+
+    @property
+    def box(self) -> tuple[tuple[int, ...], tuple[int, ...]]:
+        return (self.iz0, 0), (self.iz1, self.jr)
+
+    @property
+    def open_sides(self) -> tuple[tuple[int, int], ...]:
+        return ((1, -1), (0, -1)) if self.baffled else ((1, -1),)
+
+    @property
+    def span_cells(self) -> tuple[float, ...]:
+        """(rows, diameter) in cells: the cylinder's diameter plays the box's height."""
+        return float(self.iz1 - self.iz0), float(2 * self.jr)
 
     def samples(self):
         """(inner (M, 2), outer (M, 2), points (M, 2) as (z, r) in cells, normals (M, 2) as
@@ -81,30 +107,50 @@ class CylinderSurface(eqx.Module):
         inner, outer = (np.asarray(a, dtype=np.int64) for a in (inner, outer))
         return inner, outer, np.asarray(pts, float), np.asarray(nrm, float), np.ones(len(pts))
 
-    @property
-    def cells(self) -> np.ndarray:
-        """Phasor cells: the inner then the outer cell of every sample (2M, 2)."""
-        inner, outer, *_ = self.samples()
-        return np.concatenate([inner, outer], axis=0)
+    def _outside_message(self, shape, margin: int) -> str:
+        nz, nr = shape
+        return (
+            f"cylinder rows [{self.iz0}, {self.iz1}], rings [0, {self.jr}] (plus its outer cells) must "
+            f"lie inside the {nz} x {nr} grid and outside the {margin}-cell absorbing layer"
+        )
 
-    def check_inside(self, grid: Grid, margin: int = 0) -> None:
-        """Refuse a surface whose outer cells leave the grid or enter an absorbing layer."""
-        nz, nr = grid.shape
-        if not grid.kind.ring_metric:
-            raise ValueError(f"CylinderSurface needs an rz grid, got kind = {grid.kind.name!r}")
-        lo_ok = self.baffled or self.iz0 - 1 >= margin
-        if not (lo_ok and self.iz1 + 1 < nz - margin and self.jr + 1 < nr - margin):
-            raise ValueError(
-                f"cylinder rows [{self.iz0}, {self.iz1}], rings [0, {self.jr}] (plus its outer cells) must "
-                f"lie inside the {nz} x {nr} grid and outside the {margin}-cell absorbing layer"
-            )
+    def field_at(self, phasors, grid, points_cells, **kwargs):
+        return field_at_rz(phasors, self, grid, points_cells, **kwargs)
+
+    def far_field(self, phasors, grid, angles_deg, *, range_m=None, centre_cells=None, plane=None, **kwargs):
+        """The lobe at polar angles `angles_deg` from +z: the pattern (`far_field_rz`, referred to
+        z = 0 on the axis) or, at `range_m`, the pressure at that range from `centre_cells`
+        (z, 0) on the axis (default z: the surface's middle or the baffle) by `field_at_rz`,
+        exact at any range. The field is even in the angle: each |angle| is evaluated once."""
+        no_plane(plane, "rz")
+        if range_m is None:
+            if centre_cells is not None:
+                raise ValueError("the rz far-field pattern is referred to z = 0 on the axis: leave centre_cells out")
+            return far_field_rz(phasors, self, grid, angles_deg, **kwargs)
+        zc = self._axis_point(centre_cells)
+        ang = np.asarray(angles_deg, float).reshape(-1)
+        th_u, inv = np.unique(np.abs(ang), return_inverse=True)
+        th = np.radians(th_u)
+        r_cells = range_m / grid.dx_m
+        pts = np.stack([zc + r_cells * np.cos(th), r_cells * np.sin(th)], axis=1)
+        return field_at_rz(phasors, self, grid, pts, **kwargs)[inv]
+
+    def _axis_point(self, centre_cells) -> float:
+        if centre_cells is None:
+            return 0.0 if self.baffled else 0.5 * (self.iz0 + self.iz1 + 1)
+        z, rho = (float(v) for v in centre_cells)
+        if rho != 0:
+            raise ValueError(f"centre_cells = {tuple(centre_cells)}: an rz lobe is measured from the axis, give (z, 0)")
+        return z
+
+    def lobe_centre_cells(self, source_cells, centre_m, dx_m: float) -> tuple[float, ...]:
+        """The transducer's face centre on the axis, (z_m / dx, 0): a disc's cells are rings."""
+        return float(centre_m[0]) / dx_m, 0.0
 
 
 def cylinder_around(cells: np.ndarray, gap: int, *, baffled: bool) -> CylinderSurface:
     """The cylinder `gap` cells around a set of (z, r) cells (e.g. a disc transducer's)."""
-    c = np.asarray(cells).reshape(-1, 2)
-    iz0 = 0 if baffled else int(c[:, 0].min() - gap)
-    return CylinderSurface(iz0, int(c[:, 0].max() + gap), int(c[:, 1].max() + gap), baffled)
+    return CylinderSurface.around(cells, gap, "z_lo" if baffled else None)
 
 
 def _wavenumbers(grid: Grid, theta, dispersion, frequency_hz, c_lattice):
@@ -119,10 +165,7 @@ def _wavenumbers(grid: Grid, theta, dispersion, frequency_hz, c_lattice):
 
 
 def _split(phasors, m: int):
-    if phasors.shape[-1] != 2 * m:
-        raise ValueError(f"expected {2 * m} surface phasors (inner then outer cells), got {phasors.shape[-1]}")
-    p_in, p_out = phasors[..., :m], phasors[..., m:]
-    return 0.5 * (p_in + p_out), p_out - p_in
+    return split_pairs(phasors, m)
 
 
 def far_field_rz(

@@ -14,8 +14,7 @@ if TYPE_CHECKING:
     from ..lattice.coefficients import Edges
     from ..lattice.grid import Grid
     from ..lattice.medium import Material, Medium
-    from ..observe.farfield import BoxContour
-    from ..observe.farfield_rz import CylinderSurface
+    from ..observe.farfield_base import FarFieldSurface
     from ..solver.sensors import Sensors
     from ..solver.sources import PointSources, Signal
     from .model import Scene
@@ -38,7 +37,7 @@ class BuiltScene(NamedTuple):
     """What `Scene.build()` gives: the solver's objects plus what the scene asks to observe.
 
     - `grid`, `medium`, `sources`, `sensors`, `edges`, `n_steps`: the arguments of `simulate`;
-    - `contour`: the far-field contour (None when the scene has no `[farfield]`; always on 3d);
+    - `contour`: the far-field surface of the grid's kind (None when the scene has no `[farfield]`);
     - `farfield_source`: index of the transducer whose lobe is computed;
     - `show_steps`: steps at which field images are wanted; `render_every`: render stride, cells;
     - `receivers` (3d): the transducers whose received signal (A-scan) is recorded;
@@ -52,7 +51,7 @@ class BuiltScene(NamedTuple):
     sensors: Sensors
     edges: Edges
     n_steps: int
-    contour: BoxContour | CylinderSurface | None
+    contour: FarFieldSurface | None
     farfield_source: int
     show_steps: list[int]
     render_every: int

@@ -23,8 +23,7 @@ if TYPE_CHECKING:
     from ..lattice.coefficients import Edges
     from ..lattice.grid import Grid
     from ..lattice.kinds import LatticeKind
-    from ..observe.farfield import BoxContour
-    from ..observe.farfield_rz import CylinderSurface
+    from ..observe.farfield_base import FarFieldSurface
     from ..solver.sources import PointSources
 
 from .common import (
@@ -355,14 +354,14 @@ class Scene:
 
     def _farfield_surface(
         self, grid: Grid, edges: Edges, sources, solids_occupancy
-    ) -> tuple[BoxContour | CylinderSurface | None, np.ndarray | None, int]:
-        """The far-field surface (`[farfield]`): it encloses the transducer and every object, or
-        the scene is refused with the reason; returns (surface, its phasor cells, transducer index)."""
-        from ..observe.farfield import box_around
-        from ..observe.farfield_rz import cylinder_around
+    ) -> tuple[FarFieldSurface | None, np.ndarray | None, int]:
+        """The far-field surface (`[farfield]`, the kind's own: `observe.surfaces`): it encloses
+        the transducer and every object, or the scene is refused with the reason; returns
+        (surface, its phasor cells, transducer index)."""
+        from ..observe.surfaces import surface_around
 
-        p, rz = self.path, grid.kind.ring_metric
-        contour: BoxContour | CylinderSurface | None = None
+        p = self.path
+        contour: FarFieldSurface | None = None
         phasor_cells = None
         ff_index = 0
         if self.farfield is not None:
@@ -375,20 +374,15 @@ class Scene:
             # the surface encloses the transducer and every object (a surface through an object
             # would integrate a field that is not free space: a wrong lobe), or the scene is refused
             solids = [np.argwhere(np.asarray(o) > 0) for o in solids_occupancy]
-            enclosed = np.concatenate([np.asarray(sources[ff_index].cells_array).reshape(-1, 2), *solids])
-            if rz:
-                t = self.transducers[ff_index]
-                baffled = isinstance(t, DiscTransducer) and t.rz_baffle() == "rigid"
-                cyl = cylinder_around(enclosed, ff.gap_cells, baffled=baffled)
-                contour, phasor_cells = cyl, cyl.cells
-                check = cyl.check_inside
-            else:
-                box = box_around(enclosed, ff.gap_cells)
-                contour, phasor_cells = box, box.cells
-                check = box.check_inside
+            t = self.transducers[ff_index]
+            # a disc on the rigid baffle (the low window face of axis 0) needs no surface there
+            on_baffle = isinstance(t, DiscTransducer) and t.rz_baffle() == "rigid"
+            baffle = f"{grid.kind.axis_names[0]}_lo" if on_baffle else None
             L = edges.thickness_cells if edges.kinds() & {"pml", "sponge"} else 0
             try:
-                check(grid, margin=L)
+                contour = surface_around(
+                    grid, sources[ff_index].cells_array, ff.gap_cells, objects=solids, baffle=baffle, margin=L
+                )
             except ValueError as err:
                 why = (
                     f"the far-field surface encloses the transducer and the {len(solids)} object(s) "
@@ -398,6 +392,7 @@ class Scene:
                     else str(err)
                 )
                 _fail(p, "farfield.gap_cells", why)
+            phasor_cells = contour.cells
         return contour, phasor_cells, ff_index
 
     # ---------------------------------------------------------------------------------------

@@ -68,7 +68,14 @@ def run_scene3d(
 
     from .. import __version__
     from ..observe.analytic3d import lattice_wavenumber_3d
-    from ..solver.estimate import RunTooLargeError, check_fits, estimate_run, features_of, format_estimate
+    from ..solver.estimate import (
+        RunTooLargeError,
+        check_compiled,
+        check_fits,
+        estimate_run,
+        features_of,
+        format_estimate,
+    )
     from ..solver.loop import check_result, run
     from ..solver.stepper import Stepper
 
@@ -100,6 +107,10 @@ def run_scene3d(
     jitted: Any = eqx.filter_jit(whole_run)
     compiled = jitted.lower(stepper).compile()
     compile_s = time.perf_counter() - t1
+    try:  # XLA's figure for what the run allocates when it starts, against the memory available now
+        xla_bytes = check_compiled(compiled, shape, n_steps, available=available_bytes)
+    except RunTooLargeError as err:
+        raise SceneTooLargeError(f"{scene.path}: [grid] {' '.join(str(err).split())}") from None
     if not quiet:
         print(f"compiled in {compile_s:.1f} s; running {n_steps} steps ...", file=sys.stderr, flush=True)
     t2 = time.perf_counter()
@@ -134,6 +145,7 @@ def run_scene3d(
             "printed": line,
             "memory_bytes": nbytes,
             "time_s": secs,
+            "xla_run_bytes": xla_bytes,
             "mlups_assumed": feats.mlups if feats.mlups is not None else "measured (solver.estimate.measure_mlups)",
         },
         "run": {

@@ -78,6 +78,7 @@ def build_volume(self: Scene, available_bytes: int | None) -> BuiltScene:
         n_steps,
         available_bytes,
         pml=edges.uses_pml,
+        sponge="sponge" in edges.kinds(),
         heterogeneous=bool(self.objects),
         soft=any(m.kind == "soft" for m in mats[1:]) or med.boundary_model == "speed_zero",
         absorption=med.absorption_db_per_m > 0,

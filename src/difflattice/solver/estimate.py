@@ -9,7 +9,8 @@ of a run that would not fit in memory.
   the coefficient arrays (K, one face conductance per axis, the lattice speed, the soft-cell
   factor; none for a homogeneous medium), the medium maps they are built from, the recordings
   (probe series, phasors, snapshots, whole-field statistics), and for reverse mode the
-  checkpointed states. The JAX runtime itself (`RUNTIME_OVERHEAD_BYTES`) is added only when
+  checkpointed states, and the 3-D isotropic and wide stencils' own temporaries
+  (`STENCIL_WORKING_ARRAYS`). The JAX runtime itself (`RUNTIME_OVERHEAD_BYTES`) is added only when
   comparing with the available memory.
 - seconds: cells x steps / (MLUPS x 1e6) plus a compile allowance, from an MLUPS figure measured
   on this machine for the same kind of step (`measure_mlups`: leapfrog or PML, homogeneous or
@@ -44,6 +45,20 @@ compile on CPU), added to the estimate before comparing with the available memor
 COMPILE_S = {2: 2.0, 3: 4.0}
 """Compile-time allowance per grid rank (seconds; measured on a 2-core CPU)."""
 
+STENCIL_WORKING_ARRAYS = {(False, False): 7.5, (False, True): 12.0, (True, False): 21.5, (True, True): 25.0}
+"""Grid-sized temporaries of a step of the 3-D isotropic and wide stencils (which run on the JAX
+loop) beyond what the rest of the model counts, by (PML, coefficient maps): XLA keeps the
+stencil's partial sums and shifted copies alive across its fusions. Measured from
+`Compiled.memory_analysis()` of a whole run, float32, sponge / PML edges, isotropic and wide (the
+larger), on 40 x 32 x 24 and 96 x 80 x 64 cells: homogeneous 7.19 / 6.47, with maps 11.86 / 10.72,
+PML 21.11 / 17.31, PML with maps 24.96 / 21.24 arrays; the constants are the larger, rounded up
+(`tests/core/test_3d_estimate.py` checks the model against XLA's figure on a third grid)."""
+
+RELOAD_AT_LOAD = 1.0
+"""A cached throughput measured while the load average per core exceeded this is measured again
+when the machine is at most half as loaded now (a figure taken on a busy machine said 2270 s for
+a 287 s run)."""
+
 FIT_FRACTION = 0.9
 """A run is refused above this fraction of the available memory (the rest: fragmentation)."""
 
@@ -53,7 +68,7 @@ class RunFeatures:
     """What a run carries and records (the inputs of `estimate_run`).
 
     - `pml`: split-field PML stepper (one pressure part and one face flux per axis) instead of
-      the two-field leapfrog.
+      the two-field leapfrog; `sponge`: a sponge layer (one grid-sized damping factor).
     - `heterogeneous`: coefficient maps (K, face conductances per axis, lattice speed) exist
       (any medium map or obstacle); `soft`: a soft-obstacle factor map; `absorption`: P_prev kept
       by the PML stepper; `air_absorption`: air's two relaxation memory fields (and P_prev with a PML).
@@ -67,6 +82,7 @@ class RunFeatures:
     """
 
     pml: bool = True
+    sponge: bool = False
     heterogeneous: bool = False
     soft: bool = False
     absorption: bool = False
@@ -125,6 +141,8 @@ def memory_breakdown(grid_shape, n_steps: int, dtype: str, features=None) -> dic
         maps = 3 * N  # the medium's SI maps (speed, density, occupancy)
     if f.soft:
         coeff += N
+    if f.sponge:
+        coeff += N  # the sponge's per-cell damping factor
     if f.heterogeneous and f.stencil == "wide" and ndim == 3:
         coeff += 7 * N  # the wide stencil's axis rows next to obstacles (`operators.wide_rows`)
     rec = f.n_probes * n_steps + 2 * f.n_phasors + f.snapshot_cells * f.n_snapshots + f.field_stats * N
@@ -134,6 +152,8 @@ def memory_breakdown(grid_shape, n_steps: int, dtype: str, features=None) -> dic
         "medium_maps": int(maps * b),
         "recordings": int(rec * b),
     }
+    if ndim == 3 and f.stencil in ("isotropic", "wide"):
+        parts["stencil_working"] = int(STENCIL_WORKING_ARRAYS[(f.pml, f.heterogeneous)] * N * b)
     if f.gradient:
         parts["checkpoints"] = int(max(f.checkpoints, math.isqrt(max(n_steps, 1))) * carried * b)
         parts["reverse_working"] = int(WORKING_SET_FACTOR * carried * b + coeff * b)
@@ -228,6 +248,41 @@ def check_fits(
         )
 
 
+def check_compiled(compiled, grid_shape, n_steps: int, *, available: int | None = None) -> int | None:
+    """The bytes a compiled run will allocate when it starts (XLA's own figure: its temporaries
+    and outputs; its arguments already exist), or None where the backend does not say; raises
+    `RunTooLargeError` if they do not fit in `FIT_FRACTION` of the memory available now (of
+    `available` less what this process holds, where a budget is given). `compiled`:
+    a `jax.stages.Compiled` (or equinox's wrapper of one). Called after compiling, before the run:
+    the check of the estimate against what will actually be allocated."""
+    inner = getattr(compiled, "compiled", compiled)
+    try:
+        ma = inner.memory_analysis()
+        need = int(ma.temp_size_in_bytes + ma.output_size_in_bytes - ma.alias_size_in_bytes)
+    except (AttributeError, NotImplementedError, TypeError, RuntimeError):
+        return None
+    # `available` is a budget for the whole process: what it holds already (the lattice's arrays) counts
+    avail = available_memory_bytes() if available is None else int(available) - _resident_bytes()
+    if need > FIT_FRACTION * avail:
+        dims = " x ".join(str(int(n)) for n in grid_shape)
+        raise RunTooLargeError(
+            f"the compiled run of {dims} cells x {n_steps} steps allocates {format_bytes(need)} when it starts "
+            f"(XLA's temporaries and outputs) but only {format_bytes(avail)} is available now (refused above "
+            f"{FIT_FRACTION:.0%}). Fix: fewer cells per wavelength or a smaller window, float32, or the standard "
+            "stencil (the 3-D isotropic and wide stencils keep more temporaries)."
+        )
+    return need
+
+
+def _resident_bytes() -> int:
+    """This process's resident memory (Linux /proc; 0 where it cannot be read)."""
+    try:
+        with open("/proc/self/statm") as f:
+            return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError, IndexError):
+        return 0
+
+
 # ------------------------------------------------------------------------------------------
 # measured throughput
 
@@ -261,7 +316,8 @@ def measure_mlups(
     machine, homogeneous or with coefficient maps (`heterogeneous`: a rigid cut-cell wall): the
     slowest of 3 short timed runs (about a second in all), cached per machine, device, JAX version
     and case in ``~/.cache/difflattice/`` (delete the file or pass `refresh` to measure again,
-    e.g. after the machine's load changed)."""
+    e.g. after the machine's load changed; a figure taken on a busy machine is measured again
+    when the machine is quieter: `RELOAD_AT_LOAD`)."""
     if ndim not in (2, 3):
         raise ValueError(f"ndim = {ndim}: 2 or 3")
     if stepper not in ("leapfrog", "pml"):
@@ -276,7 +332,7 @@ def measure_mlups(
             cache = json.loads(path.read_text())
         except (OSError, ValueError):
             cache = {}
-    if key in cache and not refresh:
+    if key in cache and not refresh and not _measured_busier(cache[key]):
         return float(cache[key]["mlups"])
     mlups = _time_run(ndim, stepper, dtype, heterogeneous, stencil)
     cache[key] = {
@@ -292,6 +348,17 @@ def measure_mlups(
     except OSError:
         pass
     return mlups
+
+
+def _measured_busier(entry: dict) -> bool:
+    """Whether a cached figure was taken on a busy machine (load per core above `RELOAD_AT_LOAD`)
+    that is at most half as loaded now: then it is measured again."""
+    cores = os.cpu_count() or 1
+    try:
+        then = float(entry["load_average"][0]) / cores
+    except (KeyError, IndexError, TypeError, ValueError):
+        return False
+    return then > RELOAD_AT_LOAD and os.getloadavg()[0] / cores <= then / 2
 
 
 def _time_run(
@@ -377,6 +444,7 @@ def features_of(
         chunks = -(-n_steps // max(chunk, 1))
     return RunFeatures(
         pml=bool(stepper.staggered),
+        sponge=lat.sponge is not None,
         heterogeneous=bool(heterogeneous),
         soft=lat.keep is not None,
         absorption=lat.eta > 0,

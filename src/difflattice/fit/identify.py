@@ -15,6 +15,7 @@ import numpy as np
 from ..transforms import sigmoid
 from .data import LobeData, WaveData
 from .estimates import Estimate
+from .family import FamilyParams
 from .model import ModelSpec
 from .quantities import _values
 from .solve import FitOptions, FitResult, fit
@@ -220,7 +221,7 @@ def mark_non_finite(est: dict[str, Estimate], names: Sequence[str]) -> None:
             )
 
 
-def _diameter_bound(e: Estimate, bound: tuple, soft_mm: float, spec: ModelSpec, params: dict, cov, vf: float):
+def _diameter_bound(e: Estimate, bound: tuple, soft_mm: float, spec: ModelSpec, params: FamilyParams, cov, vf: float):
     """The diameter's estimate with its bound status. "at_bound" only when the value is AT the
     bound (within 2 edge softnesses, or 0.1 %, of it); its one-sided limit is the likelihood's:
     2 inflated standard errors of the raw (logit) parameter away from the bound, mapped into the
@@ -236,7 +237,7 @@ def _diameter_bound(e: Estimate, bound: tuple, soft_mm: float, spec: ModelSpec, 
     j = labels.index("diameter.logit")
     var = float(cov[j, j]) * max(vf, 1.0) if cov is not None else math.nan
     sd_raw = math.sqrt(var) if math.isfinite(var) and var > 0 else math.nan
-    d_raw = float(params["diam"])
+    d_raw = float(params.diam)
     lim = hi * sigmoid(d_raw - 2 * sd_raw) if side == "upper" else hi * sigmoid(d_raw + 2 * sd_raw)
     if not math.isfinite(lim):
         lim = e.value  # no curvature at all: the only statement is the bound itself

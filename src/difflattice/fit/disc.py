@@ -161,7 +161,7 @@ def smooth_step(t):
 
 
 @dataclass(frozen=True)
-class DiscSpec(ModelFamily):
+class DiscSpec(ModelFamily[DiscParams]):
     """Static description of a disc model: `n_cells` ring cells (rings 0 .. n_cells - 1 from the
     axis) of width `dx_m` (the lattice's cell size; the field names are `ModelSpec`'s, so code
     written for the line model, e.g. a refit at another resolution by `dataclasses.replace(spec,

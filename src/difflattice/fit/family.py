@@ -17,7 +17,7 @@ from __future__ import annotations
 import abc
 import dataclasses
 from collections.abc import Callable, Iterable
-from typing import ClassVar, Self
+from typing import Any, ClassVar, Generic, Self, TypeVar, cast
 
 import equinox as eqx
 import numpy as np
@@ -51,10 +51,19 @@ class FamilyParams(eqx.Module):
 
     def merged(self, over: FamilyParams | None) -> Self:
         """These parameters with those present in `over` (same class) taking their place."""
-        return self if over is None else eqx.combine(over, self, is_leaf=lambda x: x is None)
+        return self if over is None else cast(Self, eqx.combine(over, self, is_leaf=lambda x: x is None))
+
+    def replace(self, **values: Any) -> Self:
+        """`dataclasses.replace` for code that holds any family's parameters (the field names
+        are checked at run time: a name the family does not have is a TypeError)."""
+        return dataclasses.replace(self, **values)
 
 
-class ModelFamily(abc.ABC):
+P = TypeVar("P", bound=FamilyParams)
+"""A family's parameter module."""
+
+
+class ModelFamily(abc.ABC, Generic[P]):
     """A transducer model family (abstract). Subclasses are frozen dataclasses with at least the
     fields `n_cells` (source cells or rings), `dx_m` (their pitch, m), `frequency_hz`, `weights`
     and `lags` (profile names), `n_basis`, `fit_diameter` and `diameter_m`, so that a refit at
@@ -62,6 +71,8 @@ class ModelFamily(abc.ABC):
 
     kind: ClassVar[str]
     """The family's name in configs and reports ("line", "disc")."""
+    __dataclass_fields__: ClassVar[dict[str, dataclasses.Field[Any]]]
+    """Every family is a dataclass (so `dataclasses.replace` applies to any family)."""
 
     n_cells: int
     dx_m: float
@@ -101,20 +112,20 @@ class ModelFamily(abc.ABC):
 
     # -- parameters -----------------------------------------------------------------------
     @abc.abstractmethod
-    def init_params(self) -> FamilyParams:
+    def init_params(self) -> P:
         """The initial raw parameters (uniform face, no lags, the initial diameter)."""
 
     @abc.abstractmethod
-    def physical(self, params: FamilyParams) -> dict:
+    def physical(self, params: P) -> dict:
         """Physical quantities: `weights` (aperture applied), `weights_raw`, `lags_s`, `diameter_m`,
         `gain_db`, `phase0_rad`."""
 
     @abc.abstractmethod
-    def amplitudes(self, params: FamilyParams):
+    def amplitudes(self, params: P):
         """The cells' complex amplitudes w exp(i omega tau) (times the gain and offset)."""
 
     @abc.abstractmethod
-    def raw_labels(self, params: FamilyParams) -> list[str]:
+    def raw_labels(self, params: P) -> list[str]:
         """A name per raw parameter, in `ravel_pytree` order."""
 
     @abc.abstractmethod
@@ -126,12 +137,10 @@ class ModelFamily(abc.ABC):
         """(n_cells, n_coefficients) map from a smooth profile's coefficients to per-cell values."""
 
     @abc.abstractmethod
-    def params_from_profiles(
-        self, log_weights, lag_args, diameter_m: float | None, template: FamilyParams
-    ) -> FamilyParams:
+    def params_from_profiles(self, log_weights, lag_args, diameter_m: float | None, template: FamilyParams) -> P:
         """Raw parameters that reproduce per-cell profiles (a warm start from another model)."""
 
     @abc.abstractmethod
-    def symmetries(self) -> dict[str, Callable[[FamilyParams], FamilyParams]]:
+    def symmetries(self) -> dict[str, Callable[[P], P]]:
         """Candidate symmetries of the data under this model: name -> map of the raw parameters
         (the error budget refits from each image to decide identifiability)."""

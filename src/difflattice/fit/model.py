@@ -66,7 +66,7 @@ class LineParams(FamilyParams):
 
 
 @dataclass(frozen=True)
-class ModelSpec(ModelFamily):
+class ModelSpec(ModelFamily[LineParams]):
     """The line family: a line of `n_cells` source cells of pitch `dx_m` on the 2-D lattice (static
     description: what is fitted, how)."""
 

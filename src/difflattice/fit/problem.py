@@ -5,7 +5,6 @@ residuals the solve steps on. See `fit.solve` for the losses' rationale."""
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from typing import TYPE_CHECKING
 
@@ -16,8 +15,8 @@ import numpy as np
 
 from ..transforms import logit
 from .data import LobeData, WaveData
-from .family import FamilyParams
-from .model import ModelSpec, device_array, lobe_model_db, soft_floor_db, wave_model_phase
+from .family import FamilyParams, ModelFamily
+from .model import device_array, lobe_model_db, soft_floor_db, wave_model_phase
 from .programs import small_jit
 from .transfer import Transfer
 
@@ -48,7 +47,7 @@ def robust_factor(a, loss: str, scale: float):
 class Problem(eqx.Module):
     """The residual function's data (arrays) and structure (static)."""
 
-    spec: ModelSpec = eqx.field(static=True)
+    spec: ModelFamily = eqx.field(static=True)
     lobe_T: jax.Array | None
     lobe_db: jax.Array | None
     lobe_sigma: jax.Array | None
@@ -68,6 +67,7 @@ class Problem(eqx.Module):
         difference d on the unit circle)."""
         out = {}
         if self.lobe_T is not None:
+            assert self.lobe_sigma is not None  # given with the lobe (`build_problem`)
             m = lobe_model_db(self.spec, params, self.lobe_T)
             out["lobe"] = (
                 soft_floor_db(m, self.lobe_floor) - soft_floor_db(self.lobe_db, self.lobe_floor)
@@ -80,10 +80,12 @@ class Problem(eqx.Module):
     def residuals(self, params: FamilyParams):
         parts = self._smoothness(params)
         if self.lobe_T is not None:
+            assert self.lobe_sigma is not None  # given with the lobe (`build_problem`)
             m = lobe_model_db(self.spec, params, self.lobe_T)
             r = (soft_floor_db(m, self.lobe_floor) - soft_floor_db(self.lobe_db, self.lobe_floor)) / self.lobe_sigma
             parts.append(math.sqrt(self.w_lobe) * r * robust_factor(jnp.abs(r), self.loss, self.loss_scale))
         if self.wave_T is not None:
+            assert self.wave_sigma is not None  # given with the wavefront (`build_problem`)
             d = wave_model_phase(self.spec, params, self.wave_T) - self.wave_phase
             f = math.sqrt(self.w_wave) * robust_factor(
                 2 * jnp.abs(jnp.sin(d / 2)) / self.wave_sigma, self.loss, self.loss_scale
@@ -106,7 +108,7 @@ class Problem(eqx.Module):
 
 
 def build_problem(
-    spec: ModelSpec, transfer: Transfer, lobe: LobeData | None, wave: WaveData | None, o: FitOptions
+    spec: ModelFamily, transfer: Transfer, lobe: LobeData | None, wave: WaveData | None, o: FitOptions
 ) -> Problem:
     """Bundle the data, transfer matrices and options into the residual function's `Problem`."""
     if lobe is None and wave is None:
@@ -155,7 +157,7 @@ def initial_params(problem: Problem, params: FamilyParams | None = None) -> Fami
     if p.has("diam") and params is None:
         best: tuple[float, FamilyParams] | None = None
         for frac in np.linspace(0.5, 0.98, 25):
-            q = _with_offsets(problem, dataclasses.replace(p, diam=device_array(logit(frac))))
+            q = _with_offsets(problem, p.replace(diam=device_array(logit(frac))))
             c = float(_cost(problem, q))
             if np.isfinite(c) and (best is None or c < best[0]):
                 best = (c, q)
@@ -166,14 +168,14 @@ def initial_params(problem: Problem, params: FamilyParams | None = None) -> Fami
 
 def _with_offsets(problem: Problem, p: FamilyParams) -> FamilyParams:
     if p.has("gain_db"):
-        m = np.asarray(_models(problem, dataclasses.replace(p, gain_db=device_array(0.0)))[0])
+        m = np.asarray(_models(problem, p.replace(gain_db=device_array(0.0)))[0])
         data = np.asarray(problem.lobe_db)
         top = data > data.max() - 10
-        p = dataclasses.replace(p, gain_db=device_array(float(np.median(data[top] - m[top]))))
+        p = p.replace(gain_db=device_array(float(np.median(data[top] - m[top]))))
     if p.has("phase0"):
-        m = np.asarray(_models(problem, dataclasses.replace(p, phase0=device_array(0.0)))[1])
+        m = np.asarray(_models(problem, p.replace(phase0=device_array(0.0)))[1])
         d = np.asarray(problem.wave_phase) - m
-        p = dataclasses.replace(p, phase0=device_array(float(np.angle(np.mean(np.exp(1j * d))))))
+        p = p.replace(phase0=device_array(float(np.angle(np.mean(np.exp(1j * d))))))
     return p
 
 

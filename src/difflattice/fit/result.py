@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .data import LobeData, WaveData
-from .family import FamilyParams
+from .family import FamilyParams, ModelFamily
 from .goodness import (
     OUTLIER_SIGMAS,
     _chi2_and_variance_factor,
@@ -20,7 +20,7 @@ from .goodness import (
     goodness_of_fit,
     outlier_diagnostics,
 )
-from .model import ModelSpec, soft_floor_db
+from .model import soft_floor_db
 from .options import CONVERGENCE_WINDOW, STAGE_NAMES, FitOptions
 from .problem import Problem, _model_curves, _residuals
 from .programs import small_jit
@@ -74,7 +74,7 @@ class FitResult:
     (`stderr`, inflated by max(variance_factor, 1)), correlations of the fitted (raw) parameters, the
     trace and the model curves at the solution."""
 
-    spec: ModelSpec
+    spec: ModelFamily
     params: FamilyParams
     physical: dict
     converged: bool
@@ -136,7 +136,7 @@ def _jacobian(problem: Problem, fixed: FamilyParams | None, params: FamilyParams
     return _flat_jacobian(jac, params)
 
 
-def _physical_jacobian_of(spec: ModelSpec, params: FamilyParams):
+def _physical_jacobian_of(spec: ModelFamily, params: FamilyParams):
     jac = jax.jacfwd(lambda p: _physical_values(spec, p))(params)
     return _flat_jacobian(jac, params)
 
@@ -196,7 +196,7 @@ def _trace(stages: list[tuple[int, _Stage]]) -> FitTrace:
 
 def _result(
     problem: Problem,
-    spec: ModelSpec,
+    spec: ModelFamily,
     stages: list[tuple[int, _Stage]],
     options: FitOptions,
     lobe: LobeData | None,
@@ -297,7 +297,7 @@ class _Covariance:
     labels: list
 
     @classmethod
-    def of(cls, J: np.ndarray, spec: ModelSpec, params: FamilyParams, finite: bool) -> _Covariance:
+    def of(cls, J: np.ndarray, spec: ModelFamily, params: FamilyParams, finite: bool) -> _Covariance:
         npar = J.shape[1]
         if finite:
             _, s, vt = np.linalg.svd(J, full_matrices=False)
@@ -400,17 +400,17 @@ def _convergence_record(stages: list[tuple[int, _Stage]], converged: bool, optio
     }
 
 
-def physical_vector(spec: ModelSpec, params: FamilyParams):
+def physical_vector(spec: ModelFamily, params: FamilyParams):
     """(vector, labels) of the physical quantities: per-cell weights `w[k]` (aperture applied),
     lags `lag_us[k]` (µs), `diameter_mm`, `gain_db`, `phase0_deg`."""
     return _physical_vector(spec, params)
 
 
-def _physical_vector(spec: ModelSpec, params: FamilyParams):
+def _physical_vector(spec: ModelFamily, params: FamilyParams):
     return _physical_array(spec, params), _physical_labels(spec)
 
 
-def _physical_labels(spec: ModelSpec) -> list[str]:
+def _physical_labels(spec: ModelFamily) -> list[str]:
     return (
         [f"w[{k}]" for k in range(spec.n_cells)]
         + [f"lag_us[{k}]" for k in range(spec.n_cells)]
@@ -419,11 +419,11 @@ def _physical_labels(spec: ModelSpec) -> list[str]:
 
 
 @small_jit
-def _physical_array(spec: ModelSpec, params: FamilyParams):
+def _physical_array(spec: ModelFamily, params: FamilyParams):
     return _physical_values(spec, params)
 
 
-def _physical_values(spec: ModelSpec, params: FamilyParams):
+def _physical_values(spec: ModelFamily, params: FamilyParams):
     ph = spec.physical(params)
     return jnp.concatenate(
         [
@@ -436,7 +436,7 @@ def _physical_values(spec: ModelSpec, params: FamilyParams):
     )
 
 
-def physical_jacobian(spec: ModelSpec, params: FamilyParams) -> np.ndarray:
+def physical_jacobian(spec: ModelFamily, params: FamilyParams) -> np.ndarray:
     """d physical_vector / d raw parameters, (n_physical, n_raw) in `ravel_pytree` order."""
     return np.asarray(_physical_jacobian(spec, params))
 

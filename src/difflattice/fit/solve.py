@@ -37,7 +37,6 @@ M-estimator factor for robust losses) as a quick figure. The full budget
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
 from types import MappingProxyType
@@ -50,8 +49,8 @@ import optimistix as optx
 from jax.flatten_util import ravel_pytree
 
 from .data import LobeData, WaveData
-from .family import FamilyParams
-from .model import ModelSpec, device_array
+from .family import FamilyParams, ModelFamily
+from .model import device_array
 from .options import CONVERGENCE_WINDOW, SOLVERS, STAGE_NAMES, FitOptions, Loss, Solver
 from .problem import Problem, _cost_aux, _residual_aux, _residuals, build_problem, initial_params
 from .programs import small_jit
@@ -158,7 +157,7 @@ def _run_stage(
     solver = _make_solver(options)
     # strongly typed leaves: a weakly typed start would make the second step compile again
     y0 = jax.tree_util.tree_map(lambda v: device_array(np.asarray(v)), y0)
-    free = dataclasses.replace(y0, **{k: device_array(np.asarray(k not in hold)) for k in y0.names()})
+    free = y0.replace(**{k: device_array(np.asarray(k not in hold)) for k in y0.names()})
     args = (problem, y0, free)
     fixed = y0.only(hold)  # for the stationarity test's Jacobian (the free ones only)
     w = CONVERGENCE_WINDOW
@@ -278,7 +277,7 @@ def _finite(tree) -> bool:
 
 
 def fit(
-    spec: ModelSpec,
+    spec: ModelFamily,
     transfer: Transfer,
     lobe: LobeData | None = None,
     wave: WaveData | None = None,

@@ -159,3 +159,12 @@ def test_optional_parameters_are_none_and_absent_from_the_vector():
     merged = full.without("w", "lag").merged(held)
     assert jax.tree_util.tree_structure(merged) == jax.tree_util.tree_structure(full)
     np.testing.assert_array_equal(np.asarray(ravel_pytree(merged)[0]), np.asarray(ravel_pytree(full)[0]))
+
+
+def test_a_dict_start_is_refused_by_name():
+    from difflattice.fit.solve import _check_params
+
+    spec = ModelSpec(n_cells=5, dx_m=1e-3, frequency_hz=50e3)
+    _check_params(spec, spec.init_params(), "params0")
+    with pytest.raises(TypeError, match=r"params0 is a dict; give the family's parameter module \(LineParams\)"):
+        _check_params(spec, {"diam": 0.0}, "params0")

@@ -168,6 +168,10 @@ def fit_housed(
     (measured, a 9 mm piston 3 mm deep fitted at 24 cells per wavelength: the same fitted values
     within 0.01 mm either way, diameter error 0.13 mm by secants, 0.21 mm exact; at 16 cells
     0.12 and 0.10 mm). The cell-scale secant is the slope the lattice resolves."""
+    if init is not None and not isinstance(init, HousedParams):
+        raise TypeError(
+            f"init is a {type(init).__name__}; give a HousedParams, e.g. spec.init_params() or spec.truth_params(...)"
+        )
     fw = forward or HousedForward(spec, lobe.angle_deg)
     y = jnp.asarray(lobe.level_db, float)
     sig = jnp.asarray(lobe.sigma_db, float)

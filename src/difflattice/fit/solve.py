@@ -302,6 +302,7 @@ def fit(
     from the lower cost: a lobe's cost in D has a local minimum near every null, so a start far
     from the truth (0.75 x, 1.3 x) would otherwise stay in one."""
     t_start = time.perf_counter()
+    _check_params(spec, params0, "params0")
     problem = build_problem(spec, transfer, lobe, wave, options)
     p0 = initial_params(problem, params0)
     starts = [p0]
@@ -318,6 +319,16 @@ def fit(
         if bar is not None:
             bar.close()
     return _result(problem, spec, stages, options, lobe, wave, time.perf_counter() - t_start)
+
+
+def _check_params(spec: ModelFamily, params: object, name: str) -> None:
+    """A start must be the family's parameter module (a dict, as before, is refused by name)."""
+    if params is not None and not isinstance(params, FamilyParams):
+        kind = type(spec.init_params()).__name__
+        raise TypeError(
+            f"{name} is a {type(params).__name__}; give the family's parameter module ({kind}), e.g. "
+            f"spec.init_params() or dataclasses.replace(spec.init_params(), diam=...)"
+        )
 
 
 def _fit_stages(

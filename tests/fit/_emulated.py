@@ -9,7 +9,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from difflattice.fit.data import LobeData, WaveData
-from difflattice.fit.model import ModelSpec, lobe_model_db, wave_model_phase
+from difflattice.fit.model import LineParams, ModelSpec, lobe_model_db, wave_model_phase
 from difflattice.fit.transfer import free_field_transfer
 
 F, C = 50e3, 343.2
@@ -39,15 +39,15 @@ def spec(T, **kw) -> ModelSpec:
     return ModelSpec(T.n_cells, T.grid.dx_m, F, **{"weights": "smooth", "lags": "smooth", "n_basis": 3, **kw})
 
 
-def truth_params(lag_sign: float = 1.0) -> dict:
+def truth_params(lag_sign: float = 1.0) -> LineParams:
     f = TRUE_RAW["frac"]
-    return {
-        "w": jnp.asarray(TRUE_RAW["w"]),
-        "lag": lag_sign * jnp.asarray(TRUE_RAW["lag"]),
-        "diam": jnp.asarray(math.log(f / (1 - f))),
-        "gain_db": jnp.asarray(80.0),
-        "phase0": jnp.asarray(0.3),
-    }
+    return LineParams(
+        w=jnp.asarray(TRUE_RAW["w"]),
+        lag=lag_sign * jnp.asarray(TRUE_RAW["lag"]),
+        diam=jnp.asarray(math.log(f / (1 - f))),
+        gain_db=jnp.asarray(80.0),
+        phase0=jnp.asarray(0.3),
+    )
 
 
 def data(T, *, sig_db=0.1, sig_deg=0.3, seed=1, lag_sign=1.0):
@@ -69,6 +69,6 @@ def data(T, *, sig_db=0.1, sig_deg=0.3, seed=1, lag_sign=1.0):
         "lags_s": np.asarray(ph["lags_s"]),
     }
     for key in ("w", "lag"):
-        for i, c in enumerate(np.asarray(pt[key])):
+        for i, c in enumerate(np.asarray(getattr(pt, key))):
             truth[f"{key}.T{2 * (i + 1)}"] = float(c)
     return lobe, wave, truth

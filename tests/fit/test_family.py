@@ -3,6 +3,7 @@ and a family that leaves a method out cannot be made (an error naming it, not a 
 
 import dataclasses
 
+import jax
 import pytest
 
 from difflattice.fit.disc import DiscSpec
@@ -19,7 +20,7 @@ def test_shipped_families_implement_the_interface(cls):
     ph = spec.physical(p)
     assert {"weights", "lags_s", "diameter_m", "gain_db", "phase0_rad"} <= set(ph)
     assert spec.amplitudes(p).shape == (spec.n_cells,)
-    assert len(spec.raw_labels(p)) == sum(v.size for v in p.values())
+    assert len(spec.raw_labels(p)) == sum(v.size for v in jax.tree_util.tree_leaves(p))
     # a refit at another resolution is a replace of the shared fields
     assert dataclasses.replace(spec, n_cells=16, dx_m=0.75e-3).d_max_m == pytest.approx(spec.d_max_m, rel=1e-12)
 

@@ -13,7 +13,7 @@ import pytest
 
 from difflattice.capture.groundtruth import Piston
 from difflattice.fit.data import LobeData, WaveData
-from difflattice.fit.model import ModelSpec, lobe_model_db, wave_model_phase
+from difflattice.fit.model import LineParams, ModelSpec, lobe_model_db, wave_model_phase
 from difflattice.fit.solve import FitOptions, fit
 from difflattice.fit.transfer import free_field_transfer
 
@@ -42,13 +42,13 @@ def _spec(T, **kw):
 
 def _truth(spec):
     frac = 0.8
-    return {
-        "w": jnp.array([-0.4, 0.1, 0.0]),
-        "lag": jnp.array([0.4, 0.1, 0.0]),
-        "diam": jnp.asarray(math.log(frac / (1 - frac))),
-        "gain_db": jnp.asarray(80.0),
-        "phase0": jnp.asarray(0.3),
-    }
+    return LineParams(
+        w=jnp.array([-0.4, 0.1, 0.0]),
+        lag=jnp.array([0.4, 0.1, 0.0]),
+        diam=jnp.asarray(math.log(frac / (1 - frac))),
+        gain_db=jnp.asarray(80.0),
+        phase0=jnp.asarray(0.3),
+    )
 
 
 def _data(T, spec, pt, sig_db=0.2, sig_deg=0.5, seed=1):
@@ -96,7 +96,7 @@ def test_single_observable_fits(transfer, which):
         wave = None
         spec = _spec(transfer, lags="uniform")
         # regenerate lobe data without lags (the lobe alone barely sees them)
-        pt = {k: v for k, v in pt.items() if k != "lag"}
+        pt = pt.without("lag")
         lobe, _ = _data(transfer, spec, pt)
     r = fit(spec, transfer, lobe, wave, FitOptions())
     assert r.converged
@@ -146,7 +146,9 @@ def test_unidentifiable_parameters_are_flagged(transfer):
     problem is well posed."""
     spec = ModelSpec(transfer.n_cells, transfer.grid.dx_m, F, weights="free", lags="uniform", fit_diameter=False)
     lobe, _ = _data(
-        transfer, spec, {"gain_db": jnp.asarray(80.0), "phase0": jnp.asarray(0.0), "w": jnp.zeros(transfer.n_cells - 1)}
+        transfer,
+        spec,
+        LineParams(gain_db=jnp.asarray(80.0), phase0=jnp.asarray(0.0), w=jnp.zeros(transfer.n_cells - 1)),
     )
     r = fit(spec, transfer, lobe, None, FitOptions(max_steps=30, smoothness_sigma=1e12))
     assert np.all(np.isfinite(r.physical["weights"]))

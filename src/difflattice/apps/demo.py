@@ -54,19 +54,21 @@ def truth_spec(dx_m: float, n_basis: int = 3):
     )
 
 
-def truth_params(spec) -> dict:
+def truth_params(spec):
+    """The emulated transducer's raw parameters (`fit.model.LineParams`) for the line model `spec`."""
     import jax.numpy as jnp
 
+    from ..fit.model import LineParams
     from ..transforms import logit
 
     frac = TRUTH["diameter_m"] / spec.d_max_m
-    return {
-        "w": jnp.asarray(TRUTH["w"]),
-        "lag": jnp.asarray(TRUTH["lag"][: spec.n_basis]),
-        "diam": jnp.asarray(logit(frac)),
-        "gain_db": jnp.asarray(0.0),
-        "phase0": jnp.asarray(0.0),
-    }
+    return LineParams(
+        w=jnp.asarray(TRUTH["w"]),
+        lag=jnp.asarray(TRUTH["lag"][: spec.n_basis]),
+        diam=jnp.asarray(logit(frac)),
+        gain_db=jnp.asarray(0.0),
+        phase0=jnp.asarray(0.0),
+    )
 
 
 def make_truth_table(path: Path, *, angles_deg, x_m, z_m: float) -> dict:

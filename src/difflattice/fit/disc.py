@@ -42,16 +42,19 @@ The numerical profile functions are also exposed in NumPy (`profile_values`), so
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import ClassVar, Literal
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, Float
 
 from ..transforms import logit
-from .family import ModelFamily
+from .family import FamilyParams, ModelFamily
 from .programs import small_jit
 
 DiscProfile = Literal["uniform", "free", "smooth", "rim_taper"]
@@ -59,6 +62,27 @@ DISC_PROFILES = ("uniform", "free", "smooth", "rim_taper")
 AxisLayout = Literal["face", "node"]
 DEFAULT_RIM_WIDTH_FRACTION = 0.15
 """Initial rim-zone width b / a of a "rim_taper" profile (its taper starts flat: e = 1, tau_e = 0)."""
+
+
+class DiscParams(FamilyParams):
+    """Raw (unconstrained) parameters of the disc family (`DiscSpec`); None where not fitted.
+    Fields in alphabetical (`ravel_pytree`) order."""
+
+    diam: Float[Array, ""] | None = None
+    """Diameter, logit(D / D_max) (radius a = a_max sigmoid(diam), a_max the modelled disc's);
+    None when the diameter is held at `DiscSpec.diameter_m`."""
+    gain_db: Float[Array, ""] | None = None
+    """Level offset of the lobe, dB (the transfer's units to the data's); None without lobe data."""
+    lag: Float[Array, " n_lag"] | None = None
+    """Lag profile, artanh(2 tau / T) (tau = (T/2) tanh(.), T the period): even Chebyshev
+    coefficients in r/a ("smooth"), per ring 1..n-1 with ring 0 pinned at 0 ("free"), or a rim
+    taper's [artanh(2 tau_rim / T), logit(b / a)] (the width only when not fixed); None for
+    "uniform"."""
+    phase0: Float[Array, ""] | None = None
+    """Carrier phase offset of the wavefront, rad; None without wavefront data."""
+    w: Float[Array, " n_w"] | None = None
+    """Log-weight profile (w = exp(.), relative to the centre ring): as for `lag`, a rim taper's
+    [log(rim weight), logit(b / a)]; None for "uniform"."""
 
 
 def ring_edges(n_rings: int, dr_m: float, axis: AxisLayout = "face") -> np.ndarray:
@@ -137,7 +161,7 @@ def smooth_step(t):
 
 
 @dataclass(frozen=True)
-class DiscSpec(ModelFamily):
+class DiscSpec(ModelFamily[DiscParams]):
     """Static description of a disc model: `n_cells` ring cells (rings 0 .. n_cells - 1 from the
     axis) of width `dx_m` (the lattice's cell size; the field names are `ModelSpec`'s, so code
     written for the line model, e.g. a refit at another resolution by `dataclasses.replace(spec,
@@ -265,10 +289,10 @@ class DiscSpec(ModelFamily):
         return radius * jax.nn.sigmoid(p[1])
 
     # -- parameters -------------------------------------------------------------------------
-    def init_params(self) -> dict:
+    def init_params(self) -> DiscParams:
         """Initial raw parameters: uniform weights, no lags, the initial diameter (default
         0.97 x the modelled disc), no gain, no phase offset."""
-        p = {"gain_db": jnp.asarray(0.0), "phase0": jnp.asarray(0.0)}
+        p: dict = {"gain_db": jnp.asarray(0.0), "phase0": jnp.asarray(0.0)}
         for key, profile in (("w", self.weights), ("lag", self.lags)):
             n = self._n_params(profile)
             if n:
@@ -281,15 +305,15 @@ class DiscSpec(ModelFamily):
             d0 = self.diameter_m or 0.97 * self.d_max_m
             frac = min(max(d0 / self.d_max_m, 1e-3), 1 - 1e-3)
             p["diam"] = jnp.asarray(logit(frac))
-        return p
+        return DiscParams(**p)
 
-    def radius_m(self, params: dict):
+    def radius_m(self, params: DiscParams):
         """The disc's radius (m) from raw parameters."""
-        if "diam" in params:
-            return 0.5 * self.d_max_m * jax.nn.sigmoid(params["diam"])
+        if params.diam is not None:
+            return 0.5 * self.d_max_m * jax.nn.sigmoid(params.diam)
         return jnp.asarray(0.5 * (self.diameter_m or self.d_max_m))
 
-    def physical(self, params: dict) -> dict:
+    def physical(self, params: DiscParams) -> dict:
         """Raw parameters -> physical: `weights` (per ring, times the ring's area fraction inside
         the radius), `weights_raw` (the profile alone), `lags_s`, `ring_fraction` (each ring's share of the disc, see `rim_fraction`), `diameter_m`,
         `gain_db`, `phase0_rad`, and the rim-taper quantities where used (`rim_weight`,
@@ -298,25 +322,25 @@ class DiscSpec(ModelFamily):
         half_t = 0.5 * self.period_s
         out = {}
         w = jnp.ones(self.n_rings)
-        if "w" in params:
+        if params.w is not None:
             if self.weights == "rim_taper":
-                p0, s = self._shape("rim_taper", params["w"], a)
+                p0, s = self._shape("rim_taper", params.w, a)
                 e = jnp.exp(p0)
                 w = 1.0 - (1.0 - e) * s
                 out["rim_weight"] = e
-                out["rim_width_m"] = self._rim_width(params["w"], a)
+                out["rim_width_m"] = self._rim_width(params.w, a)
             else:
-                w = jnp.exp(self._shape(self.weights, params["w"], a)[0])
+                w = jnp.exp(self._shape(self.weights, params.w, a)[0])
         lag = jnp.zeros(self.n_rings)
-        if "lag" in params:
+        if params.lag is not None:
             if self.lags == "rim_taper":
-                p0, s = self._shape("rim_taper", params["lag"], a)
+                p0, s = self._shape("rim_taper", params.lag, a)
                 tau_e = half_t * jnp.tanh(p0)
                 lag = tau_e * s
                 out["rim_lag_s"] = tau_e
-                out["rim_lag_width_m"] = self._rim_width(params["lag"], a)
+                out["rim_lag_width_m"] = self._rim_width(params.lag, a)
             else:
-                lag = half_t * jnp.tanh(self._shape(self.lags, params["lag"], a)[0])
+                lag = half_t * jnp.tanh(self._shape(self.lags, params.lag, a)[0])
         edges = jnp.asarray(self.ring_edges_m)
         frac = rim_fraction(edges, a) if self.rim == "moments" else area_fraction(edges, a)
         return {
@@ -325,12 +349,12 @@ class DiscSpec(ModelFamily):
             "lags_s": lag,
             "ring_fraction": frac,
             "diameter_m": 2.0 * a,
-            "gain_db": params.get("gain_db", jnp.asarray(0.0)),
-            "phase0_rad": params.get("phase0", jnp.asarray(0.0)),
+            "gain_db": jnp.asarray(0.0) if params.gain_db is None else params.gain_db,
+            "phase0_rad": jnp.asarray(0.0) if params.phase0 is None else params.phase0,
             **out,
         }
 
-    def amplitudes(self, params: dict):
+    def amplitudes(self, params: DiscParams):
         """Complex ring amplitudes a_i = w_i f_i exp(i omega tau_i) (exp(-i omega t) convention):
         the normal velocity of ring i relative to a uniform piston, times its area fraction."""
         ph = self.physical(params)
@@ -338,10 +362,10 @@ class DiscSpec(ModelFamily):
 
     def truth_params(
         self, *, diameter_m: float, w=None, lag=None, gain_db: float = 0.0, phase0_rad: float = 0.0
-    ) -> dict:
+    ) -> DiscParams:
         """Raw parameters for a given diameter (m) and raw profile arrays (`w`, `lag`), e.g. to
         emulate data from a known disc."""
-        p = {"gain_db": jnp.asarray(gain_db), "phase0": jnp.asarray(phase0_rad)}
+        p: dict = {"gain_db": jnp.asarray(gain_db), "phase0": jnp.asarray(phase0_rad)}
         if self.fit_diameter:
             frac = diameter_m / self.d_max_m
             if not 0 < frac < 1:
@@ -356,16 +380,16 @@ class DiscSpec(ModelFamily):
                 if v.shape != (n,):
                     raise ValueError(f"{key} has shape {v.shape}; the {profile!r} profile takes ({n},)")
                 p[key] = v
-        return p
+        return DiscParams(**p)
 
     # -- structure of the parameterisation (labels, bounds, warm starts, symmetries) ---------
-    def raw_labels(self, params: dict) -> list[str]:
+    def raw_labels(self, params: DiscParams) -> list[str]:
         """Names of the raw parameters in `jax.flatten_util.ravel_pytree(params)` order: smooth
         profile coefficients `w.T2`, `w.T4`, ... (even Chebyshev degree in r/a), free ones `w[k]`
         (ring k), a rim taper's `w.rim_log` / `lag.rim_atanh` (rim value) and `*.rim_width_logit`,
         `diameter.logit`, `gain_db`, `phase0_rad`."""
         out: list[str] = []
-        for key in sorted(params):
+        for key in params.names():
             if key in ("w", "lag"):
                 profile = self.weights if key == "w" else self.lags
                 if profile == "smooth":
@@ -400,22 +424,24 @@ class DiscSpec(ModelFamily):
             return np.asarray(_even_chebyshev(jnp.asarray(self.r_m / a), self.n_basis))
         raise ValueError(f"the {profile!r} disc profile is not linear in its parameters (no expansion matrix)")
 
-    def params_from_profiles(self, log_weights, lag_args, diameter_m: float | None, template: dict) -> dict:
+    def params_from_profiles(
+        self, log_weights, lag_args, diameter_m: float | None, template: FamilyParams
+    ) -> DiscParams:
         """Raw parameters of this model closest (least squares) to per-ring raw values
         (`log_weights` = log w_i, `lag_args` = artanh(2 tau_i / T), at this model's rings) and the
         `diameter_m`, e.g. for a warm start at another resolution. A rim taper's parameters are
         functions of r / a, independent of the rings: they are copied from `template` (same
         profile) or start flat. Offsets (gain, phase0) are copied from `template`."""
         a = 0.5 * (diameter_m or self.diameter_m or 0.97 * self.d_max_m)
-        out = {}
+        out: dict = {}
         init = self.init_params()
         for key, profile, v in (("w", self.weights, log_weights), ("lag", self.lags, lag_args)):
             n = self._n_params(profile)
             if not n:
                 continue
             if profile == "rim_taper" or v is None:
-                t = template.get(key)
-                out[key] = jnp.asarray(t) if t is not None and np.shape(t) == (n,) else init[key]
+                t = getattr(template, key, None)
+                out[key] = jnp.asarray(t) if t is not None and np.shape(t) == (n,) else getattr(init, key)
                 continue
             v = np.asarray(v, float)
             inside = self.r_m < a
@@ -425,11 +451,11 @@ class DiscSpec(ModelFamily):
             frac = min(max(2 * a / self.d_max_m, 1e-3), 1 - 1e-3)
             out["diam"] = jnp.asarray(logit(frac))
         for key in ("gain_db", "phase0"):
-            if key in template:
-                out[key] = jnp.asarray(template[key])
-        return out
+            if template.has(key):
+                out[key] = jnp.asarray(getattr(template, key))
+        return DiscParams(**out)
 
-    def symmetries(self) -> dict:
+    def symmetries(self) -> dict[str, Callable[[DiscParams], DiscParams]]:
         """Maps of the raw parameters that leave some observable (nearly) unchanged, named:
         `time reversal` (every lag -> -lag and the phase offset negated: conjugates the ring
         amplitudes, which leaves a far-field |lobe| unchanged: the lag sign is not determined by a
@@ -437,13 +463,13 @@ class DiscSpec(ModelFamily):
         if self.lags == "uniform":
             return {}
 
-        def reverse(params: dict) -> dict:
-            q = dict(params)
-            if "lag" in q:
-                lag = jnp.asarray(q["lag"])
-                q["lag"] = lag.at[0].set(-lag[0]) if self.lags == "rim_taper" else -lag
-            if "phase0" in q:
-                q["phase0"] = -jnp.asarray(q["phase0"])
+        def reverse(params: DiscParams) -> DiscParams:
+            q = params
+            if q.lag is not None:
+                lag = jnp.asarray(q.lag)
+                q = dataclasses.replace(q, lag=lag.at[0].set(-lag[0]) if self.lags == "rim_taper" else -lag)
+            if q.phase0 is not None:
+                q = dataclasses.replace(q, phase0=-jnp.asarray(q.phase0))
             return q
 
         return {"time reversal": reverse}

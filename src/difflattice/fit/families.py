@@ -12,7 +12,8 @@ from typing import Any
 import numpy as np
 
 from .data import LobeData, WaveData
-from .model import PROFILES, ModelSpec
+from .family import ModelFamily
+from .model import PROFILES
 from .quantities import _implied_coefficients, _on_nominal, _quantities_and_jacobian, _stats, map_params
 from .solve import FitOptions, FitResult, fit
 from .transfer import Transfer
@@ -23,7 +24,7 @@ Anderson: beyond 10, essentially no support)."""
 FAMILY_KEYS = ("weights", "lags", "n_basis", "symmetric", "smoothness_sigma")
 
 
-def default_families(spec: ModelSpec) -> list[dict]:
+def default_families(spec: ModelFamily) -> list[dict]:
     """Alternative model families compared by default: one more basis function for smooth
     profiles (n vs n + 1); for per-cell profiles, free <-> symmetric. A per-cell profile for a
     smooth one is not a default: it determines the aperture far less well, and its spread would
@@ -39,7 +40,7 @@ def default_families(spec: ModelSpec) -> list[dict]:
     return out
 
 
-def weak_smoothness_sigma(spec: ModelSpec) -> float:
+def weak_smoothness_sigma(spec: ModelFamily) -> float:
     """The smoothness prior of a per-cell family that tests a smooth profile's shape: the weakest
     that still suppresses the non-radiating cell-to-cell oscillations, i.e. a Nyquist ripple of
     0.01 (1 % in weight, 0.01 rad in lag phase) on every cell costs at least one unit of chi2
@@ -47,7 +48,7 @@ def weak_smoothness_sigma(spec: ModelSpec) -> float:
     return 0.04 * math.sqrt(spec.n_cells)
 
 
-def _family(spec: ModelSpec, f: str | Mapping[str, Any]) -> dict:
+def _family(spec: ModelFamily, f: str | Mapping[str, Any]) -> dict:
     """A family given as overrides, or as a profile name applied to every fitted profile ("smooth"
     when the nominal is smooth means one more basis function; "free"/"symmetric" for a smooth
     nominal come with the weak prior `weak_smoothness_sigma`); {} when it is the nominal model."""
@@ -73,7 +74,7 @@ def _family_label(ov: Mapping[str, Any]) -> str:
     )
 
 
-def _check_family(spec: ModelSpec, options: FitOptions, ov: Mapping[str, Any]) -> tuple[ModelSpec, FitOptions]:
+def _check_family(spec: ModelFamily, options: FitOptions, ov: Mapping[str, Any]) -> tuple[ModelFamily, FitOptions]:
     bad = [k for k in ov if k not in FAMILY_KEYS]
     if bad:
         raise ValueError(
@@ -186,8 +187,8 @@ def family_spread(
 
 def _add_family_variance(
     var_fam: dict[str, float],
-    spec: ModelSpec,
-    fspec: ModelSpec,
+    spec: ModelFamily,
+    fspec: ModelFamily,
     ff: FitResult,
     other: dict,
     own: dict,

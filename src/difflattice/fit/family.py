@@ -2,23 +2,68 @@
 error budget (`fit.uncertainty`) and the reports run any family unchanged.
 
 A family is a frozen dataclass of static configuration (what is fitted and how) whose methods map
-the raw, unconstrained parameters (a dict of arrays: the differentiable part) to the source cells'
-complex amplitudes and to physical quantities. Final families: `fit.model.ModelSpec` (a line of
-cells on the 2-D lattice, "line") and `fit.disc.DiscSpec` (rings of a disc on the axisymmetric
-lattice, "disc"). A new family is one file with one such class, its transfer (the observables'
-linear map from the amplitudes) and one entry in `apps.fitting`'s table of family set-ups.
+the raw, unconstrained parameters (the differentiable part: a frozen `FamilyParams` module of the
+family's own, returned by `init_params`) to the source cells' complex amplitudes and to physical
+quantities. Final families: `fit.model.ModelSpec` (a line of cells on the 2-D lattice, "line",
+parameters `fit.model.LineParams`) and `fit.disc.DiscSpec` (rings of a disc on the axisymmetric
+lattice, "disc", parameters `fit.disc.DiscParams`); the housed family `fit.housed.HousedSpec`
+(its own lattice fit, `fit.ladder`) has `fit.housed.HousedParams`. A new family is one file with
+one such class and its parameter module, its transfer (the observables' linear map from the
+amplitudes) and one entry in `apps.fitting`'s table of family set-ups.
 """
 
 from __future__ import annotations
 
 import abc
-from collections.abc import Callable
-from typing import ClassVar
+import dataclasses
+from collections.abc import Callable, Iterable
+from typing import Any, ClassVar, Generic, Self, TypeVar, cast
 
+import equinox as eqx
 import numpy as np
 
 
-class ModelFamily(abc.ABC):
+class FamilyParams(eqx.Module):
+    """A model family's raw (unconstrained) parameters: the differentiable part of a fit, a frozen
+    module whose fields are arrays, or None for a parameter the fit does not have (a diameter held
+    at its value, an offset no data see, a uniform profile).
+
+    Subclasses declare their fields in alphabetical order: `jax.flatten_util.ravel_pytree` then
+    orders the raw parameter vector (covariances, Jacobian columns, `raw_labels`, reports) by name,
+    as it did when the parameters were a dict. Update by `dataclasses.replace` (or `without`)."""
+
+    def names(self) -> tuple[str, ...]:
+        """The parameters present (not None), in `ravel_pytree` order."""
+        return tuple(f.name for f in dataclasses.fields(self) if getattr(self, f.name) is not None)
+
+    def has(self, name: str) -> bool:
+        """Whether the parameter `name` is fitted (present, not None)."""
+        return getattr(self, name, None) is not None
+
+    def without(self, *names: str) -> Self:
+        """These parameters with `names` removed (None)."""
+        return dataclasses.replace(self, **{n: None for n in names})
+
+    def only(self, names: Iterable[str]) -> Self:
+        """These parameters with every one not in `names` removed (None)."""
+        keep = set(names)
+        return self.without(*(n for n in self.names() if n not in keep))
+
+    def merged(self, over: FamilyParams | None) -> Self:
+        """These parameters with those present in `over` (same class) taking their place."""
+        return self if over is None else cast(Self, eqx.combine(over, self, is_leaf=lambda x: x is None))
+
+    def replace(self, **values: Any) -> Self:
+        """`dataclasses.replace` for code that holds any family's parameters (the field names
+        are checked at run time: a name the family does not have is a TypeError)."""
+        return dataclasses.replace(self, **values)
+
+
+P = TypeVar("P", bound=FamilyParams)
+"""A family's parameter module."""
+
+
+class ModelFamily(abc.ABC, Generic[P]):
     """A transducer model family (abstract). Subclasses are frozen dataclasses with at least the
     fields `n_cells` (source cells or rings), `dx_m` (their pitch, m), `frequency_hz`, `weights`
     and `lags` (profile names), `n_basis`, `fit_diameter` and `diameter_m`, so that a refit at
@@ -26,6 +71,8 @@ class ModelFamily(abc.ABC):
 
     kind: ClassVar[str]
     """The family's name in configs and reports ("line", "disc")."""
+    __dataclass_fields__: ClassVar[dict[str, dataclasses.Field[Any]]]
+    """Every family is a dataclass (so `dataclasses.replace` applies to any family)."""
 
     n_cells: int
     dx_m: float
@@ -65,20 +112,20 @@ class ModelFamily(abc.ABC):
 
     # -- parameters -----------------------------------------------------------------------
     @abc.abstractmethod
-    def init_params(self) -> dict:
+    def init_params(self) -> P:
         """The initial raw parameters (uniform face, no lags, the initial diameter)."""
 
     @abc.abstractmethod
-    def physical(self, params: dict) -> dict:
+    def physical(self, params: P) -> dict:
         """Physical quantities: `weights` (aperture applied), `weights_raw`, `lags_s`, `diameter_m`,
         `gain_db`, `phase0_rad`."""
 
     @abc.abstractmethod
-    def amplitudes(self, params: dict):
+    def amplitudes(self, params: P):
         """The cells' complex amplitudes w exp(i omega tau) (times the gain and offset)."""
 
     @abc.abstractmethod
-    def raw_labels(self, params: dict) -> list[str]:
+    def raw_labels(self, params: P) -> list[str]:
         """A name per raw parameter, in `ravel_pytree` order."""
 
     @abc.abstractmethod
@@ -90,10 +137,10 @@ class ModelFamily(abc.ABC):
         """(n_cells, n_coefficients) map from a smooth profile's coefficients to per-cell values."""
 
     @abc.abstractmethod
-    def params_from_profiles(self, log_weights, lag_args, diameter_m: float | None, template: dict) -> dict:
+    def params_from_profiles(self, log_weights, lag_args, diameter_m: float | None, template: FamilyParams) -> P:
         """Raw parameters that reproduce per-cell profiles (a warm start from another model)."""
 
     @abc.abstractmethod
-    def symmetries(self) -> dict[str, Callable[[dict], dict]]:
+    def symmetries(self) -> dict[str, Callable[[P], P]]:
         """Candidate symmetries of the data under this model: name -> map of the raw parameters
         (the error budget refits from each image to decide identifiability)."""

@@ -38,6 +38,7 @@ and artanh(2 lag / T)). Bounds come from the can: nothing is larger than the can
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Literal
@@ -45,9 +46,11 @@ from typing import Literal
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, Float
 
 from ..lattice.window import Span
 from ..transforms import logit
+from .family import FamilyParams
 
 FAMILIES = ("flat", "recessed", "opening", "profile")
 """The ladder of housed model families, simplest first: a flat piston flush with the can's front
@@ -66,6 +69,26 @@ FAMILY_PARAMS = {
 FIXABLE = {"diam": "diaphragm", "recess": "recess", "opening": "opening"}
 """Raw geometry parameters and the names under which `HousedSpec.fixed` holds them at the spec's
 value (`diaphragm_m`, `recess_m`, `opening_m`), e.g. an opening read off the outline drawing."""
+
+
+class HousedParams(FamilyParams):
+    """Raw (unconstrained) parameters of a housed model (`HousedSpec`): the fields of its family
+    (`FAMILY_PARAMS`) less those held `fixed`, the rest None. Fields in alphabetical
+    (`ravel_pytree`) order. R_in is the bore's radius."""
+
+    diam: Float[Array, ""] | None = None
+    """Diaphragm, logit(a / R_in) (radius a = R_in sigmoid(diam))."""
+    gain_db: Float[Array, ""] | None = None
+    """Level offset, dB: 20 log10 |F| of the far field to the table's levels."""
+    lag: Float[Array, " n_rings_1"] | None = None
+    """Free lag profile ("profile"), artanh(2 tau / T) of rings 1..n-1 (ring 0 pinned at 0)."""
+    opening: Float[Array, ""] | None = None
+    """Front plate's opening, logit(b / R_in) (radius b = R_in sigmoid(opening); "opening")."""
+    recess: Float[Array, ""] | None = None
+    """Recess, logit((d - d_min) / (d_max - d_min)) (depth d of the diaphragm behind the front
+    face; d_max the can's length less one cell)."""
+    w: Float[Array, " n_rings_1"] | None = None
+    """Free log-weight profile ("profile"), log w of rings 1..n-1 (ring 0 pinned at 1)."""
 
 
 @dataclass(frozen=True)
@@ -261,7 +284,7 @@ class HousedSpec:
         """The family's raw parameters, less those held `fixed` at the spec's values."""
         return tuple(k for k in FAMILY_PARAMS[self.family] if FIXABLE.get(k) not in self.fixed)
 
-    def init_params(self) -> dict:
+    def init_params(self) -> HousedParams:
         """Initial raw parameters of the family (defaults from the housing)."""
         h = self.housing
         rb = h.bore_radius_m
@@ -279,22 +302,22 @@ class HousedSpec:
                 out[key] = jnp.asarray(0.0)
             else:  # w, lag: the free profile, rings 1 .. n-1
                 out[key] = jnp.zeros(self.n_rings - 1)
-        return out
+        return HousedParams(**out)
 
-    def physical(self, params: dict) -> dict:
+    def physical(self, params: HousedParams) -> dict:
         """Raw -> physical: `diaphragm_m`, `recess_m`, `opening_m` (None where the family has no
         plate), `gain_db`, per-ring `weights` and `lags_s` (the profile; 1 and 0 for a piston)."""
         h = self.housing
         rb = h.bore_radius_m
         s = jax.nn.sigmoid
-        a = rb * s(params["diam"]) if "diam" in params else jnp.asarray(0.5 * (self.diaphragm_m or 1.6 * rb))
-        if "recess" in params:
+        a = rb * s(params.diam) if params.diam is not None else jnp.asarray(0.5 * (self.diaphragm_m or 1.6 * rb))
+        if params.recess is not None:
             lo, hi = self.recess_min_m, self.recess_max_m
-            d = lo + (hi - lo) * s(params["recess"])
+            d = lo + (hi - lo) * s(params.recess)
         else:
             d = jnp.asarray(self.recess_m or 0.0)
-        if "opening" in params:
-            b = rb * s(params["opening"])
+        if params.opening is not None:
+            b = rb * s(params.opening)
         elif self.family == "opening" and self.opening_m is not None:  # held fixed
             b = jnp.asarray(0.5 * self.opening_m)
         else:
@@ -302,33 +325,33 @@ class HousedSpec:
         n = self.n_rings
         w = jnp.ones(n)
         lag = jnp.zeros(n)
-        if "w" in params:
-            w = jnp.exp(jnp.concatenate([jnp.zeros(1), params["w"]]))
-        if "lag" in params:
-            lag = 0.5 * self.period_s * jnp.tanh(jnp.concatenate([jnp.zeros(1), params["lag"]]))
+        if params.w is not None:
+            w = jnp.exp(jnp.concatenate([jnp.zeros(1), params.w]))
+        if params.lag is not None:
+            lag = 0.5 * self.period_s * jnp.tanh(jnp.concatenate([jnp.zeros(1), params.lag]))
         return {
             "diaphragm_m": 2 * a,
             "recess_m": d,
             "opening_m": None if b is None else 2 * b,
-            "gain_db": params.get("gain_db", jnp.asarray(0.0)),
+            "gain_db": jnp.asarray(0.0) if params.gain_db is None else params.gain_db,
             "weights": w,
             "lags_s": lag,
         }
 
     def truth_params(
         self, *, diaphragm_m: float, recess_m: float | None = None, opening_m: float | None = None
-    ) -> dict:
+    ) -> HousedParams:
         """Raw parameters of a given geometry (for synthetic data and warm starts); a recess or
         opening not given keeps its initial value (`init_params`)."""
         rb = self.housing.bore_radius_m
         p = self.init_params()
-        if "diam" in p:
-            p["diam"] = jnp.asarray(logit(_inside(0.5 * diaphragm_m / rb)))
-        if "recess" in p and recess_m is not None:
+        if p.diam is not None:
+            p = dataclasses.replace(p, diam=jnp.asarray(logit(_inside(0.5 * diaphragm_m / rb))))
+        if p.recess is not None and recess_m is not None:
             lo, hi = self.recess_min_m, self.recess_max_m
-            p["recess"] = jnp.asarray(logit(_inside((recess_m - lo) / (hi - lo))))
-        if "opening" in p and opening_m is not None:
-            p["opening"] = jnp.asarray(logit(_inside(0.5 * opening_m / rb)))
+            p = dataclasses.replace(p, recess=jnp.asarray(logit(_inside((recess_m - lo) / (hi - lo)))))
+        if p.opening is not None and opening_m is not None:
+            p = dataclasses.replace(p, opening=jnp.asarray(logit(_inside(0.5 * opening_m / rb))))
         return p
 
     def bounds_mm(self) -> dict:
@@ -442,18 +465,18 @@ class HousedForward:
         m = self.operator.shape[0] // 2
         return np.asarray(field_at_rz(np.eye(m), self.surface, self.grid, pts, dispersion="continuum", n_phi=n_phi))
 
-    def near_field(self, params: dict):
+    def near_field(self, params: HousedParams):
         """Complex pressure on the scan line given at construction (same units as `far_field`);
         the observer's carrier phase in the rig's convention is -arg of it."""
         if self.wave_operator is None:
             raise ValueError("no scan line: construct HousedForward(..., wave_x_m=..., wave_z_m=...)")
         return self.phasors(params) @ self.wave_operator
 
-    def far_field(self, params: dict):
+    def far_field(self, params: HousedParams):
         """Complex far field F at `angle_deg` (arbitrary units: the drive's spectrum is not divided out)."""
         return self.phasors(params) @ self.operator
 
-    def phasors(self, params: dict):
+    def phasors(self, params: HousedParams):
         """The lattice run: phasors at the drive frequency of the surface's recorded cells."""
         from ..air import density_kg_m3
         from ..lattice.medium import Medium
@@ -499,7 +522,7 @@ class HousedForward:
         assert r.phasors is not None  # recorded: the sensors ask for them
         return r.phasors
 
-    def lobe_db(self, params: dict):
+    def lobe_db(self, params: HousedParams):
         """Model levels, dB: 20 log10 |F| plus the fitted gain."""
         f = self.far_field(params)
-        return 10 * jnp.log10(jnp.abs(f) ** 2 + 1e-300) + params.get("gain_db", 0.0)
+        return 10 * jnp.log10(jnp.abs(f) ** 2 + 1e-300) + (0.0 if params.gain_db is None else params.gain_db)

@@ -15,7 +15,7 @@ import numpy as np
 from ..transforms import sigmoid
 from .data import LobeData, WaveData
 from .estimates import Estimate
-from .model import ModelSpec
+from .family import FamilyParams, ModelFamily
 from .quantities import _values
 from .solve import FitOptions, FitResult, fit
 from .transfer import Transfer
@@ -25,7 +25,7 @@ EQUIVALENT_DELTA_CHI2 = 4.0
 are equally good fits: a 2-sigma distinction for one parameter."""
 
 
-def mark_reference_and_inactive(est: dict[str, Estimate], spec: ModelSpec, window: np.ndarray) -> None:
+def mark_reference_and_inactive(est: dict[str, Estimate], spec: ModelFamily, window: np.ndarray) -> None:
     """Cells outside the active aperture (window < 1/2) are inactive; the reference (centre) cells
     are fixed by definition."""
     mid = list(spec.reference_cells)
@@ -181,7 +181,7 @@ def mark_bounds(est: dict[str, Estimate], fitted: FitResult, names: Sequence[str
                 )
 
 
-def mirror_aliases(est: dict[str, Estimate], spec: ModelSpec) -> tuple[list[str], set[str]]:
+def mirror_aliases(est: dict[str, Estimate], spec: ModelFamily) -> tuple[list[str], set[str]]:
     """Mirror duplicates, from the model's structure: cells at mirrored positions (y and -y) of a
     profile that is one parameter per mirror pair by construction (never from equal values: a
     disc's rings have no mirror, and a rim taper's flat rings are equal without being one).
@@ -220,7 +220,7 @@ def mark_non_finite(est: dict[str, Estimate], names: Sequence[str]) -> None:
             )
 
 
-def _diameter_bound(e: Estimate, bound: tuple, soft_mm: float, spec: ModelSpec, params: dict, cov, vf: float):
+def _diameter_bound(e: Estimate, bound: tuple, soft_mm: float, spec: ModelFamily, params: FamilyParams, cov, vf: float):
     """The diameter's estimate with its bound status. "at_bound" only when the value is AT the
     bound (within 2 edge softnesses, or 0.1 %, of it); its one-sided limit is the likelihood's:
     2 inflated standard errors of the raw (logit) parameter away from the bound, mapped into the
@@ -236,7 +236,9 @@ def _diameter_bound(e: Estimate, bound: tuple, soft_mm: float, spec: ModelSpec, 
     j = labels.index("diameter.logit")
     var = float(cov[j, j]) * max(vf, 1.0) if cov is not None else math.nan
     sd_raw = math.sqrt(var) if math.isfinite(var) and var > 0 else math.nan
-    d_raw = float(params["diam"])
+    diam = getattr(params, "diam", None)  # present: its label is
+    assert diam is not None
+    d_raw = float(diam)
     lim = hi * sigmoid(d_raw - 2 * sd_raw) if side == "upper" else hi * sigmoid(d_raw + 2 * sd_raw)
     if not math.isfinite(lim):
         lim = e.value  # no curvature at all: the only statement is the bound itself
@@ -263,7 +265,7 @@ def _diameter_bound(e: Estimate, bound: tuple, soft_mm: float, spec: ModelSpec, 
     )
 
 
-def _mirror_pairs(spec: ModelSpec, profile: str) -> list[tuple[int, int]]:
+def _mirror_pairs(spec: ModelFamily, profile: str) -> list[tuple[int, int]]:
     """(k, n-1-k) pairs that are one parameter by the model's construction: cells at mirrored
     positions (y_k = -y_(n-1-k)) of a profile that is even in y ("symmetric", "uniform", or
     "smooth" with even degrees only). A disc's rings (y >= 0) have none."""

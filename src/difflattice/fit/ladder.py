@@ -29,7 +29,7 @@ import numpy as np
 from jax.flatten_util import ravel_pytree
 
 from .data import LobeData
-from .housed import FAMILIES, HousedForward, HousedSpec
+from .housed import FAMILIES, HousedForward, HousedParams, HousedSpec
 from .model import soft_floor_db
 
 COND_MAX = 1e8
@@ -54,7 +54,7 @@ class HousedFit:
     name -> 1-sigma, mm or dB), residuals, chi-square, condition number, convergence."""
 
     spec: HousedSpec
-    params: dict
+    params: HousedParams
     physical: dict
     errors: dict
     model_db: np.ndarray
@@ -91,7 +91,8 @@ class HousedFit:
         can allows; its error is not a spread."""
         out = []
         for key, label in (("diam", "diaphragm"), ("recess", "recess"), ("opening", "opening")):
-            if key in self.params and abs(float(self.params[key])) > AT_BOUND:
+            v = getattr(self.params, key)
+            if v is not None and abs(float(v)) > AT_BOUND:
                 out.append(label)
         return out
 
@@ -120,7 +121,7 @@ class HousedFit:
         return out
 
 
-def _physical_vector(spec: HousedSpec, params: dict):
+def _physical_vector(spec: HousedSpec, params: HousedParams):
     """(names, jnp vector) of the reported physical quantities (mm and dB)."""
     ph = spec.physical(params)
     names, vals = [], []
@@ -132,7 +133,7 @@ def _physical_vector(spec: HousedSpec, params: dict):
     ):
         v = ph[key]
         raw = {"diaphragm_m": "diam", "recess_m": "recess", "opening_m": "opening"}.get(key)
-        if v is None or (raw is not None and raw not in params):  # absent, or held fixed
+        if v is None or (raw is not None and not params.has(raw)):  # absent, or held fixed
             continue
         names.append(label)
         vals.append(jnp.asarray(v) * scale)
@@ -143,7 +144,7 @@ def fit_housed(
     spec: HousedSpec,
     lobe: LobeData,
     *,
-    init: dict | None = None,
+    init: HousedParams | None = None,
     max_iter: int = 60,
     forward: HousedForward | None = None,
     starts: int = 3,
@@ -167,11 +168,15 @@ def fit_housed(
     (measured, a 9 mm piston 3 mm deep fitted at 24 cells per wavelength: the same fitted values
     within 0.01 mm either way, diameter error 0.13 mm by secants, 0.21 mm exact; at 16 cells
     0.12 and 0.10 mm). The cell-scale secant is the slope the lattice resolves."""
+    if init is not None and not isinstance(init, HousedParams):
+        raise TypeError(
+            f"init is a {type(init).__name__}; give a HousedParams, e.g. spec.init_params() or spec.truth_params(...)"
+        )
     fw = forward or HousedForward(spec, lobe.angle_deg)
     y = jnp.asarray(lobe.level_db, float)
     sig = jnp.asarray(lobe.sigma_db, float)
     floor = float(np.min(lobe.level_db)) - FLOOR_BELOW_DB
-    p0 = init or spec.init_params()
+    p0 = init if init is not None else spec.init_params()
     flat0, unravel = ravel_pytree(p0)
 
     def residual(u):
@@ -244,11 +249,11 @@ def _gain_start(u0, res_j, unravel, sig):
     p = unravel(jnp.asarray(u0))
     r = np.asarray(res_j(jnp.asarray(u0)))
     s = np.asarray(sig, float)
-    p["gain_db"] = jnp.asarray(float(p["gain_db"]) - float(np.sum(r / s) / np.sum(1 / s**2)))
+    p = dataclasses.replace(p, gain_db=jnp.asarray(float(p.gain_db) - float(np.sum(r / s) / np.sum(1 / s**2))))
     return np.asarray(ravel_pytree(p)[0], float)
 
 
-def _secant_jacobian(spec: HousedSpec, template: dict, res_j, exact_j):
+def _secant_jacobian(spec: HousedSpec, template: HousedParams, res_j, exact_j):
     """J(u): exact columns, except the geometry's raw parameters, which get central secants of
     one lattice cell in the physical length (a radius, the recess), capped at 0.5 in the logit."""
     flat, unravel = ravel_pytree(template)
@@ -256,8 +261,8 @@ def _secant_jacobian(spec: HousedSpec, template: dict, res_j, exact_j):
     geometry["recess"] = spec.recess_max_m - spec.recess_min_m
     index = []  # (position in u, length scale of the logit)
     pos = 0
-    for key in sorted(template):  # ravel_pytree's order for a dict
-        size = int(np.size(template[key]))
+    for key in template.names():  # ravel_pytree's order
+        size = int(np.size(getattr(template, key)))
         if key in geometry:
             index.append((pos, geometry[key]))
         pos += size
@@ -433,7 +438,7 @@ uniform profile): its fit seeds the richer family's, and the richer family's chi
 not exceed it."""
 
 
-def _warm_starts(s: HousedSpec, parent: HousedFit) -> list[dict]:
+def _warm_starts(s: HousedSpec, parent: HousedFit) -> list[HousedParams]:
     """Raw starts of family `s.family` from its parent's fit: the parent's geometry with the new
     parameter (i) at its default and (ii) next to the value that reduces it to the parent (a
     recess of half a cell, an opening of 0.97 of the bore: at the bound itself the logit has no
@@ -459,8 +464,7 @@ def _warm_starts(s: HousedSpec, parent: HousedFit) -> list[dict]:
             recess_m=recess_m,
             opening_m=opening_m if opening_m is not None else (None if opening is None else opening * 1e-3),
         )
-        q["gain_db"] = jnp.asarray(ph["gain_db"])
-        out.append(q)
+        out.append(dataclasses.replace(q, gain_db=jnp.asarray(ph["gain_db"])))
     return out
 
 

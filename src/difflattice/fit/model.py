@@ -17,17 +17,19 @@ Parameterisations of a profile across the face ("weights" and "lags" each):
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import ClassVar, Literal
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array
+from jaxtyping import Array, Float
 
 from ..transforms import logit
-from .family import ModelFamily
+from .family import FamilyParams, ModelFamily
 from .programs import small_jit
 
 
@@ -43,8 +45,28 @@ Profile = Literal["uniform", "free", "symmetric", "smooth"]
 PROFILES = ("uniform", "free", "symmetric", "smooth")
 
 
+class LineParams(FamilyParams):
+    """Raw (unconstrained) parameters of the line family (`ModelSpec`); None where not fitted.
+    Fields in alphabetical (`ravel_pytree`) order."""
+
+    diam: Float[Array, ""] | None = None
+    """Active diameter, logit(D / D_max) (D = D_max sigmoid(diam), D_max the line's length);
+    None when the diameter is held at `ModelSpec.diameter_m`."""
+    gain_db: Float[Array, ""] | None = None
+    """Level offset of the lobe, dB (the transfer's units to the data's); None without lobe data."""
+    lag: Float[Array, " n_lag"] | None = None
+    """Lag profile, artanh(2 tau / T) (tau = (T/2) tanh(.), T the period): Chebyshev coefficients
+    without the constant term ("smooth"), or per cell / mirror pair with the centre cell pinned at
+    0 ("free", "symmetric"); None for "uniform"."""
+    phase0: Float[Array, ""] | None = None
+    """Carrier phase offset of the wavefront, rad; None without wavefront data."""
+    w: Float[Array, " n_w"] | None = None
+    """Log-weight profile (w = exp(.), relative to the centre): coefficients or per-cell values as
+    for `lag`; None for "uniform"."""
+
+
 @dataclass(frozen=True)
-class ModelSpec(ModelFamily):
+class ModelSpec(ModelFamily[LineParams]):
     """The line family: a line of `n_cells` source cells of pitch `dx_m` on the 2-D lattice (static
     description: what is fitted, how)."""
 
@@ -124,32 +146,34 @@ class ModelSpec(ModelFamily):
         return None
 
     # -- parameters -------------------------------------------------------------------
-    def init_params(self) -> dict:
+    def init_params(self) -> LineParams:
         """Initial raw parameters: uniform weights 1, no lags, the initial diameter."""
-        p = {"gain_db": device_array(0.0), "phase0": device_array(0.0)}
         nw = self._n_params(self.weights, pinned=True)
-        if nw:
-            p["w"] = device_array(np.zeros(nw))
         nl = self._n_params(self.lags, pinned=True)
-        if nl:
-            p["lag"] = device_array(np.zeros(nl))
+        diam = None
         if self.fit_diameter:
             d0 = self.diameter_m or 0.97 * self.d_max_m
             frac = min(max(d0 / self.d_max_m, 1e-3), 1 - 1e-3)
-            p["diam"] = device_array(logit(frac))
-        return p
+            diam = device_array(logit(frac))
+        return LineParams(
+            diam=diam,
+            gain_db=device_array(0.0),
+            lag=device_array(np.zeros(nl)) if nl else None,
+            phase0=device_array(0.0),
+            w=device_array(np.zeros(nw)) if nw else None,
+        )
 
-    def physical(self, params: dict) -> dict:
+    def physical(self, params: LineParams) -> dict:
         """Raw parameters -> physical: weights (aperture applied), lags_s, diameter_m, gain_db,
         phase0_rad."""
         w = jnp.ones(self.n_cells)
-        if "w" in params:
-            w = jnp.exp(self._expand(self.weights, params["w"], pinned=True))
+        if params.w is not None:
+            w = jnp.exp(self._expand(self.weights, params.w, pinned=True))
         lag = jnp.zeros(self.n_cells)
-        if "lag" in params:
-            lag = 0.5 * self.period_s * jnp.tanh(self._expand(self.lags, params["lag"], pinned=True))
-        if "diam" in params:
-            diam = self.d_max_m * jax.nn.sigmoid(params["diam"])
+        if params.lag is not None:
+            lag = 0.5 * self.period_s * jnp.tanh(self._expand(self.lags, params.lag, pinned=True))
+        if params.diam is not None:
+            diam = self.d_max_m * jax.nn.sigmoid(params.diam)
         else:
             diam = jnp.asarray(self.diameter_m or self.d_max_m)
         window = jax.nn.sigmoid((diam / 2 - jnp.abs(jnp.asarray(self.y_m))) / self.edge_softness_m)
@@ -158,11 +182,11 @@ class ModelSpec(ModelFamily):
             "weights_raw": w,
             "lags_s": lag,
             "diameter_m": diam,
-            "gain_db": params.get("gain_db", jnp.asarray(0.0)),
-            "phase0_rad": params.get("phase0", jnp.asarray(0.0)),
+            "gain_db": jnp.asarray(0.0) if params.gain_db is None else params.gain_db,
+            "phase0_rad": jnp.asarray(0.0) if params.phase0 is None else params.phase0,
         }
 
-    def amplitudes(self, params: dict):
+    def amplitudes(self, params: LineParams):
         """Complex cell amplitudes a_k = w_k exp(i omega tau_k) (exp(-i omega t) convention)."""
         ph = self.physical(params)
         return ph["weights"] * jnp.exp(1j * 2 * math.pi * self.frequency_hz * ph["lags_s"])
@@ -185,13 +209,13 @@ class ModelSpec(ModelFamily):
         m = self.n_cells
         return np.concatenate([half, half[: m // 2][::-1]]) if m % 2 else np.concatenate([half, half[::-1]])
 
-    def raw_labels(self, params: dict) -> list[str]:
+    def raw_labels(self, params: LineParams) -> list[str]:
         """Names of the raw parameters in `jax.flatten_util.ravel_pytree(params)` order: smooth
         profile coefficients as `w.T2` (Chebyshev degree), per-cell ones as `w[k]` (free) or
         `w[k|n-1-k]` (symmetric: one value for a mirror pair), `diameter.logit`, `gain_db`,
         `phase0_rad`."""
         out: list[str] = []
-        for key in sorted(params):
+        for key in params.names():
             if key in ("w", "lag"):
                 profile = self.weights if key == "w" else self.lags
                 n = self.n_cells
@@ -213,12 +237,15 @@ class ModelSpec(ModelFamily):
         half_us = 0.5 * self.period_s * 1e6
         return {"diameter_mm": (0.0, self.d_max_m * 1e3), "lag_us": (-half_us, half_us)}
 
-    def params_from_profiles(self, log_weights, lag_args, diameter_m: float | None, template: dict) -> dict:
+    def params_from_profiles(
+        self, log_weights, lag_args, diameter_m: float | None, template: FamilyParams
+    ) -> LineParams:
         """Raw parameters of this model closest (least squares) to per-cell raw values: `log_weights`
         (log w_k) and `lag_args` (artanh(2 tau_k / T)) at this model's cells, and the active
-        `diameter_m`. Keys follow `template` (e.g. another fit's parameters, for a warm start across
-        resolutions or model families); offsets (gain, phase0) are copied and re-set by the fit."""
-        out = {}
+        `diameter_m`. Offsets (gain, phase0) are those of `template` (e.g. another fit's parameters,
+        for a warm start across resolutions or model families; absent there, absent here) and are
+        re-set by the fit."""
+        out: dict = {}
         for key, profile, v in (("w", self.weights, log_weights), ("lag", self.lags, lag_args)):
             n = self._n_params(profile, pinned=True)
             if n:
@@ -232,11 +259,11 @@ class ModelSpec(ModelFamily):
             frac = min(max((diameter_m or 0.97 * self.d_max_m) / self.d_max_m, 1e-3), 1 - 1e-3)
             out["diam"] = device_array(logit(frac))
         for key in ("gain_db", "phase0"):
-            if key in template:
-                out[key] = device_array(template[key])
-        return out
+            if template.has(key):
+                out[key] = device_array(getattr(template, key))
+        return LineParams(**out)
 
-    def symmetries(self) -> dict:
+    def symmetries(self) -> dict[str, Callable[[LineParams], LineParams]]:
         """Candidate symmetries of the data: maps of the raw parameters that leave some observable
         unchanged, named. `time reversal` (every lag -> -lag, phase offset negated: conjugates every
         cell amplitude, which mirrors the far-field |lobe| in angle) and `mirror` (y -> -y across
@@ -245,21 +272,21 @@ class ModelSpec(ModelFamily):
         (`fit.uncertainty`) refits from the mapped parameters and compares the costs. Maps that
         change nothing for this model (mirror of a symmetric profile) are left out."""
 
-        def per_cell(key, profile, p, sign, flip):
+        def per_cell(profile, p, sign, flip):
             E = self.expansion(profile)
             v = E @ np.asarray(p, float)
             v = sign * (v[::-1] if flip else v)
             return device_array(np.linalg.lstsq(E, v, rcond=None)[0])
 
         def make(flip: bool, reverse: bool):
-            def g(params: dict) -> dict:
-                q = dict(params)
-                if "w" in q and flip:
-                    q["w"] = per_cell("w", self.weights, q["w"], 1.0, True)
-                if "lag" in q:
-                    q["lag"] = per_cell("lag", self.lags, q["lag"], -1.0 if reverse else 1.0, flip)
-                if "phase0" in q and reverse:
-                    q["phase0"] = device_array(-np.asarray(q["phase0"]))
+            def g(params: LineParams) -> LineParams:
+                q = params
+                if q.w is not None and flip:
+                    q = dataclasses.replace(q, w=per_cell(self.weights, q.w, 1.0, True))
+                if q.lag is not None:
+                    q = dataclasses.replace(q, lag=per_cell(self.lags, q.lag, -1.0 if reverse else 1.0, flip))
+                if q.phase0 is not None and reverse:
+                    q = dataclasses.replace(q, phase0=device_array(-np.asarray(q.phase0)))
                 return q
 
             return g
@@ -283,21 +310,23 @@ def soft_floor_db(level_db, floor_db):
 
 
 @small_jit
-def physical_of(spec: ModelSpec, params: dict) -> dict:
+def physical_of(spec: ModelFamily, params: FamilyParams) -> dict:
     """`spec.physical(params)` as one program (called outside a program, each of its ~15
     operations would compile a program of its own in a fresh process)."""
     return spec.physical(params)
 
 
-def lobe_model_db(spec: ModelSpec, params: dict, lobe_transfer):
+def lobe_model_db(spec: ModelFamily, params: FamilyParams, lobe_transfer):
     """Model lobe level in dB (re the transfer's units, plus the fitted gain) at the measured angles."""
     a = spec.amplitudes(params)
     p = jnp.asarray(lobe_transfer) @ a
-    return 10 * jnp.log10(jnp.abs(p) ** 2 + 1e-300) + params.get("gain_db", 0.0)
+    gain = getattr(params, "gain_db", None)
+    return 10 * jnp.log10(jnp.abs(p) ** 2 + 1e-300) + (0.0 if gain is None else gain)
 
 
-def wave_model_phase(spec: ModelSpec, params: dict, wave_transfer):
+def wave_model_phase(spec: ModelFamily, params: FamilyParams, wave_transfer):
     """Model carrier phase in the rig's convention (-arg p) plus the fitted offset, radians."""
     a = spec.amplitudes(params)
     p = jnp.asarray(wave_transfer) @ a
-    return -jnp.angle(p) + params.get("phase0", 0.0)
+    phase0 = getattr(params, "phase0", None)
+    return -jnp.angle(p) + (0.0 if phase0 is None else phase0)

@@ -15,7 +15,8 @@ import numpy as np
 
 from ..transforms import logit
 from .data import LobeData, WaveData
-from .model import ModelSpec, device_array, lobe_model_db, soft_floor_db, wave_model_phase
+from .family import FamilyParams, ModelFamily
+from .model import device_array, lobe_model_db, soft_floor_db, wave_model_phase
 from .programs import small_jit
 from .transfer import Transfer
 
@@ -46,7 +47,7 @@ def robust_factor(a, loss: str, scale: float):
 class Problem(eqx.Module):
     """The residual function's data (arrays) and structure (static)."""
 
-    spec: ModelSpec = eqx.field(static=True)
+    spec: ModelFamily = eqx.field(static=True)
     lobe_T: jax.Array | None
     lobe_db: jax.Array | None
     lobe_sigma: jax.Array | None
@@ -60,12 +61,13 @@ class Problem(eqx.Module):
     loss: str = eqx.field(static=True, default="l2")
     loss_scale: float = eqx.field(static=True, default=3.0)
 
-    def data_residuals(self, params) -> dict:
+    def data_residuals(self, params: FamilyParams) -> dict:
         """Normalised data residuals (model - data) / sigma per observable, before weights and the
         robust transform: lobe (soft-floored dB) and wave (2 sin(d/2), the chord of the phase
         difference d on the unit circle)."""
         out = {}
         if self.lobe_T is not None:
+            assert self.lobe_sigma is not None  # given with the lobe (`build_problem`)
             m = lobe_model_db(self.spec, params, self.lobe_T)
             out["lobe"] = (
                 soft_floor_db(m, self.lobe_floor) - soft_floor_db(self.lobe_db, self.lobe_floor)
@@ -75,13 +77,15 @@ class Problem(eqx.Module):
             out["wave"] = 2 * jnp.sin(d / 2) / jnp.asarray(self.wave_sigma)
         return out
 
-    def residuals(self, params):
+    def residuals(self, params: FamilyParams):
         parts = self._smoothness(params)
         if self.lobe_T is not None:
+            assert self.lobe_sigma is not None  # given with the lobe (`build_problem`)
             m = lobe_model_db(self.spec, params, self.lobe_T)
             r = (soft_floor_db(m, self.lobe_floor) - soft_floor_db(self.lobe_db, self.lobe_floor)) / self.lobe_sigma
             parts.append(math.sqrt(self.w_lobe) * r * robust_factor(jnp.abs(r), self.loss, self.loss_scale))
         if self.wave_T is not None:
+            assert self.wave_sigma is not None  # given with the wavefront (`build_problem`)
             d = wave_model_phase(self.spec, params, self.wave_T) - self.wave_phase
             f = math.sqrt(self.w_wave) * robust_factor(
                 2 * jnp.abs(jnp.sin(d / 2)) / self.wave_sigma, self.loss, self.loss_scale
@@ -90,13 +94,13 @@ class Problem(eqx.Module):
             parts.append(f * (1 - jnp.cos(d)) / self.wave_sigma)
         return jnp.concatenate(parts)
 
-    def _smoothness(self, params) -> list:
+    def _smoothness(self, params: FamilyParams) -> list:
         """Per-cell profiles have components that do not radiate (cell-to-cell oscillations
         beyond the wavenumber k): a weak prior on second differences of log-weight and lag phase
         (`smoothness_sigma` per cell) removes that null space, so free fits converge."""
         spec, out = self.spec, []
         for key, profile in (("w", spec.weights), ("lag", spec.lags)):
-            if key in params and profile in ("free", "symmetric"):
+            if params.has(key) and profile in ("free", "symmetric"):
                 ph = spec.physical(params)
                 v = jnp.log(ph["weights_raw"]) if key == "w" else 2 * math.pi * spec.frequency_hz * ph["lags_s"]
                 out.append((v[2:] - 2 * v[1:-1] + v[:-2]) / self.smoothness_sigma)
@@ -104,7 +108,7 @@ class Problem(eqx.Module):
 
 
 def build_problem(
-    spec: ModelSpec, transfer: Transfer, lobe: LobeData | None, wave: WaveData | None, o: FitOptions
+    spec: ModelFamily, transfer: Transfer, lobe: LobeData | None, wave: WaveData | None, o: FitOptions
 ) -> Problem:
     """Bundle the data, transfer matrices and options into the residual function's `Problem`."""
     if lobe is None and wave is None:
@@ -129,31 +133,31 @@ def build_problem(
 
 
 @small_jit
-def _cost(problem: Problem, params: dict):
+def _cost(problem: Problem, params: FamilyParams):
     r = problem.residuals(params)
     return jnp.sum(r * r)
 
 
 @small_jit
-def _residuals(problem: Problem, params: dict):
+def _residuals(problem: Problem, params: FamilyParams):
     return problem.residuals(params)
 
 
-def initial_params(problem: Problem, params=None) -> dict:
+def initial_params(problem: Problem, params: FamilyParams | None = None) -> FamilyParams:
     """Start from the model's initial parameters with the gain and phase offset set in closed form,
     and (when it is fitted) the diameter chosen by a scan over 0.5-1 x the modelled line: the
     lobe's null angles scale with 1/D, so the cost in D has many local minima."""
     spec = problem.spec
-    p = dict(spec.init_params() if params is None else params)
+    p = spec.init_params() if params is None else params
     # offsets the data cannot see are not parameters (they would make J singular)
     if problem.lobe_T is None:
-        p.pop("gain_db", None)
+        p = p.without("gain_db")
     if problem.wave_T is None:
-        p.pop("phase0", None)
-    if "diam" in p and params is None:
-        best: tuple[float, dict] | None = None
+        p = p.without("phase0")
+    if p.has("diam") and params is None:
+        best: tuple[float, FamilyParams] | None = None
         for frac in np.linspace(0.5, 0.98, 25):
-            q = _with_offsets(problem, {**p, "diam": device_array(logit(frac))})
+            q = _with_offsets(problem, p.replace(diam=device_array(logit(frac))))
             c = float(_cost(problem, q))
             if np.isfinite(c) and (best is None or c < best[0]):
                 best = (c, q)
@@ -162,26 +166,26 @@ def initial_params(problem: Problem, params=None) -> dict:
     return _with_offsets(problem, p)
 
 
-def _with_offsets(problem: Problem, p: dict) -> dict:
-    p = dict(p)
-    if "gain_db" in p:
-        m = np.asarray(_models(problem, {**p, "gain_db": device_array(0.0)})[0])
+def _with_offsets(problem: Problem, p: FamilyParams) -> FamilyParams:
+    if p.has("gain_db"):
+        m = np.asarray(_models(problem, p.replace(gain_db=device_array(0.0)))[0])
         data = np.asarray(problem.lobe_db)
         top = data > data.max() - 10
-        p["gain_db"] = device_array(float(np.median(data[top] - m[top])))
-    if "phase0" in p:
-        m = np.asarray(_models(problem, {**p, "phase0": device_array(0.0)})[1])
+        p = p.replace(gain_db=device_array(float(np.median(data[top] - m[top]))))
+    if p.has("phase0"):
+        m = np.asarray(_models(problem, p.replace(phase0=device_array(0.0)))[1])
         d = np.asarray(problem.wave_phase) - m
-        p["phase0"] = device_array(float(np.angle(np.mean(np.exp(1j * d)))))
+        p = p.replace(phase0=device_array(float(np.angle(np.mean(np.exp(1j * d))))))
     return p
 
 
-def _residual_aux(y, args):
+def _residual_aux(y: FamilyParams, args):
     """The residuals at `y`, with the parameters `free` marks False taken from `held` instead
     (their Jacobian columns are zero, so the solver's steps leave them alone): which parameters
-    a stage holds is data, so every stage of a fit runs the same compiled solver programs."""
+    a stage holds is data, so every stage of a fit runs the same compiled solver programs.
+    `held` and `free` (a boolean per parameter) have `y`'s structure."""
     problem, held, free = args
-    return problem.residuals({k: jnp.where(free[k], v, held[k]) for k, v in y.items()}), None
+    return problem.residuals(jax.tree_util.tree_map(jnp.where, free, y, held)), None
 
 
 def _cost_aux(y, args):
@@ -189,7 +193,7 @@ def _cost_aux(y, args):
     return 0.5 * jnp.sum(r * r), None
 
 
-def _model_curves(problem: Problem, params: dict):
+def _model_curves(problem: Problem, params: FamilyParams):
     """(model lobe level in dB, model wave phase) at the data points (None where there are no
     data)."""
     lobe = None if problem.lobe_T is None else lobe_model_db(problem.spec, params, problem.lobe_T)

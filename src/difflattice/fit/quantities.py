@@ -12,7 +12,8 @@ import numpy as np
 from jax.flatten_util import ravel_pytree
 
 from .estimates import coefficient_unit
-from .model import ModelSpec, device_array, physical_of
+from .family import FamilyParams, ModelFamily
+from .model import device_array, physical_of
 from .programs import small_jit
 from .result import FitResult, _flat_jacobian
 
@@ -22,7 +23,7 @@ OFFSET_LABELS = ("diameter.logit", "gain_db", "phase0_rad")
 """Raw parameters that are not profile coefficients (their physical forms are budget scalars)."""
 
 
-def quantities(spec: ModelSpec, params: dict):
+def quantities(spec: ModelFamily, params: FamilyParams):
     """(vector, names, units) of the budget's quantities for `params` (differentiable)."""
     ph = spec.physical(params)
     n = spec.n_cells
@@ -40,15 +41,15 @@ def quantities(spec: ModelSpec, params: dict):
         parts.append((lag - lc) * 1e6)
         names += [f"lag_us[{k}]" for k in range(n)]
         units += ["µs"] * n
-    if "diam" in params:
+    if params.has("diam"):
         parts.append(jnp.atleast_1d(ph["diameter_m"] * 1e3))
         names.append("diameter_mm")
         units.append("mm")
-    if "gain_db" in params:
+    if params.has("gain_db"):
         parts.append(jnp.atleast_1d(ph["gain_db"] + 20 * jnp.log10(wc)))
         names.append("gain_db")
         units.append("dB")
-    if "phase0" in params:
+    if params.has("phase0"):
         parts.append(jnp.atleast_1d(jnp.degrees(ph["phase0_rad"] - 2 * math.pi * spec.frequency_hz * lc)))
         names.append("phase0_deg")
         units.append("deg")
@@ -67,20 +68,20 @@ _quantities = small_jit(quantities)
 
 
 @small_jit
-def _quantity_jacobian(spec: ModelSpec, params: dict):
+def _quantity_jacobian(spec: ModelFamily, params: FamilyParams):
     jac = jax.jacfwd(lambda p: quantities(spec, p)[0])(params)
     return _flat_jacobian(jac, params)
 
 
 @small_jit
-def _quantities_and_jacobian(spec: ModelSpec, params: dict):
+def _quantities_and_jacobian(spec: ModelFamily, params: FamilyParams):
     """(values, names, units, d values / d raw parameters) as one program (two would each be
     traced, lowered and read from the cache in every new process)."""
     v, names, units = quantities(spec, params)
     return v, names, units, _quantity_jacobian(spec, params)
 
 
-def _values(spec: ModelSpec, params: dict) -> dict:
+def _values(spec: ModelFamily, params: FamilyParams) -> dict:
     v, names, _ = _quantities(spec, params)
     return dict(zip(names, np.asarray(v).tolist()))
 
@@ -95,7 +96,7 @@ def _stats(r: FitResult) -> dict:
     return dict(zip(names, s.tolist()))
 
 
-def _on_nominal(spec: ModelSpec, other_spec: ModelSpec, other: dict) -> dict:
+def _on_nominal(spec: ModelFamily, other_spec: ModelFamily, other: dict) -> dict:
     """Another fit's quantities (`other`: name -> number) under the nominal fit's names: per-cell
     values interpolated at the nominal cells' positions, coefficients only where the basis is the
     same."""
@@ -114,7 +115,7 @@ def _on_nominal(spec: ModelSpec, other_spec: ModelSpec, other: dict) -> dict:
     return out
 
 
-def _per_cell(ospec: ModelSpec, p: dict, y_nom, y_other, key: str):
+def _per_cell(ospec: ModelFamily, p: FamilyParams, y_nom, y_other, key: str):
     """A fit's per-cell raw profile (log weight, or artanh(2 lag / T)) interpolated at `y_nom`."""
     ph = ospec.physical(p)
     v = (
@@ -126,13 +127,13 @@ def _per_cell(ospec: ModelSpec, p: dict, y_nom, y_other, key: str):
 
 
 @small_jit
-def _per_cell_raw(ospec: ModelSpec, params: dict, y_nom, y_other, key: str):
+def _per_cell_raw(ospec: ModelFamily, params: FamilyParams, y_nom, y_other, key: str):
     """`_per_cell` and its Jacobian w.r.t. the raw parameters (flat), as one compiled program."""
     jac = jax.jacfwd(lambda p: _per_cell(ospec, p, y_nom, y_other, key))(params)
     return _per_cell(ospec, params, y_nom, y_other, key), _flat_jacobian(jac, params)
 
 
-def _implied_coefficients(spec: ModelSpec, active: np.ndarray, other: FitResult) -> tuple[dict, dict]:
+def _implied_coefficients(spec: ModelFamily, active: np.ndarray, other: FitResult) -> tuple[dict, dict]:
     """The nominal smooth profiles' coefficients that another family's fit implies: its per-cell
     raw profiles (log weight, artanh(2 lag / T)) interpolated at the nominal's active cells and
     projected on the nominal basis by inverse-variance weighted least squares (a free constant
@@ -162,7 +163,7 @@ def _implied_coefficients(spec: ModelSpec, active: np.ndarray, other: FitResult)
     return vals, ses
 
 
-def map_params(spec_from: ModelSpec, params: dict, spec_to: ModelSpec) -> dict:
+def map_params(spec_from: ModelFamily, params: FamilyParams, spec_to: ModelFamily) -> FamilyParams:
     """A warm start for `spec_to` from a fit of `spec_from` (another resolution or family): the
     per-cell log weights and lag arguments interpolated at the new cells and projected on the new
     parameterisation."""

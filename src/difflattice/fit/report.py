@@ -20,6 +20,7 @@ import numpy as np
 
 from ..observe.observables import lobe_metrics
 from .data import LobeData, WaveData
+from .family import FamilyParams
 from .figures import (
     FigureWriter,
     _aperture_plot_args,
@@ -132,7 +133,7 @@ def _summary(r: FitResult) -> dict:
     }
 
 
-def _flat(params: dict) -> np.ndarray:
+def _flat(params: FamilyParams) -> np.ndarray:
     """The parameters as one vector, in `ravel_pytree`'s order (the leaves' order), built on the
     host (no eager XLA programs in a fresh process)."""
     from jax.tree_util import tree_leaves

@@ -12,6 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .data import LobeData, WaveData
+from .family import FamilyParams, ModelFamily
 from .goodness import (
     OUTLIER_SIGMAS,
     _chi2_and_variance_factor,
@@ -19,7 +20,7 @@ from .goodness import (
     goodness_of_fit,
     outlier_diagnostics,
 )
-from .model import ModelSpec, soft_floor_db
+from .model import soft_floor_db
 from .options import CONVERGENCE_WINDOW, STAGE_NAMES, FitOptions
 from .problem import Problem, _model_curves, _residuals
 from .programs import small_jit
@@ -73,8 +74,8 @@ class FitResult:
     (`stderr`, inflated by max(variance_factor, 1)), correlations of the fitted (raw) parameters, the
     trace and the model curves at the solution."""
 
-    spec: ModelSpec
-    params: dict
+    spec: ModelFamily
+    params: FamilyParams
     physical: dict
     converged: bool
     result_code: str
@@ -106,7 +107,7 @@ class FitResult:
 
 @dataclass
 class _Stage:
-    y: dict
+    y: FamilyParams
     converged: bool
     code: str
     reason: str
@@ -120,24 +121,22 @@ class _Stage:
     step_s: list
 
 
-def _flat_jacobian(jac: dict, params: dict) -> jnp.ndarray:
-    """A Jacobian computed w.r.t. a dict of parameters, as (m, n) in `ravel_pytree` order."""
-    cols = []
-    for k in sorted(params):
-        j = jac[k]
-        m = j.shape[0]
-        cols.append(j.reshape(m, -1))
+def _flat_jacobian(jac: FamilyParams, params: FamilyParams) -> jnp.ndarray:
+    """A Jacobian computed w.r.t. parameters `params` (leaves (m, *shape) in their structure), as
+    (m, n) in `ravel_pytree` order."""
+    cols = [j.reshape(j.shape[0], -1) for j in jax.tree_util.tree_leaves(jac)]
     return jnp.concatenate(cols, axis=1)
 
 
 @small_jit
-def _jacobian(problem: Problem, fixed: dict, params: dict):
-    """Jacobian of the residuals w.r.t. the free parameters, (m, n) in `ravel_pytree` order."""
-    jac = jax.jacfwd(lambda p: problem.residuals({**fixed, **p}))(params)
+def _jacobian(problem: Problem, fixed: FamilyParams | None, params: FamilyParams):
+    """Jacobian of the residuals w.r.t. the free parameters `params` (those present in `fixed`
+    held there), (m, n) in `ravel_pytree` order."""
+    jac = jax.jacfwd(lambda p: problem.residuals(p.merged(fixed)))(params)
     return _flat_jacobian(jac, params)
 
 
-def _physical_jacobian_of(spec: ModelSpec, params: dict):
+def _physical_jacobian_of(spec: ModelFamily, params: FamilyParams):
     jac = jax.jacfwd(lambda p: _physical_values(spec, p))(params)
     return _flat_jacobian(jac, params)
 
@@ -146,7 +145,7 @@ _physical_jacobian = small_jit(_physical_jacobian_of)
 
 
 @small_jit
-def _result_arrays(problem: Problem, params: dict) -> dict:
+def _result_arrays(problem: Problem, params: FamilyParams) -> dict:
     """What `_result` reports beyond the residuals and their Jacobian, as one program (five
     programs' tracing, lowering and cache reads would be Python work in every new process):
     the physical vector's Jacobian, the data residuals, the physical quantities and the
@@ -197,7 +196,7 @@ def _trace(stages: list[tuple[int, _Stage]]) -> FitTrace:
 
 def _result(
     problem: Problem,
-    spec: ModelSpec,
+    spec: ModelFamily,
     stages: list[tuple[int, _Stage]],
     options: FitOptions,
     lobe: LobeData | None,
@@ -220,7 +219,7 @@ def _result(
             f"FIT DID NOT CONVERGE ({last.code} after {n_steps} steps): {last.reason}. The results below "
             "are the last iterate, not an optimum; raise solver.max_steps or check the model"
         )
-    J = np.asarray(_jacobian(problem, {}, params))
+    J = np.asarray(_jacobian(problem, None, params))
     m, npar = J.shape
     cost = 0.5 * float(np.sum(r * r))
     cv = _Covariance.of(J, spec, params, finite and bool(np.all(np.isfinite(J))))
@@ -298,7 +297,7 @@ class _Covariance:
     labels: list
 
     @classmethod
-    def of(cls, J: np.ndarray, spec: ModelSpec, params: dict, finite: bool) -> _Covariance:
+    def of(cls, J: np.ndarray, spec: ModelFamily, params: FamilyParams, finite: bool) -> _Covariance:
         npar = J.shape[1]
         if finite:
             _, s, vt = np.linalg.svd(J, full_matrices=False)
@@ -312,7 +311,7 @@ class _Covariance:
         n_prior = sum(
             spec.n_cells - 2
             for key, prof in (("w", spec.weights), ("lag", spec.lags))
-            if key in params and prof in ("free", "symmetric")
+            if params.has(key) and prof in ("free", "symmetric")
         )
         Jd = J[n_prior:]
         edf = float(np.trace(Jd @ cov_raw @ Jd.T)) if finite else float(npar)
@@ -401,17 +400,17 @@ def _convergence_record(stages: list[tuple[int, _Stage]], converged: bool, optio
     }
 
 
-def physical_vector(spec: ModelSpec, params: dict):
+def physical_vector(spec: ModelFamily, params: FamilyParams):
     """(vector, labels) of the physical quantities: per-cell weights `w[k]` (aperture applied),
     lags `lag_us[k]` (µs), `diameter_mm`, `gain_db`, `phase0_deg`."""
     return _physical_vector(spec, params)
 
 
-def _physical_vector(spec: ModelSpec, params: dict):
+def _physical_vector(spec: ModelFamily, params: FamilyParams):
     return _physical_array(spec, params), _physical_labels(spec)
 
 
-def _physical_labels(spec: ModelSpec) -> list[str]:
+def _physical_labels(spec: ModelFamily) -> list[str]:
     return (
         [f"w[{k}]" for k in range(spec.n_cells)]
         + [f"lag_us[{k}]" for k in range(spec.n_cells)]
@@ -420,11 +419,11 @@ def _physical_labels(spec: ModelSpec) -> list[str]:
 
 
 @small_jit
-def _physical_array(spec: ModelSpec, params: dict):
+def _physical_array(spec: ModelFamily, params: FamilyParams):
     return _physical_values(spec, params)
 
 
-def _physical_values(spec: ModelSpec, params: dict):
+def _physical_values(spec: ModelFamily, params: FamilyParams):
     ph = spec.physical(params)
     return jnp.concatenate(
         [
@@ -437,15 +436,15 @@ def _physical_values(spec: ModelSpec, params: dict):
     )
 
 
-def physical_jacobian(spec: ModelSpec, params: dict) -> np.ndarray:
+def physical_jacobian(spec: ModelFamily, params: FamilyParams) -> np.ndarray:
     """d physical_vector / d raw parameters, (n_physical, n_raw) in `ravel_pytree` order."""
     return np.asarray(_physical_jacobian(spec, params))
 
 
-def residual_jacobian(problem: Problem, params: dict) -> np.ndarray:
+def residual_jacobian(problem: Problem, params: FamilyParams) -> np.ndarray:
     """Jacobian of the minimised residuals w.r.t. the raw parameters (`ravel_pytree` order)."""
-    return np.asarray(_jacobian(problem, {}, params))
+    return np.asarray(_jacobian(problem, None, params))
 
 
-def residual_vector(problem: Problem, params: dict) -> np.ndarray:
+def residual_vector(problem: Problem, params: FamilyParams) -> np.ndarray:
     return np.asarray(_residuals(problem, params))

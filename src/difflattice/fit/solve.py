@@ -49,7 +49,8 @@ import optimistix as optx
 from jax.flatten_util import ravel_pytree
 
 from .data import LobeData, WaveData
-from .model import ModelSpec, device_array
+from .family import FamilyParams, ModelFamily
+from .model import device_array
 from .options import CONVERGENCE_WINDOW, SOLVERS, STAGE_NAMES, FitOptions, Loss, Solver
 from .problem import Problem, _cost_aux, _residual_aux, _residuals, build_problem, initial_params
 from .programs import small_jit
@@ -129,11 +130,12 @@ def _step(solver, y, state, args):
     return y_new, state, done, code, r, moved
 
 
-def _free(y: dict, hold: frozenset) -> dict:
-    return {k: v for k, v in y.items() if k not in hold}
+def _free(y: FamilyParams, hold: frozenset) -> FamilyParams:
+    """`y` without the parameters named in `hold`."""
+    return y.without(*hold)
 
 
-def _stationarity(problem: Problem, fixed: dict, y: dict, r: np.ndarray) -> tuple[float, float]:
+def _stationarity(problem: Problem, fixed: FamilyParams, y: FamilyParams, r: np.ndarray) -> tuple[float, float]:
     """(relative, in SE) further decrease the Gauss-Newton model predicts from `y`: the
     predicted decrease 0.5 ||J dy||^2 over the cost, and ||J dy|| / sqrt(max(chi2_red, 1))."""
     J = np.asarray(_jacobian(problem, fixed, y))
@@ -148,19 +150,19 @@ def _stationarity(problem: Problem, fixed: dict, y: dict, r: np.ndarray) -> tupl
 
 
 def _run_stage(
-    problem: Problem, y0: dict, options: FitOptions, *, hold: frozenset = frozenset(), stage: int, bar=None
+    problem: Problem, y0: FamilyParams, options: FitOptions, *, hold: frozenset = frozenset(), stage: int, bar=None
 ) -> _Stage:
     """Step the solver from `y0` (every parameter) until optimistix's test or ours says converged,
     or max_steps; the parameters named in `hold` keep their values in `y0`."""
     solver = _make_solver(options)
     # strongly typed leaves: a weakly typed start would make the second step compile again
     y0 = jax.tree_util.tree_map(lambda v: device_array(np.asarray(v)), y0)
-    free = {k: device_array(np.asarray(k not in hold)) for k in y0}
+    free = y0.replace(**{k: device_array(np.asarray(k not in hold)) for k in y0.names()})
     args = (problem, y0, free)
-    fixed = {k: y0[k] for k in hold}  # for the stationarity test's Jacobian (the free ones only)
+    fixed = y0.only(hold)  # for the stationarity test's Jacobian (the free ones only)
     w = CONVERGENCE_WINDOW
     r0 = np.asarray(_residuals(problem, y0))
-    npar = int(sum(np.size(v) for k, v in y0.items() if k not in hold))
+    npar = int(sum(np.size(v) for v in jax.tree_util.tree_leaves(_free(y0, hold))))
     dof = max(len(r0) - npar, 1)
     hist = [(0.5 * float(r0 @ r0), r0)]  # accepted iterates (cost, residuals), the start included
     costs, accepted, times = [], [], []
@@ -216,7 +218,7 @@ def _run_stage(
                 break
             since = 0
     else:
-        rc, se = _stationarity(problem, fixed, _free(y, hold), np.asarray(_residuals(problem, {**y, **fixed})))
+        rc, se = _stationarity(problem, fixed, _free(y, hold), np.asarray(_residuals(problem, y.merged(fixed))))
         if rc <= options.rtol_cost and se <= options.rtol_step:
             conv, code = True, "stationary"
             reason = (
@@ -242,7 +244,7 @@ def _run_stage(
         dt[:2] -= extra
     n_acc = len(hist) - 1
     return _Stage(
-        y={**y, **fixed},  # the held parameters exactly as given (the solver never moves them)
+        y=y.merged(fixed),  # the held parameters exactly as given (the solver never moves them)
         converged=conv,
         code=code,
         reason=reason,
@@ -275,13 +277,13 @@ def _finite(tree) -> bool:
 
 
 def fit(
-    spec: ModelSpec,
+    spec: ModelFamily,
     transfer: Transfer,
     lobe: LobeData | None = None,
     wave: WaveData | None = None,
     options: FitOptions = FitOptions(),
     *,
-    params0: dict | None = None,
+    params0: FamilyParams | None = None,
     progress: bool = False,
     multistart: bool = False,
 ) -> FitResult:
@@ -300,10 +302,11 @@ def fit(
     from the lower cost: a lobe's cost in D has a local minimum near every null, so a start far
     from the truth (0.75 x, 1.3 x) would otherwise stay in one."""
     t_start = time.perf_counter()
+    _check_params(spec, params0, "params0")
     problem = build_problem(spec, transfer, lobe, wave, options)
     p0 = initial_params(problem, params0)
     starts = [p0]
-    if multistart and params0 is not None and "diam" in p0:
+    if multistart and params0 is not None and p0.has("diam"):
         starts.append(initial_params(problem, None))
     bar = None
     if progress:
@@ -318,16 +321,26 @@ def fit(
     return _result(problem, spec, stages, options, lobe, wave, time.perf_counter() - t_start)
 
 
+def _check_params(spec: ModelFamily, params: object, name: str) -> None:
+    """A start must be the family's parameter module (a dict, as before, is refused by name)."""
+    if params is not None and not isinstance(params, FamilyParams):
+        kind = type(spec.init_params()).__name__
+        raise TypeError(
+            f"{name} is a {type(params).__name__}; give the family's parameter module ({kind}), e.g. "
+            f"spec.init_params() or dataclasses.replace(spec.init_params(), diam=...)"
+        )
+
+
 def _fit_stages(
-    problem: Problem, starts: dict | list[dict], options: FitOptions, scan: bool, bar
+    problem: Problem, starts: FamilyParams | list[FamilyParams], options: FitOptions, scan: bool, bar
 ) -> list[tuple[int, _Stage]]:
-    """The stages from one start (a dict) or the first stage from each of several (a list), the
-    rest from the best of those."""
-    starts = [starts] if isinstance(starts, dict) else list(starts)
+    """The stages from one start or the first stage from each of several (a list), the rest from
+    the best of those."""
+    starts = [starts] if isinstance(starts, FamilyParams) else list(starts)
     out = []
     p0 = start = starts[0]
-    profiles = frozenset(k for k in p0 if k in ("w", "lag"))
-    if (profiles and scan and "diam" in p0) or len(starts) > 1:
+    profiles = frozenset(k for k in p0.names() if k in ("w", "lag"))
+    if (profiles and scan and p0.has("diam")) or len(starts) > 1:
         firsts = [_run_stage(_relaxed(problem), p, options, hold=profiles, stage=1, bar=bar) for p in starts]
         ok = [s for s in firsts if _finite(s.y)]
         s1 = min(ok, key=lambda s: s.cost[-1] if s.cost else math.inf) if ok else firsts[0]

@@ -71,6 +71,7 @@ from .families import (
     family_spread,
     weak_smoothness_sigma,
 )
+from .family import ModelFamily
 from .identify import (
     EQUIVALENT_DELTA_CHI2,
     check_symmetries,
@@ -81,7 +82,7 @@ from .identify import (
     mark_reference_and_inactive,
     mirror_aliases,
 )
-from .model import ModelSpec, physical_of
+from .model import physical_of
 from .quantities import NUISANCE, _on_nominal, _quantities_and_jacobian, _values, map_params, quantities
 from .solve import FitOptions, FitResult, fit
 from .transfer import Transfer
@@ -204,7 +205,7 @@ def error_budget(
 
 
 def _estimates(
-    spec: ModelSpec,
+    spec: ModelFamily,
     names: Sequence[str],
     units: Sequence[str],
     v: np.ndarray,
@@ -238,10 +239,10 @@ class _ResolutionRefit:
     """The resolution part: the fit repeated on a second lattice (in a background thread), its
     differences Richardson-scaled to the nominal fit's discretisation error."""
 
-    spec: ModelSpec
+    spec: ModelFamily
     m1: float
     m2: float | None = None
-    spec2: ModelSpec | None = None
+    spec2: ModelFamily | None = None
     future: concurrent.futures.Future | None = None
     reason: str = ""
 

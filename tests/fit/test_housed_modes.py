@@ -232,7 +232,7 @@ class FlangedForward:
     def lobe_db(self, params: dict):
         ph = self.spec.physical(params)
         f = self.lattice.far_field(0.5 * ph["diaphragm_m"], ph["recess_m"])
-        return 10 * jnp.log10(jnp.abs(f) ** 2 + 1e-300) + params.get("gain_db", 0.0)
+        return 10 * jnp.log10(jnp.abs(f) ** 2 + 1e-300) + (0.0 if params.gain_db is None else params.gain_db)
 
 
 # ------------------------------------------------------------------------------------------

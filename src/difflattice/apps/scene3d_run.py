@@ -5,6 +5,7 @@ projections and the summary. Split from `scenes3d` (the pulse-echo scene tables)
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -56,6 +57,17 @@ def _peak_memory_bytes() -> dict:
     return out
 
 
+@contextlib.contextmanager
+def _refusal(scene: Scene):
+    """A run that does not fit (`RunTooLargeError`) as the scene's refusal, naming the file."""
+    from ..solver.estimate import RunTooLargeError
+
+    try:
+        yield
+    except RunTooLargeError as err:
+        raise SceneTooLargeError(f"{scene.path}: [grid] {' '.join(str(err).split())}") from None
+
+
 def run_scene3d(
     scene: Scene, *, available_bytes: int | None = None, mlups: float | None = None, quiet: bool = False
 ) -> SceneRun3D:
@@ -69,7 +81,6 @@ def run_scene3d(
     from .. import __version__
     from ..observe.analytic3d import lattice_wavenumber_3d
     from ..solver.estimate import (
-        RunTooLargeError,
         check_compiled,
         check_fits,
         estimate_run,
@@ -91,10 +102,8 @@ def run_scene3d(
     line = format_estimate(shape, n_steps, nbytes, secs)
     if not quiet:
         print(line, file=sys.stderr, flush=True)
-    try:
+    with _refusal(scene):
         check_fits(shape, n_steps, nbytes, available=available_bytes, seconds=secs)
-    except RunTooLargeError as err:
-        raise SceneTooLargeError(f"{scene.path}: [grid] {' '.join(str(err).split())}") from None
     build_s = time.perf_counter() - t0
 
     t1 = time.perf_counter()
@@ -107,10 +116,8 @@ def run_scene3d(
     jitted: Any = eqx.filter_jit(whole_run)
     compiled = jitted.lower(stepper).compile()
     compile_s = time.perf_counter() - t1
-    try:  # XLA's figure for what the run allocates when it starts, against the memory available now
+    with _refusal(scene):  # XLA's figure for what the run allocates when it starts, against the memory now
         xla_bytes = check_compiled(compiled, shape, n_steps, available=available_bytes)
-    except RunTooLargeError as err:
-        raise SceneTooLargeError(f"{scene.path}: [grid] {' '.join(str(err).split())}") from None
     if not quiet:
         print(f"compiled in {compile_s:.1f} s; running {n_steps} steps ...", file=sys.stderr, flush=True)
     t2 = time.perf_counter()

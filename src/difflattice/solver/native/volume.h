@@ -117,32 +117,15 @@ inline void volume_row(const VolRow<T>& r, int64_t nz, T k, bool zlo, bool zhi) 
 // loop over 254 cells ends in an 8-wide and 6 scalar iterations, plus 2 scalar edge cells).
 // c: plane i of P(n); xm, xp: planes i -+ 1 (or ghosts); o, kr, sr: the plane's P(n-1) -> P(n+1), K,
 // sponge; everything indexed by j nz + k
-// bytes [lo, hi) of the regions a and b (either may be nullptr) to prefetch into L2 over a loop
-struct Prefetch {
-  const char* a = nullptr;
-  const char* b = nullptr;
-  int64_t lo = 0, hi = 0;
-  // the part of [lo, hi) for the loop's fraction [u0, u1) / n
-  void issue(int64_t u0, int64_t u1, int64_t n) const {
-    if (hi <= lo || n <= 0) return;
-    const int64_t b0 = (lo + (hi - lo) * u0 / n) & ~int64_t(63), b1 = lo + (hi - lo) * u1 / n;
-    for (int64_t x = b0; x < b1; x += 64) {
-      if (a) __builtin_prefetch(a + x, 0, 2);
-      if (b) __builtin_prefetch(b + x, 0, 2);
-    }
-  }
-};
-
 template <typename T, bool KFULL, bool SPONGE>
 inline void volume_rows_flat(const T* __restrict c, const T* __restrict xm, const T* __restrict xp,
                              T* __restrict o, const T* __restrict kr, const T* __restrict sr, int64_t nz,
-                             int64_t ja, int64_t jb, T k, bool zlo, bool zhi, const Prefetch& pf = Prefetch{}) {
+                             int64_t ja, int64_t jb, T k, bool zlo, bool zhi) {
   constexpr int64_t R = 8;  // rows a chunk: its edge cells' P(n-1) saved, fixed while in L1
   T lo_old[R], hi_old[R];
   const T centre = T(2) - T(6) * k;
   for (int64_t r0 = ja; r0 < jb; r0 += R) {
     const int64_t r1 = std::min(jb, r0 + R), f0 = r0 * nz, f1 = r1 * nz;
-    pf.issue(r0 - ja, r1 - ja, jb - ja);
     for (int64_t j = r0; j < r1; ++j) {
       lo_old[j - r0] = o[j * nz];
       hi_old[j - r0] = o[j * nz + nz - 1];
@@ -378,12 +361,6 @@ inline void volume_row_iso(const VolRowIso<T>& r, int64_t nz, T k, bool zlo, boo
   cell(e, c[e - 1], hi(c), xm[e - 1], hi(xm), xp[e - 1], hi(xp), ym[e - 1], hi(ym), yp[e - 1], hi(yp));
 }
 
-// where a plane-step stands in its thread's sweep: level l (0-based) of the thread's `mine` steps
-// from step `first`, at sweep position m (plane m - l); mine = 0: no prefetch share (bands)
-struct SweepAt {
-  int64_t first = 0, m = 0, l = 0, mine = 0;
-};
-
 // the blocks of steps: ceil(n_steps / (threads levels)) blocks, the steps spread evenly over them
 // (100 steps on 2 threads x 8 levels: 7 blocks of 14-15 steps, not 6 of 16 and one of 4, whose
 // sweep would cost the memory traffic of a whole block for a quarter of its steps)
@@ -421,7 +398,7 @@ inline void wait_for(const std::atomic<int64_t>& progress, int64_t need, int64_t
 // Every hazard is between a step and the two after it (the fields alternate), and each waits for
 // its predecessor through the next plane, so no thread overtakes data still needed.
 template <typename MakeWorker, typename Finish>
-void plane_pipeline(int64_t nx, int64_t n_steps, int n_threads, int levels, MakeWorker&& make_worker,
+void plane_pipeline(int64_t nx, int64_t ny, int64_t n_steps, int n_threads, int levels, MakeWorker&& make_worker,
                     Finish&& finish) {
   const int nt = std::max(1, n_threads);
   const Blocks blocks(n_steps, nt, std::max(1, levels));
@@ -452,7 +429,7 @@ void plane_pipeline(int64_t nx, int64_t n_steps, int n_threads, int levels, Make
           const int64_t i = m - l;
           if (i < 0 || i >= nx) continue;
           if (l == 0 && owner >= 0) wait_for(progress[owner].rows, base + std::min<int64_t>(i + 2, nx), &seen);
-          row(first + l, i, int64_t(0), int64_t(-1), SweepAt{first, m, l, mine});
+          row(first + l, i, int64_t(0), ny);
           if (l == mine - 1) progress[t].rows.store(k * nx + i + 1, std::memory_order_release);
         }
       }
@@ -468,12 +445,12 @@ void plane_pipeline(int64_t nx, int64_t n_steps, int n_threads, int levels, Make
 // and not yet overwritten: the two fields alternate) or of itself; a barrier between bands. A band
 // of the planes in flight (about levels + 3 of each field) fits in L2 where a whole plane does not
 // (but: 16 bands-of-planes a few rows apart, all 64 KB-periodic, share the same L2 sets). Whole
-// planes (band 0): plane_pipeline. `make_worker(t)` returns row(L, i, j0, j1, at): rows [j0, j1) of
-// plane i of step L (j1 = -1: all).
+// planes (band 0): plane_pipeline. `make_worker(t)` returns row(L, i, j0, j1): rows [j0, j1) of
+// plane i of step L.
 template <typename MakeWorker, typename Finish>
 void band_pipeline(int64_t nx, int64_t ny, int64_t band, int64_t n_steps, int n_threads, int levels,
                    MakeWorker&& make_worker, Finish&& finish) {
-  if (band <= 0) return plane_pipeline(nx, n_steps, n_threads, levels, make_worker, finish);
+  if (band <= 0) return plane_pipeline(nx, ny, n_steps, n_threads, levels, make_worker, finish);
   const int nt = std::max(1, n_threads);
   const Blocks blocks(n_steps, nt, std::max(1, levels));
   std::vector<Progress> progress(nt);
@@ -500,7 +477,7 @@ void band_pipeline(int64_t nx, int64_t ny, int64_t band, int64_t n_steps, int n_
               const int64_t g = first + l - s0 - 1;
               const int64_t j0 = whole ? 0 : std::clamp<int64_t>(b * band - g, 0, ny);
               const int64_t j1 = whole ? ny : std::clamp<int64_t>((b + 1) * band - g, 0, ny);
-              if (j0 < j1) row(first + l, i, j0, j1, SweepAt{});
+              if (j0 < j1) row(first + l, i, j0, j1);
               if (l == mine - 1) progress[t].rows.store(i + 1, std::memory_order_release);
             }
           }
@@ -535,8 +512,7 @@ void volume_steps(const VolumeArgs<T>& a) {
   }
   const char* skip = covered.empty() ? nullptr : covered.data();
   auto make_worker = [&](int) {
-    return [&](int64_t L, int64_t i, int64_t j0, int64_t j1, SweepAt at) {
-      if (j1 < 0) j1 = ny;
+    return [&](int64_t L, int64_t i, int64_t j0, int64_t j1) {
       const T* p = buf[(L - 1) & 1];  // step L - 1
       T* pp = buf[L & 1];             // step L - 2, overwritten by step L
       const T* P0 = p + i * S;
@@ -574,21 +550,10 @@ void volume_steps(const VolumeArgs<T>& a) {
         if (!skip && nz >= 2) {
           fa = std::max<int64_t>(j0, 1);
           fb = std::max(fa, std::min<int64_t>(j1, ny - 1));
-          // the first step of a thread's sweep reads two planes it has not touched (from memory:
-          // the last sweep's fields, or another core's): its later steps prefetch them, a share each
-          Prefetch pf;
-          if (at.l >= 1 && at.mine >= 2) {
-            const int64_t parts = at.mine - 1, bytes = S * int64_t(sizeof(T));
-            const int64_t share = (bytes / parts + 63) / 64 * 64;
-            pf.lo = std::min(bytes, (at.l - 1) * share);
-            pf.hi = std::min(bytes, at.l * share);
-            if (at.m + 2 < nx) pf.a = reinterpret_cast<const char*>(buf[(at.first - 1) & 1] + (at.m + 2) * S);
-            if (at.m + 1 < nx) pf.b = reinterpret_cast<const char*>(buf[at.first & 1] + (at.m + 1) * S);
-          }
           if (fa < fb)
             volume_rows_flat<T, KFULL, SPONGE>(P0, PM, PP, out, KFULL ? a.K + i * S : nullptr,
                                                SPONGE ? a.sponge + i * S : nullptr, nz, fa, fb, a.k, a.closed[4],
-                                               a.closed[5], pf);
+                                               a.closed[5]);
         }
       }
       VolRow<T> r{};

@@ -112,9 +112,10 @@ inline void volume_row(const VolRow<T>& r, int64_t nz, T k, bool zlo, bool zhi) 
 // faces as one flat loop over their cells: the z neighbours are the cells at -+1, which for a row's
 // first and last cells are the neighbouring rows' cells, so those two cells a row are computed
 // again afterwards from P(n-1) saved before the loop, with their ghosts, in the same arithmetic
-// (bit-identical to volume_row). The flat loop has no per-row prologue or scalar remainder: at 256
-// cells a row these were ~45 % of the row's instructions with 512-bit vectors (a 16-cell vector
-// loop over 254 cells ends in an 8-wide and 6 scalar iterations, plus 2 scalar edge cells).
+// (bit-identical to volume_row). The flat loop has no per-row prologue or scalar remainder (with
+// 512-bit vectors a 16-cell loop over a row's 254 inner cells ends in an 8-wide and 6 scalar
+// iterations, plus 2 scalar edge cells): 256^3, 8 levels, callgrind on an AVX2 build, 2.31 -> 1.85
+// instructions a cell update; through JAX (64-byte aligned fields) ~12 % less CPU time, one thread.
 // c: plane i of P(n); xm, xp: planes i -+ 1 (or ghosts); o, kr, sr: the plane's P(n-1) -> P(n+1), K,
 // sponge; everything indexed by j nz + k
 template <typename T, bool KFULL, bool SPONGE>

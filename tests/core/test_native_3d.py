@@ -166,12 +166,16 @@ def test_threads_levels_and_bands_never_change_a_3d_result(kind):
     st = _build(kind, "float32")
     s0 = st.init()
     outs = []
-    # (threads, steps per sweep, rows of a plane's bands: 0 = whole planes)
+    # (threads, steps per sweep, rows of a plane's bands: 0 = whole planes); 3 threads x 1 level: 41
+    # steps in 14 blocks of 2-3, so a block leaves a thread idle and the next block's first thread
+    # waits for the one before the idle one (the whole-plane pipeline has no barrier between blocks)
     for threads, levels, band in (
         (1, 1, 0),
         (2, 1, 0),
         (2, 3, 0),
         (3, 2, 0),
+        (3, 1, 0),
+        (4, 3, 0),
         (1, 5, 0),
         (1, 3, 4),
         (2, 2, 5),

@@ -26,12 +26,15 @@ from .signatures import VOLUME, VOLUME_LAYERED
 STENCILS_3D = ("standard", "isotropic")
 # Temporal blocking: each thread advances LEVELS_3D steps per sweep over the x planes, so the planes
 # in flight (about levels + 3 of each field a step reads) stay in cache: whole planes where they fit
-# CACHE_BUDGET_BYTES (L2 and a share of L3), else bands of rows (`band_3d`). Measured on the 2-core
-# EPYC (Zen 4, 1 MB L2, 32 MB L3) under load (best of 3-6, one thread, 256^3 float32, homogeneous):
-# 1 step per sweep 760-960 MLUPS (as a plain C++ loop, 840-960), 4 steps 1340-1630, 8 steps
-# 1620-2290; bands of 16-32 rows in L2 were no faster than whole planes (1010-1580).
+# CACHE_BUDGET_BYTES (a share of L3), else bands of rows (`band_3d`). Each sweep reads and writes the
+# two fields once (from memory at 256^3: ~4-5 ms a sweep on the 2-core Zen 5 EPYC), so deeper
+# blocks pay: one thread, 256^3 x 100 steps, float32, homogeneous, CPU time (loaded machine, median
+# of 4 interleaved runs, the C++ kernel alone): 4 levels 3232 MLUPS, 8 3684, 12 3778, 16 3756, 24
+# 3421 (the planes in flight outgrow L3); quiet machine, 2 threads, whole run: 4 levels 5517, 8 6022,
+# 16 6321. Bands of 16-64 rows were slower than whole planes in every run (their planes, 256 KB
+# apart, share the same L2 sets).
 CACHE_BUDGET_BYTES = 8 * 1024 * 1024
-LEVELS_3D = 8
+LEVELS_3D = 12
 
 
 def cpus() -> int:

@@ -211,6 +211,18 @@ class _Entry:
     skeleton: Any
     path: Path | None  # where it was loaded from (None: compiled in this process)
 
+    def __post_init__(self):
+        leaves, self.out_tree = jax.tree_util.tree_flatten(self.skeleton, is_leaf=_is_slot)
+        self.out_leaves = list(leaves)
+        self.slots = [i for i, x in enumerate(leaves) if _is_slot(x)]
+
+    def outputs(self, arrays) -> Any:
+        """The program's output pytree from its array outputs."""
+        leaves = list(self.out_leaves)
+        for i, a in zip(self.slots, arrays, strict=True):
+            leaves[i] = a
+        return jax.tree_util.tree_unflatten(self.out_tree, leaves)
+
 
 _FALLBACK = object()
 
@@ -248,9 +260,7 @@ class CachedProgram:
                     self.memory[mkey] = entry
         if entry is _FALLBACK:
             return NotImplemented
-        outs = entry.compiled(*dyn)
-        it = iter(outs)
-        return jax.tree_util.tree_map(lambda x: next(it) if _is_slot(x) else x, entry.skeleton, is_leaf=_is_slot)
+        return entry.outputs(entry.compiled(*dyn))
 
     # -- resolution: disk or compile ------------------------------------------------------------
 

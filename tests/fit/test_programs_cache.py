@@ -10,6 +10,7 @@ import subprocess
 import sys
 import textwrap
 import threading
+import time
 from pathlib import Path
 
 import equinox as eqx
@@ -150,6 +151,32 @@ def test_a_value_without_a_stable_description_falls_back(cache):
     f = small_jit(lambda x, token: x * 2.0)
     assert np.array_equal(np.asarray(f(jnp.arange(3.0), lock)), [0.0, 2.0, 4.0])
     assert not list(cache.glob("*.prog"))
+
+
+def test_a_source_written_during_the_process_turns_the_disk_cache_off(cache, monkeypatch):
+    """The running code may then differ from the sources the fingerprint hashes: nothing is read
+    or stored (the result is still right)."""
+    monkeypatch.setattr(pc, "_IMPORTED_NS", 0)  # every source file is newer than this process
+    args = _args()
+    assert _same(_fresh()(args, {}), _reference(*args))
+    assert not list(cache.glob("*.prog"))
+
+
+def test_stale_generations_are_removed(cache, monkeypatch):
+    """Files of another fingerprint unused for STALE_DAYS and day-old temporary files go when a
+    process first stores; recent files of another fingerprint (another checkout) stay."""
+    cache.mkdir(parents=True)
+    month_ago = time.time() - 30 * 86400
+    old, recent, tmp = (cache / "0000000000000000-a.prog", cache / "1111111111111111-b.prog", cache / "x.1.2.tmp")
+    for p in (old, recent, tmp):
+        p.write_bytes(b"x")
+    for p in (old, tmp):
+        os.utime(p, (month_ago, month_ago))
+    pc._evict_stale.cache_clear()
+    _fresh()(_args(), {})
+    names = {p.name for p in cache.iterdir()}
+    assert recent.name in names and old.name not in names and tmp.name not in names
+    assert sum(n.startswith(pc.package_fingerprint()[:16]) for n in names) == 1
 
 
 def test_off_without_a_cache_dir(monkeypatch):

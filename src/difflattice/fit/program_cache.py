@@ -35,6 +35,7 @@ import pickle
 import platform
 import sys
 import threading
+import time
 import types
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -64,6 +65,9 @@ _JAX_SETTINGS = (
 _ENV = ("XLA_FLAGS", "EQX_ON_ERROR", "EQX_ON_ERROR_BREAKPOINT_FRAMES", "JAX_PLATFORMS")
 _PACKAGES = ("jax", "jaxlib", "equinox", "optimistix", "lineax", "numpy")
 _MAX_DEPTH = 64
+STALE_DAYS = 14.0
+"""Files of other package sources or versions (another fingerprint) older than this are removed
+when a process first stores a program (a source edit leaves a generation of ~3 MB behind)."""
 
 
 class Unkeyable(Exception):
@@ -92,13 +96,31 @@ def cache_dir() -> Path | None:
     return None if not where else Path(where) / "programs"
 
 
+_IMPORTED_NS = time.time_ns()
+
+
+@functools.cache
+def _sources() -> tuple[Path, ...]:
+    root = Path(__file__).resolve().parents[1]
+    return tuple(sorted(root.rglob("*.py")))
+
+
+def _sources_unchanged() -> bool:
+    """Whether no source file was written since this module was imported: where one was, the
+    running code may not be what the fingerprint hashes, and the disk cache is not used."""
+    try:
+        return all(p.stat().st_mtime_ns < _IMPORTED_NS for p in _sources())
+    except OSError:
+        return False
+
+
 @functools.cache
 def package_fingerprint() -> str:
     """A hash of difflattice's Python sources and the versions of the packages that trace the
     programs: a change to either is a miss."""
     h = hashlib.sha256()
     root = Path(__file__).resolve().parents[1]
-    for p in sorted(root.rglob("*.py")):
+    for p in _sources():
         h.update(str(p.relative_to(root)).encode())
         h.update(p.read_bytes())
     for name in _PACKAGES:
@@ -284,12 +306,13 @@ class CachedProgram:
             key = self._key(treedef, static, avals)
         except Unkeyable:
             return _FALLBACK
-        path = where / f"{key}.prog"
-        entry = _load(path, len(dyn))
+        path = where / f"{package_fingerprint()[:16]}-{key}.prog"
+        usable = _sources_unchanged()
+        entry = _load(path, len(dyn)) if usable else None
         if entry is not None:
             return entry
         compiled, skeleton, payload = self._compile(leaves, treedef, is_dyn, dyn)
-        if payload is not None and _reloads(payload, compiled, dyn):
+        if payload is not None and usable and _reloads(payload, compiled, dyn) and _sources_unchanged():
             _store(path, payload)
         return _Entry(compiled, skeleton, None)
 
@@ -412,8 +435,25 @@ def _store(path: Path, payload: bytes) -> None:
     """Write atomically (a temporary file renamed), ignoring a read-only or full disk."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
+        _evict_stale(path.parent)
         tmp = path.with_suffix(f".{os.getpid()}.{threading.get_ident()}.tmp")
         tmp.write_bytes(payload)
         os.replace(tmp, path)
     except OSError:
         pass
+
+
+@functools.cache
+def _evict_stale(where: Path) -> None:
+    """Remove, once per process and folder, files of other fingerprints not written for
+    `STALE_DAYS` and temporary files over a day old (a process that died mid-write)."""
+    mine = package_fingerprint()[:16]
+    now = time.time()
+    for p in where.iterdir():
+        try:
+            age_days = (now - p.stat().st_mtime) / 86400
+            stale = p.suffix == ".prog" and not p.name.startswith(mine) and age_days > STALE_DAYS
+            if stale or (p.suffix == ".tmp" and age_days > 1):
+                p.unlink()
+        except OSError:
+            pass

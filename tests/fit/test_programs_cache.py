@@ -153,6 +153,16 @@ def test_a_value_without_a_stable_description_falls_back(cache):
     assert not list(cache.glob("*.prog"))
 
 
+def test_a_changed_jax_setting_is_another_program(cache):
+    """In memory as on disk: a setting that changes tracing (here the matmul precision) is part of
+    the key, as it is of `jit`'s."""
+    p, args = _fresh(), _args()
+    p(args, {})
+    with jax.default_matmul_precision("highest"):
+        p(args, {})
+    assert len(p.memory) == 2 and len(list(cache.glob("*.prog"))) == 2
+
+
 def test_a_source_written_during_the_process_turns_the_disk_cache_off(cache, monkeypatch):
     """The running code may then differ from the sources the fingerprint hashes: nothing is read
     or stored (the result is still right)."""

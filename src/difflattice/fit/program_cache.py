@@ -270,7 +270,8 @@ class CachedProgram:
         static = tuple(x for x, d in zip(leaves, is_dyn, strict=True) if not d)
         avals = tuple(_aval(x) for x in dyn)
         try:
-            mkey = (treedef, is_dyn, static, avals, where)
+            # JAX's settings as `jit` keys on them (x64, precision, ...: a process may change them)
+            mkey = (treedef, is_dyn, static, avals, where, jax_config.trace_context())
             entry = self.memory.get(mkey)
         except TypeError:  # an unhashable static leaf: equinox refuses it with its own message
             return NotImplemented

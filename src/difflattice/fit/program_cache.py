@@ -10,7 +10,7 @@ stored whole (`jax.experimental.serialize_executable`):
 - the arguments' pytree structure (node types and their static data, e.g. an equinox module's
   static fields), the static leaves' values, and the shape, dtype and weak type of every array
   leaf (array leaves are the program's inputs, as in `equinox.filter_jit`);
-- a hash of the package's Python sources, the versions of jax, jaxlib, equinox, optimistix,
+- a hash of the package's sources, the versions of jax, jaxlib, equinox, optimistix,
   lineax and numpy, the JAX settings that change tracing (x64, matmul precision, promotion),
   `XLA_FLAGS`/`EQX_ON_ERROR`, the compiler options, the backend and the host CPU's features.
 
@@ -101,8 +101,8 @@ _IMPORTED_NS = time.time_ns()
 
 @functools.cache
 def _sources() -> tuple[Path, ...]:
-    root = Path(__file__).resolve().parents[1]
-    return tuple(sorted(root.rglob("*.py")))
+    root = Path(__file__).resolve().parents[1]  # Python and native sources alike (conservative)
+    return tuple(sorted(p for p in root.rglob("*") if p.suffix in (".py", ".cc", ".h") and p.is_file()))
 
 
 def _sources_unchanged() -> bool:
@@ -116,7 +116,7 @@ def _sources_unchanged() -> bool:
 
 @functools.cache
 def package_fingerprint() -> str:
-    """A hash of difflattice's Python sources and the versions of the packages that trace the
+    """A hash of difflattice's sources (Python and native) and the versions of the packages that trace the
     programs: a change to either is a miss."""
     h = hashlib.sha256()
     root = Path(__file__).resolve().parents[1]

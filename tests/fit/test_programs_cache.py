@@ -5,6 +5,7 @@ cannot describe falls back to the ordinary path."""
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import subprocess
 import sys
@@ -80,11 +81,11 @@ def test_hit_gives_the_same_bits_as_tracing_afresh(cache):
     loads = []
     real_load = pc._load
     second = _fresh()
-    pc_load = lambda path, n: loads.append(real_load(path, n)) or loads[-1]  # noqa: E731
+    pc_load = lambda path, n: loads.append((path, real_load(path, n))) or loads[-1][1]  # noqa: E731
     with pytest.MonkeyPatch.context() as m:
         m.setattr(pc, "_load", pc_load)
         got = second(args, {})
-    assert loads and loads[0] is not None and loads[0].path == files[0]  # read from disk
+    assert loads and loads[0][0] == files[0] and loads[0][1] is not None  # read from disk
     assert _same(got, first) and _same(got, _reference(*args))
     assert got["label"] == "line!"
 
@@ -142,6 +143,23 @@ def test_corrupt_file_is_ignored_and_replaced(cache, garbage):
     got = _fresh()(args, {})  # no error: recompiled
     assert _same(got, _reference(*args))
     assert pc._load(path, 2) is not None  # rewritten whole
+
+
+def test_a_loaded_program_that_cannot_run_is_dropped(cache, monkeypatch):
+    """A stored executable that loads but fails at its first run (as one JAX had read from its own
+    cache did: "Function ... not found") costs its file, not the fit: the ordinary path answers."""
+    args = _args()
+    _fresh()(args, {})
+    (path,) = cache.glob("*.prog")
+
+    def broken(*_):
+        raise jax.errors.JaxRuntimeError("NOT_FOUND: Function fusion not found")
+
+    real = pc._from_bytes
+    monkeypatch.setattr(pc, "_from_bytes", lambda *a: dataclasses.replace(real(*a), compiled=broken))
+    p = _fresh()
+    assert p(args, {}) is NotImplemented and not path.exists()
+    assert _same(small_jit(program)(*args), _reference(*args))
 
 
 def test_a_value_without_a_stable_description_falls_back(cache):

@@ -15,9 +15,9 @@ stored whole (`jax.experimental.serialize_executable`):
   `XLA_FLAGS`/`EQX_ON_ERROR`, the compiler options, the backend and the host CPU's features.
 
 Values the key cannot describe without a memory address (an object with neither dataclass
-fields nor a stable repr), programs with host callbacks or effects, and any error in reading,
-loading or writing an entry fall back silently to the ordinary path (`equinox.filter_jit` and
-JAX's own cache). The cache is used where JAX's persistent cache is on (`apps.jaxconfig.configure`
+fields nor a stable repr), programs with host callbacks or effects, any error in reading,
+loading or writing an entry, and a loaded program whose first run fails (its file is removed)
+fall back silently to the ordinary path (`equinox.filter_jit` and JAX's own cache). The cache is used where JAX's persistent cache is on (`apps.jaxconfig.configure`
 sets it for the command line): its files live in ``<jax_compilation_cache_dir>/programs``.
 ``DIFFLATTICE_PROGRAM_CACHE=0`` turns it off.
 """
@@ -231,7 +231,7 @@ class _Entry:
 
     compiled: Any
     skeleton: Any
-    path: Path | None  # where it was loaded from (None: compiled in this process)
+    path: Path | None  # loaded from here and not yet run (None: compiled here, or has run)
 
     def __post_init__(self):
         leaves, self.out_tree = jax.tree_util.tree_flatten(self.skeleton, is_leaf=_is_slot)
@@ -283,7 +283,16 @@ class CachedProgram:
                     self.memory[mkey] = entry
         if entry is _FALLBACK:
             return NotImplemented
-        return entry.outputs(entry.compiled(*dyn))
+        if entry.path is None:
+            return entry.outputs(entry.compiled(*dyn))
+        try:  # the first run of a loaded program, waited for: one that cannot run is dropped
+            outs = jax.block_until_ready(entry.compiled(*dyn))
+        except jax.errors.JaxRuntimeError:
+            self.memory[mkey] = _FALLBACK
+            entry.path.unlink(missing_ok=True)
+            return NotImplemented
+        entry.path = None  # ran: from now on as a program compiled here
+        return entry.outputs(outs)
 
     # -- resolution: disk or compile ------------------------------------------------------------
 
@@ -313,7 +322,7 @@ class CachedProgram:
         if entry is not None:
             return entry
         compiled, skeleton, payload = self._compile(leaves, treedef, is_dyn, dyn)
-        if payload is not None and usable and _reloads(payload, compiled, dyn) and _sources_unchanged():
+        if payload is not None and usable and _sources_unchanged():
             _store(path, payload)
         return _Entry(compiled, skeleton, None)
 
@@ -369,21 +378,6 @@ jax.monitoring.register_event_listener(_count_hit)
 def _cache_hits() -> int:
     """How many programs this thread has read from JAX's persistent cache."""
     return getattr(_LOCAL, "hits", 0)
-
-
-def _reloads(payload: bytes, compiled: Any, dyn: list) -> bool:
-    """Whether the stored form loads and gives, bit for bit, what the fresh program gives on
-    these arguments (checked once, when it is stored)."""
-    try:
-        entry = _from_bytes(payload, len(dyn), None)
-        if entry is None:
-            return False
-        got, want = entry.compiled(*dyn), compiled(*dyn)
-        return len(got) == len(want) and all(
-            np.array_equal(np.asarray(a), np.asarray(b), equal_nan=True) for a, b in zip(got, want, strict=True)
-        )
-    except Exception:  # noqa: BLE001 - a form that does not reload is not stored
-        return False
 
 
 def _serialise(compiled: Any, skeleton: Any, n_in: int) -> bytes:

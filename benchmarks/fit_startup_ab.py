@@ -9,7 +9,9 @@ average before it and the fit's printed result line (so the variants can be seen
         [--config fitting/polaroid_like.toml] [--rounds 3] [--out docs/benchmarks/fit_startup]
 
 Each variant runs as `python -m difflattice.cli fit` with PYTHONPATH=<its src> (the native
-kernels are built once per source hash beforehand by the variant's own first run).
+kernels are built once per source hash beforehand by the variant's own first run). A variant
+`NAME=SRC:ENV=VALUE[,ENV=VALUE]` also sets environment variables for its runs, e.g.
+`noprog=src:DIFFLATTICE_PROGRAM_CACHE=0` (JAX's cache only, without `fit.program_cache`).
 """
 
 from __future__ import annotations
@@ -31,7 +33,9 @@ RESULT = re.compile(r"fit: (?:successful|stationary|[a-z_ ]+) in \d+ steps; (D =
 
 
 def run_once(src: str, config: str, cache: str) -> dict:
+    src, _, extra = src.partition(":")
     env = dict(os.environ, PYTHONPATH=str(Path(src).resolve()), DIFFLATTICE_CACHE_DIR=cache)
+    env.update(kv.split("=", 1) for kv in extra.split(",") if kv)
     out = tempfile.mkdtemp(prefix="dl-fit-ab-")
     load = os.getloadavg()[0]
     before = resource.getrusage(resource.RUSAGE_CHILDREN)

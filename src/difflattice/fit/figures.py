@@ -94,6 +94,29 @@ class FigureWriter:
                 )
             except OSError:  # no processes here: draw in-process
                 self._proc = None
+        self._jobs: Any = None
+        self._writer: Any = None
+        if self._proc is not None:  # jobs are written by a thread: the worker reads its first only
+            import queue  # once its imports are done, and a full pipe would stall the fit till then
+            import threading
+
+            self._jobs = queue.SimpleQueue()
+            self._writer = threading.Thread(target=self._write_jobs, daemon=True)
+            self._writer.start()
+
+    def _write_jobs(self) -> None:
+        while (job := self._jobs.get()) is not None:
+            try:
+                self._proc.stdin.write(job)
+                self._proc.stdin.flush()
+            except (BrokenPipeError, ValueError):  # the worker died (raised by `results`) or closed
+                return
+
+    def _stop_writer(self) -> None:
+        if self._writer is not None:
+            self._jobs.put(None)
+            self._writer.join()
+            self._writer = None
 
     def submit(self, name: str, fn: str, path: Path, *args, **kwargs) -> None:
         """Draw `plots.<fn>(*args, **kwargs)` into `path` (matplotlib is imported only where the
@@ -103,11 +126,7 @@ class FigureWriter:
             return
         import pickle
 
-        try:
-            pickle.dump((name, fn, str(path), args, kwargs), self._proc.stdin)
-            self._proc.stdin.flush()
-        except BrokenPipeError:  # the worker died: its error is raised by `results`
-            pass
+        self._jobs.put(pickle.dumps((name, fn, str(path), args, kwargs)))
 
     def defer(self, name: str, fn: str, path: Path, compute) -> None:
         """Submit `fn(*args, **kwargs)` with `(args, kwargs) = compute()`, computed in a thread
@@ -137,6 +156,7 @@ class FigureWriter:
                 self.submit(name, fn, path, *args, **kwargs)
             self._deferred = []
             if self._proc is not None:
+                self._stop_writer()
                 out, _ = self._proc.communicate()
                 if self._proc.returncode != 0:
                     self._err.seek(0)
@@ -156,6 +176,7 @@ class FigureWriter:
         if self._proc is not None and self._proc.poll() is None:
             self._proc.kill()
             self._proc.wait()
+        self._stop_writer()
         self._proc = None
         if self._err is not None:
             self._err.close()

@@ -248,7 +248,7 @@ def _device(x, dtype):
     process each eager conversion would be an XLA program of its own to trace, lower and load)."""
     if isinstance(x, jax.core.Tracer):
         return jnp.asarray(x, dtype)
-    return jnp.asarray(np.asarray(x, dtype=np.dtype(dtype)))
+    return jax.device_put(np.asarray(x, dtype=np.dtype(dtype)))  # jnp.asarray of NumPy: a program
 
 
 def _checked_inputs(grid: Grid, medium: Medium, edges: Edges):

@@ -8,7 +8,7 @@ import math
 from typing import TYPE_CHECKING
 
 import equinox as eqx
-import jax.numpy as jnp
+import jax
 import numpy as np
 from jaxtyping import Array, Float
 
@@ -89,9 +89,9 @@ def pml_factors(grid: Grid, edges: Edges, dtype) -> PML:
             av = (1 - sigma / 2) / (1 + sigma / 2)
             bv = 1 / (1 + sigma / 2)
             shape = _axis_shape(axis, ndim)
-            # converted on the host: an eager conversion is an XLA program per array in a new process
-            out[f"a{key}_{where}"] = jnp.asarray(np.asarray(av.reshape(shape), dtype=np.dtype(dtype)))
-            out[f"b{key}_{where}"] = jnp.asarray(np.asarray(bv.reshape(shape), dtype=np.dtype(dtype)))
+            # converted on the host and copied (jnp.asarray of a NumPy array is an XLA program per shape)
+            out[f"a{key}_{where}"] = jax.device_put(np.asarray(av.reshape(shape), dtype=np.dtype(dtype)))
+            out[f"b{key}_{where}"] = jax.device_put(np.asarray(bv.reshape(shape), dtype=np.dtype(dtype)))
     radial = _radial_pml(ny, L, m, smax, dtype) if grid.kind.ring_metric and edges.y_hi == "pml" else None
     return PML(**out, radial=radial, boxes=layer_boxes(tuple(grid.shape), edges))
 
@@ -125,7 +125,7 @@ def _radial_pml(ny: int, L: int, m: float, smax: float, dtype) -> RadialPML:
     d = np.clip(rc - r0, 0, L) / L
     sig = smax * d**m
     sbar = smax * L * d ** (m + 1) / ((m + 1) * rc)
-    row = lambda a: jnp.asarray(np.asarray(a, float).reshape(1, -1), dtype)
+    row = lambda a: jax.device_put(np.asarray(a, float).reshape(1, -1).astype(np.dtype(dtype)))
     return RadialPML(
         decay=row((1 - sbar / 2) / (1 + sbar / 2)), drive=row((sig - sbar) / (4 * rc * (1 + sbar / 2))), width=L
     )

@@ -38,6 +38,10 @@ def test_bad_geometry_is_refused_with_the_fix():
         Housing(outer_diameter_m=-1.0, length_m=12e-3)
     with pytest.raises(ValueError, match="family"):
         HousedSpec(housing=h, frequency_hz=F_HZ, family="horn")
+    with pytest.raises(ValueError, match="back = 'closed'"):
+        Housing(outer_diameter_m=16e-3, length_m=12e-3, front="flange", back="open")
+    with pytest.raises(ValueError, match="front"):
+        Housing(outer_diameter_m=16e-3, length_m=12e-3, front="wall")  # type: ignore[arg-type]
 
 
 def test_lobe_gradient_in_recess_and_opening_matches_central_differences():

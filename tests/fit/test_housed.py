@@ -161,17 +161,20 @@ def test_fixed_geometry_is_held_and_reported():
 def test_near_field_tends_to_the_far_field():
     """The scan-line prediction (`near_field`) at range R on the axis is F(0) exp(ikR) / R up to
     O(L / R) (L ~ 30 mm, the sources' extent about the origin): at R = 100 m, |p| R / |F| = 1
-    within 1e-3. Checks the point placement in front of the (recessed) front face and the
-    kernels' composition; too near the can is refused with the distance needed."""
+    within 1e-3, and arg p - arg F = k R within 0.01 rad (the O(k L^2 / R) curvature term is
+    3e-3 rad). The spec's recess is 1 mm and the parameters' 3 mm: the line lies 100 m in front of
+    the face the parameters put (0.01 rad is 0.014 mm of its distance; a line left at the spec's
+    face would be 2 mm, 1.5 rad, off). Too near the can is refused with the distance needed."""
     h = Housing(outer_diameter_m=16e-3, length_m=12e-3)
-    spec = HousedSpec(housing=h, frequency_hz=F_HZ, cells_per_wavelength=10, family="recessed", recess_m=3e-3)
+    spec = HousedSpec(housing=h, frequency_hz=F_HZ, cells_per_wavelength=10, family="recessed", recess_m=1e-3)
     z = 100.0
     fw = HousedForward(spec, np.array([0.0]), wave_x_m=np.array([0.0]), wave_z_m=z)
     p = spec.truth_params(diaphragm_m=9e-3, recess_m=3e-3)
     r_m = fw.layout.diaphragm_row * fw.layout.dx_m + 3e-3 + z  # from the lattice origin, the far field's
-    near = complex(np.asarray(jax.jit(fw.near_field)(p))[0])
-    far = complex(np.asarray(jax.jit(fw.far_field)(p))[0])
+    far, near = (complex(np.asarray(v)[0]) for v in jax.jit(fw.fields)(p))
     r_cells = r_m / fw.layout.dx_m  # `far_field_rz` is R p in Pa x cells
     assert abs(near) * r_cells / abs(far) == pytest.approx(1.0, abs=1e-3)
+    dphi = np.angle(near / far * np.exp(-2j * np.pi * F_HZ * r_m / spec.c_m_s))
+    assert abs(dphi) < 0.01, dphi
     with pytest.raises(ValueError, match="give wave_z_m >"):
         HousedForward(spec, np.array([0.0]), wave_x_m=np.array([0.0]), wave_z_m=1e-3)

@@ -8,11 +8,12 @@ import dataclasses
 import math
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from difflattice.fit.data import LobeData
-from difflattice.fit.housed import HousedForward, HousedSpec, Housing, ring_volume_fractions, row_fractions
+from difflattice.fit.housed import HousedForward, HousedSpec, Housing, level_db, ring_volume_fractions, row_fractions
 from difflattice.fit.ladder import COND_MAX, choose_family, family_ladder
 
 F_HZ = 40e3
@@ -44,18 +45,30 @@ def test_bad_geometry_is_refused_with_the_fix():
         Housing(outer_diameter_m=16e-3, length_m=12e-3, front="wall")  # type: ignore[arg-type]
 
 
-def test_lobe_gradient_in_recess_and_opening_matches_central_differences():
+@pytest.mark.parametrize("front", ["free", "flange"])
+def test_lobe_gradient_in_recess_and_opening_matches_central_differences(front):
     """d(lobe dB)/d(recess, opening, diameter) by forward-mode through the lattice run equals
     central differences of the run itself, to 1e-4 relative (float64). The step (1e-4 in the
     logit, ~1e-4 mm) keeps every body's edge inside one cell, where the cut-cell fractions are
-    smooth; the O(h^2) truncation is ~1e-8 relative."""
-    h = Housing(outer_diameter_m=16e-3, length_m=10e-3, plate_m=1.8e-3)
+    smooth; the O(h^2) truncation is ~1e-8 relative. A flanged can (its depth interpolated between
+    whole rows, `HousedForward`) also with the wavefront's phase on a scan line 10 mm in front of
+    the face (deg)."""
+    h = Housing(outer_diameter_m=16e-3, length_m=10e-3, plate_m=1.8e-3, front=front)
     spec = HousedSpec(housing=h, frequency_hz=F_HZ, cells_per_wavelength=10, family="opening")
     ang = np.array([0.0, 20.0, 40.0, 60.0])
-    fw = HousedForward(spec, ang)
+    if front == "free":
+        fw = HousedForward(spec, ang)
+        out = fw.lobe_db
+    else:
+        fw = HousedForward(spec, ang, wave_x_m=np.array([0.0, 4e-3, 8e-3]), wave_z_m=10e-3)
+
+        def out(q):
+            far, near = fw.fields(q)
+            return jnp.concatenate([level_db(far, q), jnp.degrees(jnp.angle(near))])
+
     p = spec.truth_params(diaphragm_m=9.1e-3, recess_m=3.3e-3, opening_m=11.3e-3)
-    f = jax.jit(fw.lobe_db)
-    jac = jax.jit(jax.jacfwd(fw.lobe_db))(p)
+    f = jax.jit(out)
+    jac = jax.jit(jax.jacfwd(out))(p)
     e = 1e-4
     for key in ("recess", "opening", "diam"):
         up = dataclasses.replace(p, **{key: getattr(p, key) + e})

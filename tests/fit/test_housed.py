@@ -8,11 +8,12 @@ import dataclasses
 import math
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from difflattice.fit.data import LobeData
-from difflattice.fit.housed import HousedForward, HousedSpec, Housing, ring_volume_fractions, row_fractions
+from difflattice.fit.housed import HousedForward, HousedSpec, Housing, level_db, ring_volume_fractions, row_fractions
 from difflattice.fit.ladder import COND_MAX, choose_family, family_ladder
 
 F_HZ = 40e3
@@ -38,20 +39,36 @@ def test_bad_geometry_is_refused_with_the_fix():
         Housing(outer_diameter_m=-1.0, length_m=12e-3)
     with pytest.raises(ValueError, match="family"):
         HousedSpec(housing=h, frequency_hz=F_HZ, family="horn")
+    with pytest.raises(ValueError, match="back = 'closed'"):
+        Housing(outer_diameter_m=16e-3, length_m=12e-3, front="flange", back="open")
+    with pytest.raises(ValueError, match="front"):
+        Housing(outer_diameter_m=16e-3, length_m=12e-3, front="wall")  # type: ignore[arg-type]
 
 
-def test_lobe_gradient_in_recess_and_opening_matches_central_differences():
+@pytest.mark.parametrize("front", ["free", "flange"])
+def test_lobe_gradient_in_recess_and_opening_matches_central_differences(front):
     """d(lobe dB)/d(recess, opening, diameter) by forward-mode through the lattice run equals
     central differences of the run itself, to 1e-4 relative (float64). The step (1e-4 in the
     logit, ~1e-4 mm) keeps every body's edge inside one cell, where the cut-cell fractions are
-    smooth; the O(h^2) truncation is ~1e-8 relative."""
-    h = Housing(outer_diameter_m=16e-3, length_m=10e-3, plate_m=1.8e-3)
+    smooth; the O(h^2) truncation is ~1e-8 relative. A flanged can (its depth interpolated between
+    whole rows, `HousedForward`) also with the wavefront's phase on a scan line 10 mm in front of
+    the face (deg)."""
+    h = Housing(outer_diameter_m=16e-3, length_m=10e-3, plate_m=1.8e-3, front=front)
     spec = HousedSpec(housing=h, frequency_hz=F_HZ, cells_per_wavelength=10, family="opening")
     ang = np.array([0.0, 20.0, 40.0, 60.0])
-    fw = HousedForward(spec, ang)
+    if front == "free":
+        fw = HousedForward(spec, ang)
+        out = fw.lobe_db
+    else:
+        fw = HousedForward(spec, ang, wave_x_m=np.array([0.0, 4e-3, 8e-3]), wave_z_m=10e-3)
+
+        def out(q):
+            far, near = fw.fields(q)
+            return jnp.concatenate([level_db(far, q), jnp.degrees(jnp.angle(near))])
+
     p = spec.truth_params(diaphragm_m=9.1e-3, recess_m=3.3e-3, opening_m=11.3e-3)
-    f = jax.jit(fw.lobe_db)
-    jac = jax.jit(jax.jacfwd(fw.lobe_db))(p)
+    f = jax.jit(out)
+    jac = jax.jit(jax.jacfwd(out))(p)
     e = 1e-4
     for key in ("recess", "opening", "diam"):
         up = dataclasses.replace(p, **{key: getattr(p, key) + e})
@@ -157,17 +174,20 @@ def test_fixed_geometry_is_held_and_reported():
 def test_near_field_tends_to_the_far_field():
     """The scan-line prediction (`near_field`) at range R on the axis is F(0) exp(ikR) / R up to
     O(L / R) (L ~ 30 mm, the sources' extent about the origin): at R = 100 m, |p| R / |F| = 1
-    within 1e-3. Checks the point placement in front of the (recessed) front face and the
-    kernels' composition; too near the can is refused with the distance needed."""
+    within 1e-3, and arg p - arg F = k R within 0.01 rad (the O(k L^2 / R) curvature term is
+    3e-3 rad). The spec's recess is 1 mm and the parameters' 3 mm: the line lies 100 m in front of
+    the face the parameters put (0.01 rad is 0.014 mm of its distance; a line left at the spec's
+    face would be 2 mm, 1.5 rad, off). Too near the can is refused with the distance needed."""
     h = Housing(outer_diameter_m=16e-3, length_m=12e-3)
-    spec = HousedSpec(housing=h, frequency_hz=F_HZ, cells_per_wavelength=10, family="recessed", recess_m=3e-3)
+    spec = HousedSpec(housing=h, frequency_hz=F_HZ, cells_per_wavelength=10, family="recessed", recess_m=1e-3)
     z = 100.0
     fw = HousedForward(spec, np.array([0.0]), wave_x_m=np.array([0.0]), wave_z_m=z)
     p = spec.truth_params(diaphragm_m=9e-3, recess_m=3e-3)
     r_m = fw.layout.diaphragm_row * fw.layout.dx_m + 3e-3 + z  # from the lattice origin, the far field's
-    near = complex(np.asarray(jax.jit(fw.near_field)(p))[0])
-    far = complex(np.asarray(jax.jit(fw.far_field)(p))[0])
+    far, near = (complex(np.asarray(v)[0]) for v in jax.jit(fw.fields)(p))
     r_cells = r_m / fw.layout.dx_m  # `far_field_rz` is R p in Pa x cells
     assert abs(near) * r_cells / abs(far) == pytest.approx(1.0, abs=1e-3)
+    dphi = np.angle(near / far * np.exp(-2j * np.pi * F_HZ * r_m / spec.c_m_s))
+    assert abs(dphi) < 0.01, dphi
     with pytest.raises(ValueError, match="give wave_z_m >"):
         HousedForward(spec, np.array([0.0]), wave_x_m=np.array([0.0]), wave_z_m=1e-3)

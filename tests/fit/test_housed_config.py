@@ -34,6 +34,16 @@ def test_the_real_device_config_reads_its_cited_table():
     assert cfg.housing.outer_diameter_m == sheet.outline["outer_diameter_m"] == 0.010
 
 
+def test_flanged_front_is_read():
+    raw = {
+        "data": {"datasheet": "x.toml"},
+        "model": {"model": "housed", "housing": {"outer_diameter_m": 0.01, "length_m": 0.01, "front": "flange"}},
+    }
+    assert housed_config_from_dict(raw).housing.front == "flange"
+    raw["model"]["housing"].pop("front")
+    assert housed_config_from_dict(raw).housing.front == "free"
+
+
 @pytest.mark.parametrize(
     ("raw", "match"),
     [
@@ -55,6 +65,23 @@ def test_the_real_device_config_reads_its_cited_table():
                 "model": {"model": "housed", "housing": {"outer_diameter_m": 0.01, "length_m": 0.01, "wall_m": 0.006}},
             },
             "no bore",
+        ),
+        (
+            {
+                "data": {"datasheet": "x.toml"},
+                "model": {"model": "housed", "housing": {"outer_diameter_m": 0.01, "length_m": 0.01, "front": "wall"}},
+            },
+            "front",
+        ),
+        (
+            {
+                "data": {"datasheet": "x.toml"},
+                "model": {
+                    "model": "housed",
+                    "housing": {"outer_diameter_m": 0.01, "length_m": 0.01, "front": "flange", "back": "open"},
+                },
+            },
+            "needs back",
         ),
     ],
 )

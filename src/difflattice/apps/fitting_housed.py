@@ -51,6 +51,7 @@ def run_housed(cfg: HousedConfig, *, out: str | Path | None = None, quick: bool 
         wall_m=h.wall_m,
         plate_m=h.plate_m,
         back=cast(Any, h.back),
+        front=cast(Any, h.front),
     )
     cpw = 12.0 if quick else m.cells_per_wavelength
     res_cpw = None if quick else m.resolution_cells_per_wavelength
@@ -93,6 +94,7 @@ def run_housed(cfg: HousedConfig, *, out: str | Path | None = None, quick: bool 
             "length": 1e3 * h.length_m,
             "bore": 1e3 * (h.outer_diameter_m - 2 * h.wall_m),
         },
+        "housing_front": h.front,
         "families": _family_rows(ladder),
         "chosen": ladder.chosen,
         "reason": ladder.reason,

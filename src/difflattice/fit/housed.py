@@ -84,6 +84,9 @@ class HousedParams(FamilyParams):
     """Free lag profile ("profile"), artanh(2 tau / T) of rings 1..n-1 (ring 0 pinned at 0)."""
     opening: Float[Array, ""] | None = None
     """Front plate's opening, logit(b / R_in) (radius b = R_in sigmoid(opening); "opening")."""
+    phase0: Float[Array, ""] | None = None
+    """Wavefront phase offset, rad (fitted with wavefront data only: the rig's phase reference is
+    the drive's, not the model's; `fit.ladder.fit_housed`)."""
     recess: Float[Array, ""] | None = None
     """Recess, logit((d - d_min) / (d_max - d_min)) (depth d of the diaphragm behind the front
     face; d_max the can's length less one cell)."""
@@ -95,14 +98,18 @@ class HousedParams(FamilyParams):
 class Housing:
     """Outline dimensions of a can (a datasheet's outline drawing), metres: `outer_diameter_m`,
     `length_m` (back to front face), the wall `wall_m` (the bore is the outer diameter less two
-    walls), the front plate's thickness `plate_m` (used by the "opening" family) and the `back`:
-    "closed" (solid behind the diaphragm) or "open" (a tube; the diaphragm's rear radiates)."""
+    walls), the front plate's thickness `plate_m` (used by the "opening" family), the `back`:
+    "closed" (solid behind the diaphragm) or "open" (a tube; the diaphragm's rear radiates), and
+    the `front`: "free" (the can stands in free air) or "flange" (the front face continues as an
+    infinite rigid baffle: the can set flush in a wall or panel, as many sonar units are mounted;
+    the outer diameter then only bounds the bore, and the back must be closed)."""
 
     outer_diameter_m: float
     length_m: float
     wall_m: float = 0.5e-3
     plate_m: float = 1.0e-3
     back: Literal["closed", "open"] = "closed"
+    front: Literal["free", "flange"] = "free"
 
     def __post_init__(self):
         for name in ("outer_diameter_m", "length_m"):
@@ -118,6 +125,15 @@ class Housing:
             raise ValueError(f"housing plate_m = {self.plate_m} m must be in (0, length_m = {self.length_m}) m")
         if self.back not in ("closed", "open"):
             raise ValueError(f"housing back = {self.back!r}; allowed: 'closed', 'open' (the diaphragm's rear radiates)")
+        if self.front not in ("free", "flange"):
+            raise ValueError(
+                f"housing front = {self.front!r}; allowed: 'free' (a can in free air), 'flange' (in a baffle)"
+            )
+        if self.front == "flange" and self.back == "open":
+            raise ValueError(
+                "housing front = 'flange' with back = 'open': a can set in an infinite baffle has no rear field "
+                "in the model; use back = 'closed' (or front = 'free' for an open-backed can in free air)"
+            )
 
     @property
     def outer_radius_m(self) -> float:
@@ -404,9 +420,42 @@ def _inside(frac: float) -> float:
     return min(max(float(frac), 1e-6), 1 - 1e-6)
 
 
+def lagrange4(t, n_nodes: int):
+    """(start, weights): the cubic Lagrange interpolant at `t` (traced; in node spacings) over the
+    four nodes start..start + 3 of 0..n_nodes - 1 round it (error O(h^4) in a smooth function;
+    continuous in t, exact at the nodes)."""
+    start = jnp.clip(jnp.floor(t).astype(jnp.int32) - 1, 0, n_nodes - 4)
+    x = t - start
+    w = [jnp.prod(jnp.stack([(x - j) / (k - j) for j in range(4) if j != k])) for k in range(4)]
+    return start, jnp.stack(w)
+
+
+WAVE_LINE_STEP = 0.25
+"""Spacing (cells) of the free can's precomputed scan-line kernels, interpolated to the fitted
+front face (`lagrange4`): relative error <= (k h)^4 x 9/16 / 24, 1.4e-5 (0.001 deg) at 10 cells
+per wavelength."""
+
+
 class HousedForward:
     """The housed model's lobe on its lattice: `lobe_db(params)` (jnp, differentiable in every
-    raw parameter, the geometry included) at the far-field angles `angle_deg` (from the axis)."""
+    raw parameter, the geometry included) at the far-field angles `angle_deg` (from the axis),
+    and with a scan line (`wave_x_m` lateral positions at `wave_z_m` in front of the front face,
+    the face where the parameters put it) the wavefront `near_field(params)`.
+
+    A free can ("free" front): one run, the can's rigid body in cut cells, the far field from a
+    closed Kirchhoff-Helmholtz cylinder round the can; the scan line's kernels are precomputed on
+    lines `WAVE_LINE_STEP` cells apart and interpolated to the front face the recess puts it at.
+
+    A flanged can ("flange" front: the front face an infinite rigid baffle): the grid's z_lo face
+    is the diaphragm's rigid plane, the flange a rigid block filling the rows from it to the front
+    face outside the bore (and through the radial absorbing layer), the far field the
+    Kirchhoff-Helmholtz transform over the baffled cylinder standing on the flange (its image
+    plane the front face). The front face lies on whole rows: the lattice resolves a flange between
+    rows only through cut cells, which would move the transform's image plane off the face. A
+    depth between rows is continued by cubic Lagrange interpolation (`lagrange4`) of the surface
+    phasors over the four whole-row depths round it (four runs, one program: the phasors are
+    recorded on a box covering every depth, and the cylinder's cells gathered at the depth's
+    offset). The scan line's points are relative to the front face: it follows the fitted face."""
 
     def __init__(self, spec: HousedSpec, angle_deg, *, wave_x_m=None, wave_z_m: float | None = None):
         from ..lattice.coefficients import Edges
@@ -414,70 +463,140 @@ class HousedForward:
         from ..observe.farfield_rz import CylinderSurface, far_field_rz
         from .transfer_disc import surface_cells, surface_pairs
 
-        lay = spec.layout()
+        self.spec = spec
+        self.flanged = spec.housing.front == "flange"
+        dx, g, pml = spec.dx_m, spec.surface_gap, spec.pml_cells
+        if self.flanged:
+            self.max_rows = max(int(math.ceil(spec.recess_max_m / dx)) + 2, 4)  # the interpolant's 4 nodes
+            surface = CylinderSurface(0, g, spec.n_rings + g, baffled=True)
+            box_z, box_r = self.max_rows + g + 3, surface.jr + 3
+            shape = (box_z + 6 + pml, box_r + 6 + pml)
+        else:
+            lay = spec.layout()
+            surface = CylinderSurface(lay.iz0, lay.iz1, lay.jr, baffled=False)
+            shape = lay.shape
         grid = make_grid(
             frequency_hz=spec.frequency_hz,
             cells_per_wavelength=spec.cells_per_wavelength,
             c_max_m_s=spec.c_m_s,
-            shape=lay.shape,
+            shape=shape,
             dtype=spec.dtype,
             kind="rz",
             stencil=spec.stencil,
         )
-        nz, nr = lay.shape
+        nz, nr = shape
         n_steps = int(math.hypot(nz, nr) / grid.courant + (spec.cycles + 6) * grid.steps_per_period)
-        self.spec, self.grid, self.n_steps = spec, grid, n_steps
-        self.layout = HousedLayout(lay.shape, lay.diaphragm_row, lay.iz0, lay.iz1, lay.jr, n_steps, lay.dx_m)
+        self.grid, self.n_steps, self.surface = grid, n_steps, surface
+        zd = 0 if self.flanged else lay.diaphragm_row
+        self.layout = HousedLayout(shape, zd, surface.iz0, surface.iz1, surface.jr, n_steps, dx)
         self.angle_deg = np.asarray(angle_deg, float)
-        self.surface = CylinderSurface(lay.iz0, lay.iz1, lay.jr, baffled=False)
-        self.cells = surface_cells(self.surface, 4)
+        self.cells = surface_cells(surface, 4)
         pairs = np.asarray(surface_pairs(np.eye(len(self.cells)), 4))  # (4M, 2M): recorded -> pairs
-        kern = np.asarray(far_field_rz(np.eye(pairs.shape[1]), self.surface, grid, self.angle_deg))  # (2M, A)
+        kern = np.asarray(far_field_rz(np.eye(pairs.shape[1]), surface, grid, self.angle_deg))  # (2M, A)
         self.operator = jnp.asarray(pairs @ kern)  # (4M, A): recorded phasors -> far field
-        self.edges = Edges.axisymmetric("pml", "pml", "pml", thickness_cells=spec.pml_cells)
+        if self.flanged:
+            self.box = np.stack(np.meshgrid(np.arange(box_z), np.arange(box_r), indexing="ij"), -1).reshape(-1, 2)
+            self.index = jnp.asarray(self.cells[:, 0] * box_r + self.cells[:, 1])
+            self.row_stride = box_r
+            self.flange = ring_volume_fractions(
+                spec.housing.bore_radius_m / dx, float(nr + 1), nr, np.dtype(spec.dtype)
+            )
+            self.edges = Edges.axisymmetric("rigid", "pml", "pml", thickness_cells=pml)
+        else:
+            self.edges = Edges.axisymmetric("pml", "pml", "pml", thickness_cells=pml)
         self.wave_operator = None
         if wave_x_m is not None:
-            self.wave_operator = jnp.asarray(pairs @ self._wave_kernel(wave_x_m, wave_z_m))
+            self.wave_operator = jnp.asarray(np.einsum("ij,ljk->lik", pairs, self._wave_kernels(wave_x_m, wave_z_m)))
 
-    def _wave_kernel(self, wave_x_m, wave_z_m):
-        """(2M, J) Kirchhoff-Helmholtz kernel to the scan line `wave_z_m` in front of the front face
-        (at the spec's recess: the points are static) at lateral positions `wave_x_m` (p(x) = p(|x|))."""
+    def _wave_kernels(self, wave_x_m, wave_z_m):
+        """(lines, 2M, J) Kirchhoff-Helmholtz kernels to the scan line `wave_z_m` in front of the
+        front face at lateral positions `wave_x_m` (p(x) = p(|x|)): one line relative to a flange's
+        face; for a free can one line per `WAVE_LINE_STEP` of the front face's admissible range."""
         from ..observe.farfield_rz import field_at_rz
 
-        lay, dx = self.layout, self.layout.dx_m
+        spec, lay, dx = self.spec, self.layout, self.layout.dx_m
         if wave_z_m is None or not wave_z_m > 0:
             raise ValueError(
                 f"wave_z_m = {wave_z_m} must be > 0 m (the scan line's distance in front of the front face)"
             )
-        z_cells = lay.diaphragm_row + (self.spec.recess_m or 0.0) / dx + wave_z_m / dx
-        if z_cells <= lay.iz1 + 2:
-            need = (lay.iz1 + 2 - lay.diaphragm_row) * dx - (self.spec.recess_m or 0.0)
+        x = np.abs(np.asarray(wave_x_m, float).reshape(-1)) / dx
+        if self.flanged:
+            z_lines = np.array([wave_z_m / dx])
+            self.wave_u0 = 0
+        else:  # the front face at zd + d / dx; lines every h cells over d in [d_min, d_max] (+- 2 lines)
+            h = WAVE_LINE_STEP
+            self.wave_u0 = int(math.floor(spec.recess_min_m / dx / h)) - 2
+            u1 = int(math.ceil(spec.recess_max_m / dx / h)) + 2
+            z_lines = lay.diaphragm_row + wave_z_m / dx + h * np.arange(self.wave_u0, u1 + 1)
+        if z_lines[0] <= lay.iz1 + 2:
+            face = z_lines[0] - wave_z_m / dx
+            need = (lay.iz1 + 2 - face) * dx
             raise ValueError(
-                f"wave_z_m = {wave_z_m} m puts the scan line inside the surface round the can (which clears the "
-                f"deepest recess); give wave_z_m > {need:.4g} m"
+                f"wave_z_m = {wave_z_m} m puts the scan line inside the surface round the "
+                f"{'flange' if self.flanged else 'can (which clears the deepest recess)'}; give wave_z_m > {need:.4g} m"
             )
-        x = np.abs(np.asarray(wave_x_m, float).reshape(-1))
-        pts = np.stack([np.full_like(x, z_cells), x / dx], 1)
-        k = 2 * math.pi / self.spec.cells_per_wavelength
+        k = 2 * math.pi / spec.cells_per_wavelength
         r_src = lay.jr + 1.0
-        d_min = max(z_cells - lay.iz1 - 1, 1.0)
-        n_phi = 2 * int(math.ceil(k * r_src + 12 * r_src / d_min + 32))  # as `transfer_disc` for near points
+        d_min = max(z_lines[0] - lay.iz1 - 1, 1.0)
+        n_phi = 2 * int(
+            math.ceil(k * (r_src + x.max()) + 12 * r_src / d_min + 32)
+        )  # as `transfer_disc` for near points
         m = self.operator.shape[0] // 2
-        return np.asarray(field_at_rz(np.eye(m), self.surface, self.grid, pts, dispersion="continuum", n_phi=n_phi))
+        out = []
+        for z in z_lines:
+            pts = np.stack([np.full_like(x, z), x], 1)
+            out.append(field_at_rz(np.eye(m), self.surface, self.grid, pts, dispersion="continuum", n_phi=n_phi))
+        return np.asarray(out)
 
     def near_field(self, params: HousedParams):
         """Complex pressure on the scan line given at construction (same units as `far_field`);
         the observer's carrier phase in the rig's convention is -arg of it."""
-        if self.wave_operator is None:
-            raise ValueError("no scan line: construct HousedForward(..., wave_x_m=..., wave_z_m=...)")
-        return self.phasors(params) @ self.wave_operator
+        return self.fields(params)[1]
 
     def far_field(self, params: HousedParams):
         """Complex far field F at `angle_deg` (arbitrary units: the drive's spectrum is not divided out)."""
         return self.phasors(params) @ self.operator
 
+    def fields(self, params: HousedParams):
+        """(far field, near field on the scan line) from one lattice run (see `near_field`)."""
+        if self.wave_operator is None:
+            raise ValueError("no scan line: construct HousedForward(..., wave_x_m=..., wave_z_m=...)")
+        ph = self.phasors(params)
+        far = ph @ self.operator
+        if self.flanged:
+            return far, ph @ self.wave_operator[0]
+        t = self.spec.physical(params)["recess_m"] / (self.layout.dx_m * WAVE_LINE_STEP) - self.wave_u0
+        start, w = lagrange4(t, self.wave_operator.shape[0])
+        ker = jax.lax.dynamic_slice_in_dim(self.wave_operator, start, 4)  # (4, 4M, J)
+        return far, w @ jnp.einsum("i,lij->lj", ph, ker)
+
     def phasors(self, params: HousedParams):
-        """The lattice run: phasors at the drive frequency of the surface's recorded cells."""
+        """The lattice run: phasors at the drive frequency of the surface's recorded cells (a
+        flanged can: interpolated to the recess from the four whole-row depths round it)."""
+        ph = self.spec.physical(params)
+        if not self.flanged:
+            return self._run(ph, self.spec.rigid(ph, self.layout, self.grid.jnp_dtype), self.cells, "can")
+        start, w = lagrange4(ph["recess_m"] / self.layout.dx_m, self.max_rows)
+        rows = jax.vmap(lambda m: self.flanged_phasors(ph, start + m))(jnp.arange(4))
+        return w @ rows
+
+    def flanged_phasors(self, ph: dict, rows):
+        """A flanged can's surface phasors for a front face `rows` whole rows in front of the
+        diaphragm (`ph`: `HousedSpec.physical`'s dict; the plate, if any, `plate_m` thick below
+        the front face)."""
+        nz, nr = self.layout.shape
+        dt, dx, h = self.grid.jnp_dtype, self.layout.dx_m, self.spec.housing
+        zf = jnp.asarray(rows, dt)
+        occ = row_fractions(0.0, zf, nz, dt)[:, None] * self.flange[None, :]
+        if ph["opening_m"] is not None:
+            zp = jnp.where(zf - h.plate_m / dx >= 0, zf - h.plate_m / dx, 0.0)
+            b, rb = 0.5 * ph["opening_m"] / dx, h.bore_radius_m / dx
+            occ = occ + row_fractions(zp, zf, nz, dt)[:, None] * ring_volume_fractions(b, rb, nr, dt)[None, :]
+        rec = self._run(ph, _select_clip01(occ).astype(dt), self.box, "rigid")
+        return jnp.take(rec, self.index + jnp.asarray(rows) * self.row_stride)
+
+    def _run(self, ph: dict, occ, cells, baffle):
+        """One lattice run of the geometry `occ`; phasors at `cells`."""
         from ..air import density_kg_m3
         from ..lattice.medium import Medium
         from ..solver.loop import simulate
@@ -485,9 +604,6 @@ class HousedForward:
         from ..solver.sources import PointSources, ToneBurst, disc_transducer
 
         spec, grid = self.spec, self.grid
-        dt = grid.jnp_dtype
-        ph = spec.physical(params)
-        occ = spec.rigid(ph, self.layout, dt)
         src = disc_transducer(
             grid,
             radius_m=0.5 * ph["diaphragm_m"],
@@ -496,7 +612,7 @@ class HousedForward:
             weights=ph["weights"],
             lags_s=ph["lags_s"],
             signal=ToneBurst(spec.frequency_hz, spec.cycles),
-            baffle="can",
+            baffle=baffle,
         )
         sources = [src]
         if spec.housing.back == "open":  # the rear face: the same flux out of the cell behind the plate
@@ -507,12 +623,11 @@ class HousedForward:
                     cells=rear, signal=src.signal, weights=-src.weights, lags_s=src.lags_s, injection="velocity"
                 )
             )
-        medium = Medium(spec.c_m_s, density_kg_m3(20.0), rigid=occ)
         r = simulate(
             grid,
-            medium,
+            Medium(spec.c_m_s, density_kg_m3(20.0), rigid=occ),
             sources,
-            Sensors(phasor_cells=self.cells),
+            Sensors(phasor_cells=cells),
             n_steps=self.n_steps,
             edges=self.edges,
             backend="jax",
@@ -524,5 +639,9 @@ class HousedForward:
 
     def lobe_db(self, params: HousedParams):
         """Model levels, dB: 20 log10 |F| plus the fitted gain."""
-        f = self.far_field(params)
-        return 10 * jnp.log10(jnp.abs(f) ** 2 + 1e-300) + (0.0 if params.gain_db is None else params.gain_db)
+        return level_db(self.far_field(params), params)
+
+
+def level_db(far, params: HousedParams):
+    """20 log10 |F| plus the fitted gain (dB)."""
+    return 10 * jnp.log10(jnp.abs(far) ** 2 + 1e-300) + (0.0 if params.gain_db is None else params.gain_db)

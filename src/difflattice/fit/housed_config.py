@@ -131,6 +131,14 @@ class HousingSection(Section):
         choices=("closed", "open"),
         doc="the can's back: closed (solid behind the diaphragm) or open (a tube: the diaphragm's rear radiates)",
     )
+    front: str = setting(
+        "free",
+        kind="str",
+        choices=("free", "flange"),
+        doc="the can's front: free (a can in free air) or flange (the front face continues as an infinite rigid "
+        "baffle: the can set in a wall or panel; back must be closed)",
+        fix='use "free", or "flange" for a unit mounted flush in a panel',
+    )
 
 
 @dataclass(frozen=True)
@@ -198,6 +206,12 @@ def housed_config_from_dict(raw: dict[str, Any], *, path: str | Path | None = No
         path=path,
     )
     h = cfg.housing
+    if h.front == "flange" and h.back == "open":
+        raise ConfigError(
+            message(
+                path, "model.housing.front", None, '= "flange" needs back = "closed" (a baffled can has no rear field)'
+            )
+        )
     if h.wall_m * 2 >= h.outer_diameter_m:
         raise ConfigError(
             message(

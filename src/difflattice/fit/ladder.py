@@ -1,7 +1,10 @@
 """Fitting housed transducers (`fit.housed`) by gradient, and the family ladder.
 
-`fit_housed` fits one family to a lobe (`fit.data.LobeData`) by Levenberg-Marquardt on the
-normalised residuals (model - data) / sigma, the Jacobian by forward-mode differentiation through
+`fit_housed` fits one family to a lobe (`fit.data.LobeData`), and with it, where the rig measured
+one, a near-field wavefront (`fit.data.WaveData`: the scan line `z_m` in front of the fitted
+front face, a fitted phase offset), by Levenberg-Marquardt on the normalised residuals (model -
+data) / sigma (a wavefront point as `fit.problem`: the rows sin d / sigma and (1 - cos d) / sigma
+of its phase difference d), the Jacobian by forward-mode differentiation through
 the lattice run (geometry included: a handful of tangents, one program). Its errors are the
 linearised covariance at the stated sigma, scaled by chi2_red where that exceeds 1 (a model that
 misses structure does not get tighter errors for it), mapped to physical units by the Jacobian
@@ -28,8 +31,8 @@ import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
 
-from .data import LobeData
-from .housed import FAMILIES, HousedForward, HousedParams, HousedSpec
+from .data import LobeData, WaveData
+from .housed import FAMILIES, HousedForward, HousedParams, HousedSpec, level_db
 from .model import soft_floor_db
 
 COND_MAX = 1e8
@@ -70,6 +73,9 @@ class HousedFit:
     rms_db: float
     errors_statistical: dict = dataclasses.field(default_factory=dict)
     errors_resolution: dict = dataclasses.field(default_factory=dict)
+    wave_model_rad: np.ndarray | None = None
+    wave_residual_deg: np.ndarray | None = None
+    rms_wave_deg: float | None = None
 
     @property
     def aic(self) -> float:
@@ -104,7 +110,7 @@ class HousedFit:
             "n": self.n,
             "chi2": self.chi2,
             "chi2_reduced": self.chi2_reduced,
-            "p": self.goodness.get("lobe", {}).get("p", float("nan")),
+            "p": self.goodness.get("joint" if self.rms_wave_deg is not None else "lobe", {}).get("p", float("nan")),
             "aic": self.aic,
             "bic": self.bic,
             "rms_db": self.rms_db,
@@ -114,6 +120,8 @@ class HousedFit:
             "converged": self.converged,
             "iterations": self.iterations,
         }
+        if self.rms_wave_deg is not None:
+            out["rms_wave_deg"] = self.rms_wave_deg
         for key, v in self.physical.items():
             out[key] = v
             if key in self.errors:
@@ -144,6 +152,7 @@ def fit_housed(
     spec: HousedSpec,
     lobe: LobeData,
     *,
+    wave: WaveData | None = None,
     init: HousedParams | None = None,
     max_iter: int = 60,
     forward: HousedForward | None = None,
@@ -151,14 +160,16 @@ def fit_housed(
     resolution_cpw: float | None = None,
     jacobian: str = "secant",
 ) -> HousedFit:
-    """Fit `spec`'s family to `lobe` (levels in any dB reference: the gain is fitted) from `init`
-    (raw parameters), or else from `starts` diaphragm diameters (the spec's, or the baffled
-    piston's with the lobe's -6 dB angle, `piston_start_diameter_m`; then 0.8, 1.25, 0.65, 1.5
-    times it, below the bore; the recess and opening at their defaults); the best fit is returned. With
-    `resolution_cpw` the fit is repeated from its result at that lattice resolution and the
-    shift of each quantity is added to its error in quadrature (`errors_resolution`; the
-    statistical part stays in `errors_statistical`): the lattice's discretisation is part of
-    the quoted error.
+    """Fit `spec`'s family to `lobe` (levels in any dB reference: the gain is fitted) and, if
+    given, the wavefront `wave` (phases in the models' convention, `fit.data`; its `z_m` is the
+    scan line's distance in front of the front face, which moves with the fitted recess; a phase
+    offset `phase0` is fitted), from `init` (raw parameters), or else from `starts` diaphragm
+    diameters (the spec's, or the baffled piston's with the lobe's -6 dB angle,
+    `piston_start_diameter_m`; then 0.8, 1.25, 0.65, 1.5 times it, below the bore; the recess and
+    opening at their defaults); the best fit is returned. With `resolution_cpw` the fit is
+    repeated from its result at that lattice resolution and the shift of each quantity is added
+    to its error in quadrature (`errors_resolution`; the statistical part stays in
+    `errors_statistical`): the lattice's discretisation is part of the quoted error.
 
     `jacobian`: "secant" (default) differentiates the geometry (diameter, recess, opening) by
     central secants one cell wide and everything else exactly; "exact" uses the forward-mode
@@ -167,21 +178,35 @@ def fit_housed(
     wavelength, 30 deg, a 3 mm recess), and linearised errors built on it inherit the ripple
     (measured, a 9 mm piston 3 mm deep fitted at 24 cells per wavelength: the same fitted values
     within 0.01 mm either way, diameter error 0.13 mm by secants, 0.21 mm exact; at 16 cells
-    0.12 and 0.10 mm). The cell-scale secant is the slope the lattice resolves."""
+    0.12 and 0.10 mm). The cell-scale secant is the slope the lattice resolves. With a wavefront
+    the steps use the exact derivative and only the errors the secants: its 0.1 deg phases make
+    the cost so steep that steps on secants, which are not the local slope, creep (measured, a
+    9 mm piston 3 mm deep at 12 cells per wavelength: chi2 still falling 1e-5 per step after 60
+    steps; exact steps converge in 16, to a chi2 1e-3 lower, the geometry within 0.002 mm)."""
     if init is not None and not isinstance(init, HousedParams):
         raise TypeError(
             f"init is a {type(init).__name__}; give a HousedParams, e.g. spec.init_params() or spec.truth_params(...)"
         )
-    fw = forward or HousedForward(spec, lobe.angle_deg)
+    if wave is not None and forward is None:
+        fw = HousedForward(spec, lobe.angle_deg, wave_x_m=wave.x_m, wave_z_m=wave.z_m)
+    else:
+        fw = forward or HousedForward(spec, lobe.angle_deg)
     y = jnp.asarray(lobe.level_db, float)
     sig = jnp.asarray(lobe.sigma_db, float)
     floor = float(np.min(lobe.level_db)) - FLOOR_BELOW_DB
-    p0 = init if init is not None else spec.init_params()
+    p0 = _with_phase0(init if init is not None else spec.init_params(), wave)
     flat0, unravel = ravel_pytree(p0)
+    wph = None if wave is None else jnp.asarray(wave.phase_rad, float)
+    wsig = None if wave is None else jnp.asarray(wave.sigma_rad, float)
 
     def residual(u):
-        m = soft_floor_db(fw.lobe_db(unravel(u)), floor)
-        return (m - y) / sig
+        p = unravel(u)
+        if wave is None:
+            return (soft_floor_db(fw.lobe_db(p), floor) - y) / sig
+        far, near = fw.fields(p)
+        d = -jnp.angle(near) + p.phase0 - wph
+        r = (soft_floor_db(level_db(far, p), floor) - y) / sig
+        return jnp.concatenate([r, jnp.sin(d) / wsig, (1 - jnp.cos(d)) / wsig])
 
     res_j = jax.jit(residual)
     exact_j = jax.jit(jax.jacfwd(residual))
@@ -191,33 +216,53 @@ def fit_housed(
         jac_j = _secant_jacobian(spec, p0, res_j, exact_j)
     else:
         raise ValueError(f"jacobian = {jacobian!r}; allowed: 'secant' (cell-scale secants of the geometry), 'exact'")
+    step_j = exact_j if wave is not None else jac_j  # see the docstring: a wavefront's steps are exact
     inits = [np.asarray(flat0, float)]
     if init is None:
         rb = spec.housing.bore_radius_m
         d6 = spec.diaphragm_m or piston_start_diameter_m(lobe, spec.c_m_s, 2 * rb)
         inits = []
         for factor in (1.0, 0.8, 1.25, 0.65, 1.5)[: max(starts, 1)]:
-            q = spec.truth_params(diaphragm_m=min(factor * d6, 1.98 * rb))
+            q = _with_phase0(spec.truth_params(diaphragm_m=min(factor * d6, 1.98 * rb)), wave)
             inits.append(np.asarray(ravel_pytree(q)[0], float))
     best = None
     for u0 in inits:
-        u0 = _gain_start(u0, res_j, unravel, sig)
-        out = _levenberg_marquardt(res_j, jac_j, u0, max_iter)
+        u0 = _offsets_start(u0, res_j, unravel, sig, len(lobe.level_db), wsig)
+        out = _levenberg_marquardt(res_j, step_j, u0, max_iter)
         if best is None or out[1] < best[1]:
             best = out
     assert best is not None
     u, cost, converged, it = best
-    out = _finish(spec, fw, lobe, unravel, u, res_j, jac_j, floor, converged, it)
+    out = _finish(spec, lobe, wave, unravel, u, res_j, jac_j, converged, it)
     if resolution_cpw is not None:
-        add_resolution_term(out, lobe, resolution_cpw, max_iter=max_iter)
+        add_resolution_term(out, lobe, resolution_cpw, wave=wave, max_iter=max_iter)
     return out
 
 
-def add_resolution_term(fit: HousedFit, lobe: LobeData, resolution_cpw: float, *, max_iter: int = 60) -> HousedFit:
-    """Refit `fit` from its result at `resolution_cpw` cells per wavelength and add each
-    quantity's shift to its error in quadrature (in place; see `fit_housed`)."""
+def _with_phase0(p: HousedParams, wave: WaveData | None) -> HousedParams:
+    """The parameters with a phase offset where a wavefront is fitted, without one where not."""
+    if wave is None:
+        return p.without("phase0") if p.has("phase0") else p
+    return p if p.has("phase0") else dataclasses.replace(p, phase0=jnp.asarray(0.0))
+
+
+def add_resolution_term(
+    fit: HousedFit,
+    lobe: LobeData,
+    resolution_cpw: float,
+    *,
+    wave: WaveData | None = None,
+    max_iter: int = 60,
+) -> HousedFit:
+    """Refit `fit` (to `lobe` and `wave`, the data it was fitted to) from its result at
+    `resolution_cpw` cells per wavelength and add each quantity's shift to its error in
+    quadrature (in place; see `fit_housed`)."""
     other = fit_housed(
-        dataclasses.replace(fit.spec, cells_per_wavelength=resolution_cpw), lobe, init=fit.params, max_iter=max_iter
+        dataclasses.replace(fit.spec, cells_per_wavelength=resolution_cpw),
+        lobe,
+        wave=wave,
+        init=fit.params,
+        max_iter=max_iter,
     )
     fit.errors_statistical = dict(fit.errors)
     for key, err in fit.errors_statistical.items():
@@ -244,12 +289,19 @@ def piston_start_diameter_m(lobe: LobeData, c_m_s: float, d_max_m: float) -> flo
     return float(min(2 * 2.215 / (k * math.sin(math.radians(max(t, 1.0)))), 0.99 * d_max_m))
 
 
-def _gain_start(u0, res_j, unravel, sig):
-    """Set the raw gain so the mean residual is 0 (the gain is linear: one step)."""
+def _offsets_start(u0, res_j, unravel, sig, n_lobe: int, wsig=None):
+    """Set the raw gain so the mean lobe residual is 0 (the gain is linear: one step) and the
+    phase offset, where there is one, to the circular mean of the wavefront's phase differences."""
     p = unravel(jnp.asarray(u0))
-    r = np.asarray(res_j(jnp.asarray(u0)))
+    if p.has("phase0"):
+        p = dataclasses.replace(p, phase0=jnp.asarray(0.0))
+    r = np.asarray(res_j(ravel_pytree(p)[0]))
     s = np.asarray(sig, float)
-    p = dataclasses.replace(p, gain_db=jnp.asarray(float(p.gain_db) - float(np.sum(r / s) / np.sum(1 / s**2))))
+    p = dataclasses.replace(p, gain_db=jnp.asarray(float(p.gain_db) - float(np.sum(r[:n_lobe] / s) / np.sum(1 / s**2))))
+    if p.has("phase0"):
+        w = np.asarray(wsig, float)
+        sin_d, one_cos = (w * v for v in np.split(r[n_lobe:], 2))  # the rows are (sin d, 1 - cos d) / sigma
+        p = dataclasses.replace(p, phase0=jnp.asarray(-float(np.angle(np.mean(1 - one_cos + 1j * sin_d)))))
     return np.asarray(ravel_pytree(p)[0], float)
 
 
@@ -316,13 +368,15 @@ def _levenberg_marquardt(res_j, jac_j, u0, max_iter: int):
     return u, cost, converged, it
 
 
-def _finish(spec, fw, lobe, unravel, u, res_j, jac_j, floor, converged, it) -> HousedFit:
+def _finish(spec, lobe, wave, unravel, u, res_j, jac_j, converged, it) -> HousedFit:
     from .goodness import goodness_of_fit
 
     params = unravel(jnp.asarray(u))
     r = np.asarray(res_j(jnp.asarray(u)))
     J = np.asarray(jac_j(jnp.asarray(u)))
-    n, k = len(r), J.shape[1]
+    n_lobe = len(lobe.level_db)
+    n_wave = 0 if wave is None else len(wave.x_m)
+    n, k = n_lobe + n_wave, J.shape[1]
     chi2 = float(r @ r)
     A = J.T @ J
     d = np.sqrt(np.maximum(np.diag(A), 1e-300))
@@ -343,9 +397,22 @@ def _finish(spec, fw, lobe, unravel, u, res_j, jac_j, floor, converged, it) -> H
     values = {nm: float(v) for nm, v in zip(names, np.asarray(vec), strict=True)}
     for name in spec.fixed:  # held at the given value: reported, without an error
         values[f"{name}_mm"] = 1e3 * float(getattr(spec, f"{name}_m"))
-    model = np.asarray(soft_floor_db(fw.lobe_db(params), floor))
+    sig = np.asarray(lobe.sigma_db, float)
+    model = r[:n_lobe] * sig + np.asarray(lobe.level_db)  # the soft-floored model the fit saw
+    data_res = {"lobe": r[:n_lobe]}
+    extra: dict = {}
+    if wave is not None:
+        w = np.asarray(wave.sigma_rad, float)
+        dphase = np.arctan2(w * r[n_lobe : n_lobe + n_wave], 1 - w * r[n_lobe + n_wave :])
+        data_res["wave"] = 2 * np.sin(dphase / 2) / w
+        extra = {
+            "wave_model_rad": np.asarray(wave.phase_rad) + dphase,
+            "wave_residual_deg": np.degrees(dphase),
+            "rms_wave_deg": float(np.degrees(np.sqrt(np.mean(dphase**2)))),
+        }
+        values["phase0_rad"] = float(params.phase0)
     res_db = model - np.asarray(lobe.level_db)
-    goodness = goodness_of_fit({"lobe": r}, J, cov, k)
+    goodness = goodness_of_fit(data_res, J, cov, k)
     ph = spec.physical(params)
     if spec.family == "profile":
         values["weights"] = np.asarray(ph["weights"]).tolist()
@@ -366,6 +433,7 @@ def _finish(spec, fw, lobe, unravel, u, res_j, jac_j, floor, converged, it) -> H
         converged=converged,
         iterations=it,
         rms_db=float(np.sqrt(np.mean(res_db**2))),
+        **extra,
     )
 
 
@@ -472,12 +540,14 @@ def family_ladder(
     spec: HousedSpec,
     lobe: LobeData,
     *,
+    wave: WaveData | None = None,
     families=FAMILIES,
     max_iter: int = 60,
     starts: int = 3,
     resolution_cpw: float | None = None,
 ) -> Ladder:
-    """Fit each of `families` (a `HousedSpec` like `spec` with its family replaced) to `lobe`,
+    """Fit each of `families` (a `HousedSpec` like `spec` with its family replaced) to `lobe`
+    (and the wavefront `wave`, if given: `fit_housed`),
     from the fit of the family it reduces to (`NESTED_IN`, `_warm_starts`) and, with `starts` > 1,
     from its own starts, keeping the best; then choose (`choose_family`). With `resolution_cpw`,
     the chosen fit's errors get the resolution term (`add_resolution_term`). A richer family whose
@@ -489,9 +559,9 @@ def family_ladder(
         s = dataclasses.replace(spec, family=fam)
         parent = fits.get(NESTED_IN.get(fam, ""))
         inits: list = [] if parent is None else _warm_starts(s, parent)
-        cands = [fit_housed(s, lobe, init=q, max_iter=max_iter) for q in inits]
+        cands = [fit_housed(s, lobe, wave=wave, init=q, max_iter=max_iter) for q in inits]
         if not inits or starts > 1:
-            cands.append(fit_housed(s, lobe, max_iter=max_iter, starts=starts))
+            cands.append(fit_housed(s, lobe, wave=wave, max_iter=max_iter, starts=starts))
         f = min(cands, key=lambda c: c.chi2)
         if parent is not None and f.chi2 > parent.chi2 + 1.0:
             stuck.append(f"{fam} (chi2 {f.chi2:.1f} above {NESTED_IN[fam]}'s {parent.chi2:.1f})")
@@ -500,6 +570,6 @@ def family_ladder(
     if stuck:
         reason += " Local minima: " + ", ".join(stuck) + "; their comparison is not conclusive."
     if resolution_cpw is not None:
-        add_resolution_term(fits[chosen], lobe, resolution_cpw, max_iter=max_iter)
+        add_resolution_term(fits[chosen], lobe, resolution_cpw, wave=wave, max_iter=max_iter)
         reason += f" Its errors include the shift of a refit at {resolution_cpw:g} cells per wavelength."
     return Ladder(fits, chosen, reason)

@@ -252,3 +252,41 @@ def test_a_new_process_loads_the_program_and_runs_it(tmp_path):
     first, second = (r.stdout.split() for r in runs)
     assert first[0] == "miss" and second[0] == "hit"
     assert first[1:] == second[1:]
+
+
+def test_a_program_calling_an_unknown_kernel_is_not_stored():
+    """A stored program may call LAPACK (set up before loading) but no other custom call: a kernel
+    registered lazily (e.g. the native lattice's FFI targets) could be missing in the process that
+    loads it, which would crash it rather than raise."""
+    from difflattice.fit import program_cache as pc
+
+    class Stub:
+        def __init__(self, text):
+            self.text = text
+            self._executable = type("E", (), {"_unloaded_executable": None})()
+
+        def as_text(self):
+            return self.text
+
+    with pytest.raises(ValueError, match="difflattice_leapfrog"):
+        pc._serialise(Stub('x = f32[4] custom-call(y), custom_call_target="difflattice_leapfrog"'), None, 1)
+
+
+def test_stored_output_structure_keeps_equinox_sentinels():
+    """An output skeleton holding a PyTreeDef of an equinox module (as an optimiser state's
+    linear operator does: its input structure) must come back equal: pickled by value, equinox's
+    MISSING sentinel inside it came back as a new object, the structures compared unequal, and the
+    next program traced on that output failed ("different pytree metadata") once some programs
+    were loaded and others compiled."""
+    import pickle
+
+    import jax
+    import jax.numpy as jnp
+
+    from difflattice.fit import program_cache as pc
+    from difflattice.fit.model import LineParams
+
+    p = LineParams(**{f.name: jnp.zeros(()) for f in dataclasses.fields(LineParams)})
+    tree = jax.tree_util.tree_structure(p)
+    assert pickle.loads(pickle.dumps(tree)) != tree  # the defect this guards against
+    assert pc._load_skeleton(pc._dump_skeleton({"in_structure": tree})) == {"in_structure": tree}

@@ -33,6 +33,7 @@ import io
 import os
 import pickle
 import platform
+import re
 import sys
 import threading
 import time
@@ -48,7 +49,7 @@ from jax._src import config as jax_config
 
 __all__ = ["CachedProgram", "cache_dir", "package_fingerprint"]
 
-FORMAT = 1
+FORMAT = 2
 """The layout of a cache file; a file of another layout is a miss."""
 
 _JAX_SETTINGS = (
@@ -380,6 +381,13 @@ def _cache_hits() -> int:
     return getattr(_LOCAL, "hits", 0)
 
 
+_SAFE_CUSTOM_CALLS = ("lapack_", "Sharding", "SPMDFullToShardShape", "SPMDShardToFullShape")
+"""Custom calls a stored program may make: LAPACK's (set up before any load, `_load`) and XLA's
+own sharding markers. A program calling anything else (e.g. the native lattice kernels, registered
+when their library is loaded) is not stored: a kernel missing in the loading process would crash
+it, not raise."""
+
+
 def _serialise(compiled: Any, skeleton: Any, n_in: int) -> bytes:
     from jax.experimental import serialize_executable
 
@@ -390,10 +398,59 @@ def _serialise(compiled: Any, skeleton: Any, n_in: int) -> bytes:
         or getattr(unloaded, "unordered_effects", None)
     ):
         raise ValueError("a program with host callbacks or effects is not stored")
+    targets = set(re.findall(r'custom_call_target="([^"]+)"', compiled.as_text() or ""))
+    unknown = sorted(t for t in targets if not t.startswith(_SAFE_CUSTOM_CALLS))
+    if unknown:  # kernels registered lazily in a process (a native FFI target, ...) may be absent when loaded
+        raise ValueError(f"a program calling {unknown} is not stored")
     exe, _, _ = serialize_executable.serialize(compiled)
     buf = io.BytesIO()
-    pickle.dump({"format": FORMAT, "n_in": n_in, "exe": exe, "skeleton": pickle.dumps(skeleton)}, buf)
+    skel = _dump_skeleton(skeleton)
+    treedef = jax.tree_util.tree_structure(skeleton, is_leaf=_is_slot)
+    if jax.tree_util.tree_structure(_load_skeleton(skel), is_leaf=_is_slot) != treedef:
+        raise ValueError("the output structure does not survive storing")  # (a later program would not trace)
+    pickle.dump({"format": FORMAT, "n_in": n_in, "exe": exe, "skeleton": skel}, buf)
     return buf.getvalue()
+
+
+_BUILTIN = (type(None), bool, int, float, complex, str, bytes, tuple, list, dict, frozenset, set, type)
+
+
+def _singleton_name(obj: Any) -> tuple[str, str] | None:
+    """(module, name) where `obj` is a module-level instance of its class's module (a sentinel such
+    as equinox's MISSING, compared by identity in pytree metadata), else None."""
+    if isinstance(obj, _BUILTIN) or isinstance(obj, types.FunctionType):
+        return None
+    module = sys.modules.get(type(obj).__module__)
+    if module is None:
+        return None
+    for name, value in vars(module).items():
+        if value is obj:
+            return module.__name__, name
+    return None
+
+
+class _SkeletonPickler(pickle.Pickler):
+    def persistent_id(self, obj: Any) -> Any:
+        return _singleton_name(obj)
+
+
+class _SkeletonUnpickler(pickle.Unpickler):
+    def persistent_load(self, pid: Any) -> Any:
+        module, name = pid
+        return getattr(sys.modules[module], name)
+
+
+def _dump_skeleton(skeleton: Any) -> bytes:
+    """An output skeleton's bytes, its module-level singletons stored by reference: pickled by
+    value, equinox's MISSING (in every module's pytree metadata) came back as a new object, which
+    pytree metadata compares unequal, and a program traced on a loaded program's outputs failed."""
+    buf = io.BytesIO()
+    _SkeletonPickler(buf).dump(skeleton)
+    return buf.getvalue()
+
+
+def _load_skeleton(data: bytes) -> Any:
+    return _SkeletonUnpickler(io.BytesIO(data)).load()
 
 
 def _load(path: Path, n_in: int) -> _Entry | None:
@@ -416,7 +473,7 @@ def _from_bytes(data: bytes, n_in: int, path: Path | None) -> _Entry | None:
         blob = pickle.loads(data)
         if blob.get("format") != FORMAT or blob.get("n_in") != n_in:
             return None
-        skeleton = pickle.loads(blob["skeleton"])
+        skeleton = _load_skeleton(blob["skeleton"])
         n_out = sum(1 for x in jax.tree_util.tree_leaves(skeleton, is_leaf=_is_slot) if _is_slot(x))
         in_tree = jax.tree_util.tree_structure((tuple(range(n_in)), {}))
         out_tree = jax.tree_util.tree_structure(list(range(n_out)))

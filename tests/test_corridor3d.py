@@ -47,6 +47,19 @@ def test_surfaces_of_the_short_corridor():
     assert got["wall z_lo"] == pytest.approx(c[2] + 0.5 * grid.dx_m, abs=1e-9)  # dropped by the gate, below
 
 
+def test_first_arrival_is_specular_or_edge_from_the_geometry():
+    """The far jamb's two faces (the wall y = 0.30 from x = 0.40 on, the jamb x = 0.40 from y = 0.30
+    to 0.36) have their feet of the normal from the transducer (x = 0.045, y = 0.15) off the face:
+    no specular echo, the first arrival is diffracted by the edge (0.40, 0.30); the post, the near
+    wall and the window sides have specular points."""
+    scene = load_scene(SCENES / "corridor3d_short.toml")
+    kinds = {s["surface"]: s["first_arrival"] for s in echoes3d.surfaces(scene, _grid(scene))}
+    assert kinds.pop("right wall, after the door (far jamb)") == "edge"
+    assert set(kinds.values()) == {"specular"}, kinds
+    far = next(s for s in echoes3d.surfaces(scene, _grid(scene)) if s["first_arrival"] == "edge")
+    assert far["point_m"][:2] == pytest.approx([0.40, 0.30], abs=1e-6)
+
+
 def test_synthetic_echoes_are_labelled_to_a_fiftieth_of_a_period():
     """Bursts placed at each surface's air delays, direct and via the floor's image (an
     independent placement: shifted copies of the drive burst, image-source paths written out for

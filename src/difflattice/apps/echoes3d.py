@@ -2,9 +2,14 @@
 detect of them.
 
 Every reflecting surface of the scene (each object, and each rigid window side: a wall) gives a
-first echo from its point nearest the transducer's centre (for a plane, the foot of the normal:
-the image source; for a post or a door jamb, the nearest point of its surface or edge), at the
-round-trip path ``2 d``. Its delay is given twice: in air (``2 d / c``) and on the lattice
+first echo from its point nearest the transducer's centre, at the round-trip path ``2 d``: the
+first geometric arrival. Where that point lies inside a face (a plane's foot of the normal, a
+post's nearest line) it is the specular reflection, the image source's delay (`first_arrival` =
+"specular"); where it lies on an edge or a corner (a door jamb seen from the corridor: neither
+face's foot of the normal lies on the face) there is no specular echo, and the first arrival is
+the wave diffracted by the edge along the shortest path via it (Keller's edge ray, the onset of
+the Biot-Tolstoy response; its spectrum is the incident one times a real, band-smooth factor and
+a constant phase, so the envelope keeps the path's delay): `first_arrival` = "edge". Its delay is given twice: in air (``2 d / c``) and on the lattice
 (``2 d / v_g``, the lattice's group velocity at the drive frequency along that path,
 `observe.analytic3d.group_velocity_3d`: where a tone burst's envelope arrives). The measured
 arrival is the envelope peak of the A-scan (Hilbert envelope, parabolic refinement) within half
@@ -27,8 +32,10 @@ THRESHOLDS_DB = (-20.0, -30.0, -40.0, -50.0, -60.0)
 def surfaces(scene, grid, centre_m=None) -> list[dict[str, Any]]:
     """The reflecting surfaces of a 3-D scene seen from its first transducer's centre (or
     `centre_m`: where its cells lie on the lattice, e.g. their mean): name, the
-    nearest point (m), the one-way distance d (m), the unit direction to it and which it is
-    (`object`: its index in `scene.objects`, or `side`: the window side, e.g. "x_hi"). Window sides that
+    nearest point (m), the one-way distance d (m), the unit direction to it, which it is
+    (`object`: its index in `scene.objects`, or `side`: the window side, e.g. "x_hi") and its
+    first arrival (`first_arrival`: "specular", or "edge" where the point is on an edge or corner,
+    `first_arrival_at`). Window sides that
     pass within a transducer radius of the centre (a symmetry plane through the transducer) are
     left out: they give no echo of their own."""
     import jax
@@ -54,6 +61,7 @@ def surfaces(scene, grid, centre_m=None) -> list[dict[str, Any]]:
 
         point = nearest(c)
         d = float(np.linalg.norm(point - c))
+        arrival = _first_arrival(f, point, (point - c) / max(d, 1e-30), 0.05 * grid.dx_m)
         name = str(o.name or f"{o.shape} {i}")
         shapes.append(shape)
         out.append(
@@ -63,6 +71,7 @@ def surfaces(scene, grid, centre_m=None) -> list[dict[str, Any]]:
                 "point_m": point.tolist(),
                 "direction": ((point - c) / max(d, 1e-30)).tolist(),
                 "object": i,
+                "first_arrival": arrival,
                 "nearest": nearest,
             }
         )
@@ -90,10 +99,38 @@ def surfaces(scene, grid, centre_m=None) -> list[dict[str, Any]]:
                     "point_m": point.tolist(),
                     "direction": u.tolist(),
                     "side": key,
+                    "first_arrival": "specular",
                     "nearest": functools.partial(_on_plane, axis=axis, plane=plane),
                 }
             )
     return sorted(out, key=lambda s: s["distance_m"])
+
+
+FIRST_ARRIVAL = {
+    "specular": "specular reflection: the image source's delay",
+    "edge": "edge diffraction: no specular point on the faces, the shortest path via the nearest edge point",
+}
+"""What each `first_arrival` of `surfaces` means."""
+
+
+def _first_arrival(sdf, point, u, eps_m: float) -> str:
+    """ "specular" if the surface's outward normal round `point` (the SDF's gradient just inside
+    it, `eps_m` along `u`, the direction from the transducer, and as far aside each way) points
+    back along the ray, else "edge": the nearest point lies on an edge or a corner, where the
+    normal inside jumps from one face's to the other's (on the edge's bisector too)."""
+    import jax
+    import jax.numpy as jnp
+
+    u = np.asarray(u, float)
+    e1 = np.cross(u, [0.0, 0.0, 1.0] if abs(u[2]) < 0.9 else [1.0, 0.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(u, e1)
+    grad = jax.grad(sdf)
+    for aside in (0 * e1, e1, -e1, e2, -e2):
+        g = np.asarray(grad(jnp.asarray(np.asarray(point, float) + eps_m * (u + aside))), float)
+        if -float(g @ u) / max(float(np.linalg.norm(g)), 1e-30) < 0.999:
+            return "edge"
+    return "specular"
 
 
 def _side_kind(scene, key: str) -> str:
@@ -271,13 +308,20 @@ def label_echoes(t_s, a_scan, scene, grid, *, cycles: float, gate_start_step: in
             }
         )
     return {
-        "what": "first echo of each surface: image-source / nearest-point delay in air and with the lattice's "
+        "what": "first echo of each surface: the delay of its first geometric arrival (first_arrival: the image "
+        "source's, or the edge path's where no face has a specular point) in air and with the lattice's "
         "group velocity, the A-scan's envelope peak within half a burst of it, level dB re the transmit peak",
+        "first_arrival": FIRST_ARRIVAL,
         "frequency_hz": f0,
         "burst_cycles": cycles,
         "thresholds_db": list(THRESHOLDS_DB),
         "echoes": rows,
     }
+
+
+def _label(e: dict) -> str:
+    """A surface's name, with "(edge)" where its first arrival is edge-diffracted."""
+    return e["surface"] + (" (edge)" if e.get("first_arrival") == "edge" else "")
 
 
 def plot_labelled(t_s, a_scan, table: dict, gate_start_step: int, path):
@@ -297,7 +341,7 @@ def plot_labelled(t_s, a_scan, table: dict, gate_start_step: int, path):
     ax.plot(t_ms, db, lw=0.8)
     for i, e in enumerate(table["echoes"]):
         ax.axvline(e["delay_lattice_s"] * 1e3, color="C1", lw=0.6, ls="--")
-        ax.text(e["delay_lattice_s"] * 1e3, -5 - 6 * (i % 4), f" {e['surface']}", fontsize=7, color="C1")
+        ax.text(e["delay_lattice_s"] * 1e3, -5 - 6 * (i % 4), f" {_label(e)}", fontsize=7, color="C1")
     for th in table["thresholds_db"]:
         ax.axhline(th, color="0.7", lw=0.5)
     ax.set_ylim(-90, 0)

@@ -377,8 +377,10 @@ def isolate_echoes(scene, out_dir, *, full=None, only=None, quiet: bool = True, 
     doc = {
         "what": "each surface's first echo isolated by a difference of runs (the scene minus the scene without "
         "it, same lattice and transducer), its arrival against the lattice's and the air's delay of its "
-        "image-source / nearest-point round trip (rasterised surface; merged with the paths via the "
+        "first geometric arrival (first_arrival: the image source's round trip, or the shortest path via the "
+        "nearest edge where no face has a specular point; rasterised surface; merged with the paths via the "
         "transducer's images in rigid window sides within a burst)",
+        "first_arrival": echoes3d.FIRST_ARRIVAL,
         "arrival": ARRIVAL,
         "reference": "the same matched filter applied to the drive burst carried along the paths with the "
         "lattice's dispersion relation (delay_lattice_s) or the air's speed (delay_air_s)",
@@ -411,7 +413,7 @@ def plot_isolated(t_s, traces: dict, doc: dict, transmit: float, path):
     for i, e in enumerate(rows):
         x = traces[e["surface"]]
         env = echoes3d.envelope(np.concatenate([x, np.zeros_like(x)]))[: len(x)]  # padded: no wrap-around
-        ax.plot(t_ms, 20 * np.log10(np.maximum(env / transmit, 1e-6)), lw=0.8, color=f"C{i}", label=e["surface"])
+        ax.plot(t_ms, 20 * np.log10(np.maximum(env / transmit, 1e-6)), lw=0.8, color=f"C{i}", label=echoes3d._label(e))
         ax.axvline(e["delay_lattice_s"] * 1e3, color=f"C{i}", lw=0.6, ls="--")  # time of flight: the echo starts
     ax.set_ylim(-100, 0)
     ax.set_xlabel("t (ms)")
@@ -421,7 +423,7 @@ def plot_isolated(t_s, traces: dict, doc: dict, transmit: float, path):
     bx.axvspan(-0.1, 0.1, color="0.9")
     y = np.arange(len(rows))
     bx.plot([e["error_periods"] for e in rows], y, "o", label="vs lattice delay")
-    bx.set_yticks(y, [e["surface"] for e in rows], fontsize=7)
+    bx.set_yticks(y, [echoes3d._label(e) for e in rows], fontsize=7)
     bx.axvline(0, color="0.5", lw=0.5)
     bx.set_xlabel("arrival - lattice delay (periods)")
     bx.set_title("matched-filter envelope peak vs image-source delay", fontsize=9)

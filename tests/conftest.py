@@ -4,6 +4,10 @@ each test module's compiled programs released after it."""
 import os
 
 os.environ.setdefault("MPLBACKEND", "Agg")
+# The fit's disk cache of whole programs (`fit.program_cache`) is off for the suite: in-process CLI
+# tests turn JAX's cache on, and a program traced under a test's monkeypatch would be stored under
+# the key a user's fit computes. tests/fit/test_programs_cache.py tests it in directories of its own.
+os.environ["DIFFLATTICE_PROGRAM_CACHE"] = "0"
 
 import jax  # noqa: E402
 import pytest  # noqa: E402

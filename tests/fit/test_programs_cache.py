@@ -240,7 +240,7 @@ SCRIPT = textwrap.dedent(
 def test_a_new_process_loads_the_program_and_runs_it(tmp_path):
     """Loaded without tracing, a program must still find what lowering sets up (LAPACK's kernels:
     without it the first call crashed)."""
-    env = dict(os.environ, PYTHONPATH=str(Path(pc.__file__).resolve().parents[2]))
+    env = dict(os.environ, PYTHONPATH=str(Path(pc.__file__).resolve().parents[2]), DIFFLATTICE_PROGRAM_CACHE="1")
     runs = [
         subprocess.run(
             [sys.executable, "-c", SCRIPT, str(tmp_path)], capture_output=True, text=True, env=env, timeout=300

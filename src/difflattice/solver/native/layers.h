@@ -203,10 +203,12 @@ inline void layer_y_faces(const LeapfrogArgs<T>& a, const LayerArgs<T>& la, cons
     for (int64_t k = kb; k < ke; ++k) w[k] = af[k] * w[k] + bf[k] * (cf[k] * (qf[k] - qf[k - 1]));
   }
   if (w_r) {
-    T* c = b.cr + kr * w_r;
+    T* __restrict c = b.cr + kr * w_r;
+    const T* __restrict o = old;
+#pragma GCC ivdep
     for (int64_t k = 0; k < w_r; ++k) {
       const int64_t kk = nc - w_r + k;  // the box's face of ring ny - w + k
-      const T sum = ((w[kk + 1] + w[kk]) + old[k + 1]) + old[k];
+      const T sum = ((w[kk + 1] + w[kk]) + o[k + 1]) + o[k];
       c[k] = la.rad_decay[k] * c[k] + la.rad_drive[k] * sum;
     }
   }
@@ -227,7 +229,7 @@ template <typename T, bool RZ>
 inline void layer_parts(T* __restrict x, T* __restrict y, T* __restrict o, const T* __restrict wlo,
                         const T* __restrict whi, const T* __restrict wy, const T* __restrict ayc,
                         const T* __restrict byc, T Ax, T Bx, const void* kk_or_face, const T* __restrict kp, T kv,
-                        const T* __restrict ml, const T* __restrict mh, const T* cr, int64_t nc, int64_t w_r) {
+                        const T* __restrict ml, const T* __restrict mh, const T* __restrict cr, int64_t nc, int64_t w_r) {
   const int64_t k_r = nc - w_r;
   auto dy = [&](int64_t k) {
     if constexpr (RZ) return mh[k] * wy[k + 1] - ml[k] * wy[k];
@@ -250,6 +252,7 @@ inline void layer_parts(T* __restrict x, T* __restrict y, T* __restrict o, const
       y[k] = yv;
       o[k] = xv + yv;
     }
+#pragma GCC ivdep
     for (int64_t k = k_r; k < nc; ++k) {
       const T wh = fA * fw[k] + fB * (fb[k] * (fhi[k] - flo[k]));
       fw[k] = wh;
@@ -270,6 +273,7 @@ inline void layer_parts(T* __restrict x, T* __restrict y, T* __restrict o, const
     y[k] = yv;
     o[k] = xv + yv;
   }
+#pragma GCC ivdep
   for (int64_t k = k_r; k < nc; ++k) {
     const T xv = kp[k] * (Ax * x[k] + Bx * (kk[k] * (whi[k] - wlo[k])));
     const T yv = kp[k] * (ayc[k] * y[k] + byc[k] * (kk[k] * (dy(k) + cr[k])));

@@ -84,11 +84,7 @@ struct LayerScratch {
     }
     if (int64_t(k_one.size()) != nx) k_one.assign(nx, -1);
     const T* r = K.row(i);
-    if (k_one[i] < 0) {
-      k_one[i] = 1;
-      for (int64_t j = 1; j < ny; ++j)
-        if (!(r[j] == r[0])) k_one[i] = 0;
-    }
+    if (k_one[i] < 0) k_one[i] = all_equal(r, ny) ? 1 : 0;
     *v = r[0];
     return k_one[i] == 1;
   }

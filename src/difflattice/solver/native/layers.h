@@ -7,6 +7,7 @@
 #include <cstdint>
 #include <cstring>
 #include <limits>
+#include <memory>
 #include <optional>
 #include <vector>
 
@@ -297,11 +298,19 @@ struct FastRows {
   std::vector<std::vector<FastRow<T>>> rows;  // per row, one per box of of_row (used where ok)
   std::vector<std::vector<char>> ok;
   std::vector<T> ones;
+  std::vector<std::unique_ptr<std::vector<T>>> values;  // rows of one value (ny + 1 each)
   bool any = false;
+  // a row of ny + 1 copies of v (a coefficient held in a register: its value per column)
+  const T* filled(T v) {
+    for (const auto& r : values)
+      if ((*r)[0] == v || ((*r)[0] != (*r)[0] && v != v)) return r->data();
+    values.push_back(std::make_unique<std::vector<T>>(ones.size(), v));
+    return values.back()->data();
+  }
   FastRows(const LeapfrogArgs<T>& a, const LayerArgs<T>* la) {
     if (!la || a.iso || la->iso_faces || a.keep.present()) return;
-    // coefficients held in registers would need per-thread rows of their value: the general path
-    for (const Coef<T>* c : {&a.bx, &a.by, &a.my_lo, &a.my_hi})
+    // a metric held in registers (a grid one cell wide): the general path
+    for (const Coef<T>* c : {&a.my_lo, &a.my_hi})
       if (c->present() && c->in_register()) return;
     const int64_t nx = a.nx, ny = a.ny;
     ones.assign(ny + 2, T(1));
@@ -332,8 +341,8 @@ struct FastRows {
         f.fw = f.wlo + nc;
         f.wy = b.wy + kr * (nc + 1);
         f.cr = b.cr ? b.cr + kr * f.w_r - (nc - f.w_r) : nullptr;
-        f.fb = (a.bx.present() ? a.bx.row(i + 1) : ones.data()) + c0;
-        f.cf = (a.by.present() ? a.by.row(i) : ones.data()) + c0;
+        f.fb = (!a.bx.present() ? ones.data() : (a.bx.in_register() ? filled(a.bx.value(i + 1)) : a.bx.row(i + 1))) + c0;
+        f.cf = (!a.by.present() ? ones.data() : (a.by.in_register() ? filled(a.by.value(i)) : a.by.row(i))) + c0;
         f.af = (la->ayf.present() ? la->ayf.row(0) : ones.data()) + c0;
         f.bf = (la->byf.present() ? la->byf.row(0) : ones.data()) + c0;
         f.ayc = (la->ayc.present() ? la->ayc.row(0) : ones.data()) + c0;

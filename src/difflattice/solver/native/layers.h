@@ -13,6 +13,14 @@
 
 #include "stencil.h"
 
+// the box rows' loops on 256-bit vectors where the kernels use 512: a box row is often 20
+// columns (16 + 4 scalar at 512 bits, 8 + 8 + a 128-bit epilogue at 256)
+#if defined(__AVX512F__) && !defined(DL_LAYER_VW)
+#define DL_LAYER_VW __attribute__((target("prefer-vector-width=256")))
+#elif !defined(DL_LAYER_VW)
+#define DL_LAYER_VW
+#endif
+
 namespace dl {
 
 // ----------------------------------------------------------------------------------------------
@@ -223,7 +231,7 @@ struct XFace {  // the x face above a box row: w = A w + B (b (hi - lo)), per co
 };
 
 template <typename T, bool RZ>
-inline void layer_parts(T* __restrict x, T* __restrict y, T* __restrict o, const T* __restrict wlo,
+DL_LAYER_VW inline void layer_parts(T* __restrict x, T* __restrict y, T* __restrict o, const T* __restrict wlo,
                         const T* __restrict whi, const T* __restrict wy, const T* __restrict ayc,
                         const T* __restrict byc, T Ax, T Bx, const void* kk_or_face, const T* __restrict kp, T kv,
                         const T* __restrict ml, const T* __restrict mh, const T* __restrict cr, int64_t nc, int64_t w_r) {
@@ -365,7 +373,7 @@ struct FastRows {
 // a planned box row at one step: the y faces from q row i (q0; zero beyond the window), the ring
 // correction, then x face i + 1 (from q rows i, i + 1) with the parts and P into out
 template <typename T>
-inline void layer_row_planned(const FastRow<T>& f, const LayerArgs<T>& la, int64_t ny, const T* q0, const T* qp,
+DL_LAYER_VW inline void layer_row_planned(const FastRow<T>& f, const LayerArgs<T>& la, int64_t ny, const T* q0, const T* qp,
                               T* out, LayerScratch<T>& S) {
   const int64_t nc = f.nc, c0 = f.c0, w_r = f.w_r;
   T* __restrict w = f.wy;

@@ -298,13 +298,18 @@ struct FastRow {
   const T *fb, *cf, *af, *bf, *ayc, *byc, *ml, *mh;  // per column of the box (c0 on); faces: nc + 1
   T fA, fB, Ax, Bx, kv;
   int64_t c0, nc, w_r;
+  int box;                // its index in LayerArgs::boxes
   bool lo_edge, hi_edge;  // the box starts at column 0, ends at column ny
+  bool first;             // the box's first row (its face r0 first)
+  bool ok;                // planned (else the general path)
 };
 
 template <typename T>
 struct FastRows {
-  std::vector<std::vector<FastRow<T>>> rows;  // per row, one per box of of_row (used where ok)
-  std::vector<std::vector<char>> ok;
+  // the box rows of all rows in order (row i: [start[i], start[i + 1]), one per box of of_row[i]);
+  // those not ok take the general path
+  std::vector<FastRow<T>> rows;
+  std::vector<int64_t> start;
   std::vector<T> ones;
   std::vector<std::unique_ptr<std::vector<T>>> values;  // rows of one value (ny + 1 each)
   bool any = false;
@@ -322,8 +327,10 @@ struct FastRows {
       if (c->present() && c->in_register()) return;
     const int64_t nx = a.nx, ny = a.ny;
     ones.assign(ny + 2, T(1));
-    rows.resize(nx);
-    ok.resize(nx);
+    start.assign(nx + 1, 0);
+    size_t total = 0;
+    for (const auto& r : la->of_row) total += r.size();
+    rows.reserve(total);
     for (int64_t i = 0; i < nx; ++i) {
       T kv;
       bool k_one;
@@ -334,6 +341,7 @@ struct FastRows {
         kv = a.K.row(i)[0];
         k_one = all_equal(a.K.row(i), ny);
       }
+      start[i] = int64_t(rows.size());
       for (int bi : la->of_row[i]) {
         const LayerBox<T>& b = la->boxes[bi];
         FastRow<T> f{};
@@ -362,11 +370,14 @@ struct FastRows {
         f.Ax = la->axc.present() ? la->axc.at(i, 0) : T(1);
         f.Bx = la->bxc.present() ? la->bxc.at(i, 0) : T(1);
         f.kv = kv;
-        rows[i].push_back(f);
-        ok[i].push_back(k_one ? 1 : 0);
+        f.ok = k_one;
+        f.first = i == b.r0;
+        f.box = bi;
+        rows.push_back(f);
         any = any || k_one;
       }
     }
+    start[nx] = int64_t(rows.size());
   }
 };
 

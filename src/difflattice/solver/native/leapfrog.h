@@ -146,14 +146,18 @@ bool leapfrog_steps(const LeapfrogArgs<T>& a) {
         }
       }
       if (la)  // the layer's cells of the row: the split-field form replaces the leapfrog's values
-        for (size_t n = 0; n < la->of_row[i].size(); ++n) {
-          const LayerBox<T>& b = la->boxes[la->of_row[i][n]];
-          if (fr.any && fr.ok[i][n]) {
-            if (i == b.r0) layer_x_face(a, *la, iw, b, 0, i, c.qm, c.q0, *ls);
-            layer_row_planned(fr.rows[i][n], *la, ny, c.q0, c.qp, out, *ls);
-          } else {
-            layer_row(a, *la, iw, b, i, c.qm, c.q0, c.qp, out, *ls);
+        if (fr.any) {
+          for (const FastRow<T>* f = fr.rows.data() + fr.start[i], *e = fr.rows.data() + fr.start[i + 1]; f != e; ++f) {
+            const LayerBox<T>& b = la->boxes[f->box];
+            if (f->ok) {
+              if (f->first) layer_x_face(a, *la, iw, b, 0, i, c.qm, c.q0, *ls);
+              layer_row_planned(*f, *la, ny, c.q0, c.qp, out, *ls);
+            } else {
+              layer_row(a, *la, iw, b, i, c.qm, c.q0, c.qp, out, *ls);
+            }
           }
+        } else {
+          for (int bi : la->of_row[i]) layer_row(a, *la, iw, la->boxes[bi], i, c.qm, c.q0, c.qp, out, *ls);
         }
       if (cplan.busy[i]) leapfrog_cells(a.cells, cplan, i, L - 1, pp);
       if constexpr (relax) {  // stepper._relaxed_memory: step L - 1's q rows of row i are read (q ring)

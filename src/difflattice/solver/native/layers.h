@@ -7,10 +7,19 @@
 #include <cstdint>
 #include <cstring>
 #include <limits>
+#include <memory>
 #include <optional>
 #include <vector>
 
 #include "stencil.h"
+
+// the box rows' loops on 256-bit vectors where the kernels use 512: a box row is often 20
+// columns (16 + 4 scalar at 512 bits, 8 + 8 + a 128-bit epilogue at 256)
+#if defined(__AVX512F__) && !defined(DL_LAYER_VW)
+#define DL_LAYER_VW __attribute__((target("prefer-vector-width=256")))
+#elif !defined(DL_LAYER_VW)
+#define DL_LAYER_VW
+#endif
 
 namespace dl {
 
@@ -84,11 +93,7 @@ struct LayerScratch {
     }
     if (int64_t(k_one.size()) != nx) k_one.assign(nx, -1);
     const T* r = K.row(i);
-    if (k_one[i] < 0) {
-      k_one[i] = 1;
-      for (int64_t j = 1; j < ny; ++j)
-        if (!(r[j] == r[0])) k_one[i] = 0;
-    }
+    if (k_one[i] < 0) k_one[i] = all_equal(r, ny) ? 1 : 0;
     *v = r[0];
     return k_one[i] == 1;
   }
@@ -203,10 +208,12 @@ inline void layer_y_faces(const LeapfrogArgs<T>& a, const LayerArgs<T>& la, cons
     for (int64_t k = kb; k < ke; ++k) w[k] = af[k] * w[k] + bf[k] * (cf[k] * (qf[k] - qf[k - 1]));
   }
   if (w_r) {
-    T* c = b.cr + kr * w_r;
+    T* __restrict c = b.cr + kr * w_r;
+    const T* __restrict o = old;
+#pragma GCC ivdep
     for (int64_t k = 0; k < w_r; ++k) {
       const int64_t kk = nc - w_r + k;  // the box's face of ring ny - w + k
-      const T sum = ((w[kk + 1] + w[kk]) + old[k + 1]) + old[k];
+      const T sum = ((w[kk + 1] + w[kk]) + o[k + 1]) + o[k];
       c[k] = la.rad_decay[k] * c[k] + la.rad_drive[k] * sum;
     }
   }
@@ -224,10 +231,10 @@ struct XFace {  // the x face above a box row: w = A w + B (b (hi - lo)), per co
 };
 
 template <typename T, bool RZ>
-inline void layer_parts(T* __restrict x, T* __restrict y, T* __restrict o, const T* __restrict wlo,
+DL_LAYER_VW inline void layer_parts(T* __restrict x, T* __restrict y, T* __restrict o, const T* __restrict wlo,
                         const T* __restrict whi, const T* __restrict wy, const T* __restrict ayc,
                         const T* __restrict byc, T Ax, T Bx, const void* kk_or_face, const T* __restrict kp, T kv,
-                        const T* __restrict ml, const T* __restrict mh, const T* cr, int64_t nc, int64_t w_r) {
+                        const T* __restrict ml, const T* __restrict mh, const T* __restrict cr, int64_t nc, int64_t w_r) {
   const int64_t k_r = nc - w_r;
   auto dy = [&](int64_t k) {
     if constexpr (RZ) return mh[k] * wy[k + 1] - ml[k] * wy[k];
@@ -250,6 +257,7 @@ inline void layer_parts(T* __restrict x, T* __restrict y, T* __restrict o, const
       y[k] = yv;
       o[k] = xv + yv;
     }
+#pragma GCC ivdep
     for (int64_t k = k_r; k < nc; ++k) {
       const T wh = fA * fw[k] + fB * (fb[k] * (fhi[k] - flo[k]));
       fw[k] = wh;
@@ -270,6 +278,7 @@ inline void layer_parts(T* __restrict x, T* __restrict y, T* __restrict o, const
     y[k] = yv;
     o[k] = xv + yv;
   }
+#pragma GCC ivdep
   for (int64_t k = k_r; k < nc; ++k) {
     const T xv = kp[k] * (Ax * x[k] + Bx * (kk[k] * (whi[k] - wlo[k])));
     const T yv = kp[k] * (ayc[k] * y[k] + byc[k] * (kk[k] * (dy(k) + cr[k])));
@@ -277,6 +286,144 @@ inline void layer_parts(T* __restrict x, T* __restrict y, T* __restrict o, const
     y[k] = yv;
     o[k] = xv + yv;
   }
+}
+
+// The common case's box rows planned once per call (standard stencil, no keep, K one value on
+// the row, face and metric coefficients held as arrays): the operands' pointers and the row's
+// factors, so that a step's box row is its two loops (y faces; x face i + 1 and the parts).
+// Same arithmetic as layer_x_face + layer_y_faces + layer_parts.
+template <typename T>
+struct FastRow {
+  T *x, *y, *wlo, *fw, *wy, *cr;                  // parts, x faces i, i + 1, y faces, ring correction
+  const T *fb, *cf, *af, *bf, *ayc, *byc, *ml, *mh;  // per column of the box (c0 on); faces: nc + 1
+  T fA, fB, Ax, Bx, kv;
+  int64_t c0, nc, w_r;
+  int box;                // its index in LayerArgs::boxes
+  bool lo_edge, hi_edge;  // the box starts at column 0, ends at column ny
+  bool first;             // the box's first row (its face r0 first)
+  bool ok;                // planned (else the general path)
+};
+
+template <typename T>
+struct FastRows {
+  // the box rows of all rows in order (row i: [start[i], start[i + 1]), one per box of of_row[i]);
+  // those not ok take the general path
+  std::vector<FastRow<T>> rows;
+  std::vector<int64_t> start;
+  std::vector<T> ones;
+  std::vector<std::unique_ptr<std::vector<T>>> values;  // rows of one value (ny + 1 each)
+  bool any = false;
+  // a row of ny + 1 copies of v (a coefficient held in a register: its value per column)
+  const T* filled(T v) {
+    for (const auto& r : values)
+      if ((*r)[0] == v || ((*r)[0] != (*r)[0] && v != v)) return r->data();
+    values.push_back(std::make_unique<std::vector<T>>(ones.size(), v));
+    return values.back()->data();
+  }
+  FastRows(const LeapfrogArgs<T>& a, const LayerArgs<T>* la) {
+    if (!la || a.iso || la->iso_faces || a.keep.present()) return;
+    // a metric held in registers (a grid one cell wide): the general path
+    for (const Coef<T>* c : {&a.my_lo, &a.my_hi})
+      if (c->present() && c->in_register()) return;
+    const int64_t nx = a.nx, ny = a.ny;
+    ones.assign(ny + 2, T(1));
+    start.assign(nx + 1, 0);
+    size_t total = 0;
+    for (const auto& r : la->of_row) total += r.size();
+    rows.reserve(total);
+    for (int64_t i = 0; i < nx; ++i) {
+      T kv;
+      bool k_one;
+      if (a.K.in_register()) {
+        kv = a.K.value(i);
+        k_one = true;
+      } else {
+        kv = a.K.row(i)[0];
+        k_one = all_equal(a.K.row(i), ny);
+      }
+      start[i] = int64_t(rows.size());
+      for (int bi : la->of_row[i]) {
+        const LayerBox<T>& b = la->boxes[bi];
+        FastRow<T> f{};
+        const int64_t c0 = b.c0, nc = b.c1 - b.c0, kr = i - b.r0;
+        f.c0 = c0;
+        f.nc = nc;
+        f.w_r = b.cr ? la->w : 0;
+        f.lo_edge = c0 == 0;
+        f.hi_edge = b.c1 == ny;
+        f.x = b.px + kr * nc;
+        f.y = b.py + kr * nc;
+        f.wlo = b.wx + kr * nc;
+        f.fw = f.wlo + nc;
+        f.wy = b.wy + kr * (nc + 1);
+        f.cr = b.cr ? b.cr + kr * f.w_r - (nc - f.w_r) : nullptr;
+        f.fb = (!a.bx.present() ? ones.data() : (a.bx.in_register() ? filled(a.bx.value(i + 1)) : a.bx.row(i + 1))) + c0;
+        f.cf = (!a.by.present() ? ones.data() : (a.by.in_register() ? filled(a.by.value(i)) : a.by.row(i))) + c0;
+        f.af = (la->ayf.present() ? la->ayf.row(0) : ones.data()) + c0;
+        f.bf = (la->byf.present() ? la->byf.row(0) : ones.data()) + c0;
+        f.ayc = (la->ayc.present() ? la->ayc.row(0) : ones.data()) + c0;
+        f.byc = (la->byc.present() ? la->byc.row(0) : ones.data()) + c0;
+        f.ml = a.my_lo.present() ? a.my_lo.row(i) + c0 : nullptr;
+        f.mh = a.my_lo.present() ? a.my_hi.row(i) + c0 : nullptr;
+        f.fA = la->axf.present() ? la->axf.at(i + 1, 0) : T(1);
+        f.fB = la->bxf.present() ? la->bxf.at(i + 1, 0) : T(1);
+        f.Ax = la->axc.present() ? la->axc.at(i, 0) : T(1);
+        f.Bx = la->bxc.present() ? la->bxc.at(i, 0) : T(1);
+        f.kv = kv;
+        f.ok = k_one;
+        f.first = i == b.r0;
+        f.box = bi;
+        rows.push_back(f);
+        any = any || k_one;
+      }
+    }
+    start[nx] = int64_t(rows.size());
+  }
+};
+
+// a planned box row at one step: the y faces from q row i (q0; zero beyond the window), the ring
+// correction, then x face i + 1 (from q rows i, i + 1) with the parts and P into out
+template <typename T>
+DL_LAYER_VW inline void layer_row_planned(const FastRow<T>& f, const LayerArgs<T>& la, int64_t ny, const T* q0, const T* qp,
+                              T* out, LayerScratch<T>& S) {
+  const int64_t nc = f.nc, c0 = f.c0, w_r = f.w_r;
+  T* __restrict w = f.wy;
+  T* old = S.old.data();
+  if (w_r) std::copy(w + nc - w_r, w + nc + 1, old);
+  {
+    const int64_t kb = f.lo_edge ? 1 : 0, ke = f.hi_edge ? nc : nc + 1;
+    const T* __restrict af = f.af;
+    const T* __restrict bf = f.bf;
+    const T* __restrict cf = f.cf;
+    if (kb) w[0] = af[0] * w[0] + bf[0] * (cf[0] * (q0[0] - T(0)));
+    if (ke == nc) w[nc] = af[nc] * w[nc] + bf[nc] * (cf[nc] * (T(0) - q0[ny - 1]));
+    const T* __restrict qf = q0 + c0;
+#pragma GCC ivdep
+    for (int64_t k = kb; k < ke; ++k) w[k] = af[k] * w[k] + bf[k] * (cf[k] * (qf[k] - qf[k - 1]));
+  }
+  if (w_r) {
+    T* __restrict c = f.cr + (nc - w_r);
+    const T* __restrict o = old;
+#pragma GCC ivdep
+    for (int64_t k = 0; k < w_r; ++k) {
+      const int64_t kk = nc - w_r + k;
+      const T sum = ((w[kk + 1] + w[kk]) + o[k + 1]) + o[k];
+      c[k] = la.rad_decay[k] * c[k] + la.rad_drive[k] * sum;
+    }
+  }
+  XFace<T> xf;
+  xf.w = f.fw;
+  xf.lo = q0 + c0;
+  xf.hi = qp + c0;
+  xf.b = f.fb;
+  xf.A = f.fA;
+  xf.B = f.fB;
+  if (f.ml)
+    layer_parts<T, true>(f.x, f.y, out + c0, f.wlo, f.fw, f.wy, f.ayc, f.byc, f.Ax, f.Bx, &xf, nullptr, f.kv, f.ml, f.mh,
+                         f.cr, nc, w_r);
+  else
+    layer_parts<T, false>(f.x, f.y, out + c0, f.wlo, f.fw, f.wy, f.ayc, f.byc, f.Ax, f.Bx, &xf, nullptr, f.kv, f.ml,
+                          f.mh, f.cr, nc, w_r);
 }
 
 // row i of box b at one step: its faces from the q rows of the previous step (qm, q0, qp: rows

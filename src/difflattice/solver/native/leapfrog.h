@@ -35,6 +35,7 @@ bool leapfrog_steps(const LeapfrogArgs<T>& a) {
   T* buf[2] = {a.p, a.pp};  // step L lives in buf[L % 2] (step 0 = P(t) in buf[0])
   const LayerArgs<T>* la = a.layers;
   const IsoWeights<T> iw(la && a.iso ? ny : 0, a.my_lo.present());
+  const FastRows<T> fr(a, la);  // the common case's box rows, planned once
 
   // q of row i from step L - 1 (p_) and step L - 2 (pp_), before step L overwrites row i
   auto q_of = [&](int64_t i, T* dst, const T* p_, const T* pp_) {
@@ -145,7 +146,19 @@ bool leapfrog_steps(const LeapfrogArgs<T>& a) {
         }
       }
       if (la)  // the layer's cells of the row: the split-field form replaces the leapfrog's values
-        for (int bi : la->of_row[i]) layer_row(a, *la, iw, la->boxes[bi], i, c.qm, c.q0, c.qp, out, *ls);
+        if (fr.any) {
+          for (const FastRow<T>* f = fr.rows.data() + fr.start[i], *e = fr.rows.data() + fr.start[i + 1]; f != e; ++f) {
+            const LayerBox<T>& b = la->boxes[f->box];
+            if (f->ok) {
+              if (f->first) layer_x_face(a, *la, iw, b, 0, i, c.qm, c.q0, *ls);
+              layer_row_planned(*f, *la, ny, c.q0, c.qp, out, *ls);
+            } else {
+              layer_row(a, *la, iw, b, i, c.qm, c.q0, c.qp, out, *ls);
+            }
+          }
+        } else {
+          for (int bi : la->of_row[i]) layer_row(a, *la, iw, la->boxes[bi], i, c.qm, c.q0, c.qp, out, *ls);
+        }
       if (cplan.busy[i]) leapfrog_cells(a.cells, cplan, i, L - 1, pp);
       if constexpr (relax) {  // stepper._relaxed_memory: step L - 1's q rows of row i are read (q ring)
         T* q0r = a.rq[0] + i * ny;

@@ -440,6 +440,25 @@ Coef<T> materialise(const Coef<T>& c, int64_t rows, int64_t cols, std::vector<T>
   return r;
 }
 
+// whether a row's n values are one value (no early exit: the loop vectorises)
+template <typename T>
+inline bool all_equal(const T* __restrict r, int64_t n) {
+  const T r0 = r[0];
+  int bad = 0;
+  for (int64_t j = 1; j < n; ++j) bad |= !(r[j] == r0);
+  return bad == 0;
+}
+
+// the metric's per-cell y conductances of row i (m_lo b_lo, m_hi b_hi, as the reference forms them)
+template <typename T>
+inline void fill_cy(const Coef<T>& my_lo, const Coef<T>& my_hi, const Coef<T>& by, int64_t i, int64_t ny, T* lo, T* hi) {
+  for (int64_t j = 0; j < ny; ++j) {
+    const T ml = my_lo.at(i, j), mh = my_hi.at(i, j);
+    lo[j] = by.present() ? ml * by.at(i, j) : ml;
+    hi[j] = by.present() ? mh * by.at(i, j + 1) : mh;
+  }
+}
+
 template <typename T>
 bool plan_rows(const LeapfrogArgs<T>& a, int cmb, RowPlan<T>& plan) {
   const int64_t nx = a.nx, ny = a.ny;
@@ -453,14 +472,9 @@ bool plan_rows(const LeapfrogArgs<T>& a, int cmb, RowPlan<T>& plan) {
   if (metric) {
     cy_rows = by.mode == kFull || by.mode == kPerRow || a.my_lo.mode == kFull || a.my_hi.mode == kFull;
     const int64_t rows = cy_rows ? nx : 1;
-    plan.cy_lo.assign(rows * ny, T(0));
-    plan.cy_hi.assign(rows * ny, T(0));
-    for (int64_t i = 0; i < rows; ++i)
-      for (int64_t j = 0; j < ny; ++j) {
-        const T ml = a.my_lo.at(i, j), mh = a.my_hi.at(i, j);
-        plan.cy_lo[i * ny + j] = by.present() ? ml * by.at(i, j) : ml;
-        plan.cy_hi[i * ny + j] = by.present() ? mh * by.at(i, j + 1) : mh;
-      }
+    plan.cy_lo.resize(rows * ny);
+    plan.cy_hi.resize(rows * ny);
+    if (!cy_rows) fill_cy(a.my_lo, a.my_hi, by, 0, ny, plan.cy_lo.data(), plan.cy_hi.data());
   }
   // the ring form: the metric's interior factors sum to 2 (to rounding) in one shared row
   bool ring_form = metric && !cy_rows && cmb == kFwd && ny > 2;
@@ -488,11 +502,7 @@ bool plan_rows(const LeapfrogArgs<T>& a, int cmb, RowPlan<T>& plan) {
   plan.ctx.resize(nx);
   // A row whose coefficients are one value (a layered medium, the rows that miss an obstacle) runs
   // the kernel of register coefficients: the arrays are not streamed for it
-  auto uniform = [](const T* r, int64_t n) {
-    for (int64_t j = 1; j < n; ++j)
-      if (!(r[j] == r[0])) return false;
-    return true;
-  };
+  auto uniform = [](const T* r, int64_t n) { return all_equal(r, n); };
   for (int64_t i = 0; i < nx; ++i) {
     RowCtx<T>& c = plan.ctx[i];
     c = RowCtx<T>{};
@@ -522,6 +532,12 @@ bool plan_rows(const LeapfrogArgs<T>& a, int cmb, RowPlan<T>& plan) {
       bxm = kVec;
     }
     c.by_first_lo = c.by_first_hi = c.by_last_lo = c.by_last_hi = T(1);
+    // a row taking the metric's ring form below needs no per-cell y conductances (filled lazily:
+    // they were a pass over the grid at every call)
+    const bool ring_row = metric_ring && kreg && (bxm == kReg || bxm == kUnit) && c.bxlo == c.bxhi &&
+                          c.bxlo > T(0) && uniform(by.row(i), ny + 1) && by.row(i)[0] == c.bxlo;
+    if (metric && cy_rows && !ring_row)
+      fill_cy(a.my_lo, a.my_hi, by, i, ny, plan.cy_lo.data() + i * ny, plan.cy_hi.data() + i * ny);
     if (metric) {
       c.cyl = plan.cy_lo.data() + (cy_rows ? i * ny : 0);
       c.cyh = plan.cy_hi.data() + (cy_rows ? i * ny : 0);
@@ -551,8 +567,7 @@ bool plan_rows(const LeapfrogArgs<T>& a, int cmb, RowPlan<T>& plan) {
       c.by_last_lo = c.cyl[ny - 1];
       c.by_last_hi = c.cyh[ny - 1];
     }
-    if (metric_ring && kreg && (bxm == kReg || bxm == kUnit) && c.bxlo == c.bxhi && c.bxlo > T(0) && uniform(by.row(i), ny + 1) &&
-        by.row(i)[0] == c.bxlo) {
+    if (ring_row) {
       const T b = c.bxlo;
       c.k = c.k * b;
       c.c0 = T(2) - T(4) * c.k;
@@ -564,6 +579,17 @@ bool plan_rows(const LeapfrogArgs<T>& a, int cmb, RowPlan<T>& plan) {
       c.by_last_hi = plan.m_hi[ny - 1];
       bxm = kUnit;
       bym = kMetric;
+    }
+    // 2-D rows of one material (every face of the row one conductance b, K one value): K b as
+    // the coefficient of the unit stencil, as the rz rows' ring form above
+    if (!metric && cmb == kFwd && kreg && bxm == kReg && bym == kReg && c.bxlo == c.bxhi && c.by == c.bxlo &&
+        c.bxlo > T(0) && c.by_first_lo == c.by && c.by_first_hi == c.by && c.by_last_lo == c.by &&
+        c.by_last_hi == c.by) {
+      c.k = c.k * c.bxlo;
+      c.c0 = T(2) - T(4) * c.k;
+      c.by_first_lo = c.by_first_hi = c.by_last_lo = c.by_last_hi = T(1);
+      bxm = kUnit;
+      bym = kUnit;
     }
     if (bxm == kVec && bym != kVec) return false;  // (by was materialised above)
     if (ring_form && bxm == kUnit && bym == kVec) bym = kMetric;

@@ -405,7 +405,7 @@ def _serialise(compiled: Any, skeleton: Any, n_in: int) -> bytes:
     exe, _, _ = serialize_executable.serialize(compiled)
     buf = io.BytesIO()
     skel = _dump_skeleton(skeleton)
-    treedef = jax.tree_util.tree_structure(skeleton, is_leaf=_is_slot)
+    treedef: Any = jax.tree_util.tree_structure(skeleton, is_leaf=_is_slot)
     if jax.tree_util.tree_structure(_load_skeleton(skel), is_leaf=_is_slot) != treedef:
         raise ValueError("the output structure does not survive storing")  # (a later program would not trace)
     pickle.dump({"format": FORMAT, "n_in": n_in, "exe": exe, "skeleton": skel}, buf)

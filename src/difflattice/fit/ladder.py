@@ -255,8 +255,9 @@ def add_resolution_term(
     max_iter: int = 60,
 ) -> HousedFit:
     """Refit `fit` (to `lobe` and `wave`, the data it was fitted to) from its result at
-    `resolution_cpw` cells per wavelength and add each quantity's shift to its error in
-    quadrature (in place; see `fit_housed`)."""
+    `resolution_cpw` cells per wavelength and add each geometric quantity's shift to its error in
+    quadrature (in place; see `fit_housed`). The gain keeps its statistical error: it relates the
+    data's dB reference to the far field in lattice units, which change with the cell size."""
     other = fit_housed(
         dataclasses.replace(fit.spec, cells_per_wavelength=resolution_cpw),
         lobe,
@@ -266,6 +267,8 @@ def add_resolution_term(
     )
     fit.errors_statistical = dict(fit.errors)
     for key, err in fit.errors_statistical.items():
+        if key == "gain_db":  # the data's dB reference against the far field's lattice units, which
+            continue  # scale with the cell size: its shift between resolutions is a change of units (5-12 dB)
         shift = abs(other.physical[key] - fit.physical[key])
         fit.errors_resolution[key] = shift
         fit.errors[key] = math.hypot(err, shift)

@@ -1,5 +1,6 @@
 """`difflattice fit` for a housed-transducer config (`fit.housed_config`): load the datasheet
-record, fit the family ladder (or one family) by gradient through the rz lattice, and write
+record (and a measured wavefront, where `[data] wave` names one: fitted jointly with the lobe),
+fit the family ladder (or one family) by gradient through the rz lattice, and write
 report.json and report.md: the families side by side, the chosen one and why, its geometry beside
 the can's outline, and the provenance of the data (the record's source, the files' SHA-256)."""
 
@@ -11,7 +12,8 @@ import time
 from pathlib import Path
 from typing import Any, cast
 
-from ..fit.housed_config import HousedConfig, load_housed_config
+from ..config import ConfigError
+from ..fit.housed_config import HousedConfig, load_housed_config, load_housed_wave
 
 
 def _family_rows(ladder) -> list[dict]:
@@ -43,6 +45,8 @@ def run_housed(cfg: HousedConfig, *, out: str | Path | None = None, quick: bool 
 
     sheet = load_datasheet(cfg.datasheet_path)
     lobe = sheet.lobe()  # refuses a record without a table, naming the fix
+    wave, wave_notes = load_housed_wave(cfg, sheet.frequency_hz)
+    wave_path = None if cfg.data.wave is None else cfg.base / Path(cfg.data.wave).expanduser()
     table = sheet.table or {}
     h, m = cfg.housing, cfg.model
     housing = Housing(
@@ -67,15 +71,20 @@ def run_housed(cfg: HousedConfig, *, out: str | Path | None = None, quick: bool 
         fixed=tuple(m.fixed),
     )
     t0 = time.perf_counter()
-    if m.family == "ladder":
-        ladder = family_ladder(spec, lobe, resolution_cpw=res_cpw)
-    else:
-        f = fit_housed(spec, lobe, resolution_cpw=res_cpw)
-        chosen, reason = choose_family({m.family: f})
-        ladder = Ladder({m.family: f}, chosen, reason)
+    try:
+        if m.family == "ladder":
+            ladder = family_ladder(spec, lobe, wave=wave, resolution_cpw=res_cpw)
+        else:
+            f = fit_housed(spec, lobe, wave=wave, resolution_cpw=res_cpw)
+            chosen, reason = choose_family({m.family: f})
+            ladder = Ladder({m.family: f}, chosen, reason)
+    except ValueError as e:
+        if wave is not None and str(e).startswith("wave_z_m"):  # `HousedForward`: the line meets the can
+            raise ConfigError(f"{cfg.path}: [data.wave_z_m] {e}") from None
+        raise
     wall_s = time.perf_counter() - t0
     best = ladder.fits[ladder.chosen]
-    p = best.goodness.get("lobe", {}).get("p", 0.0)
+    p = best.goodness.get("joint" if wave is not None else "lobe", {}).get("p", 0.0)
     if not best.converged or best.ill_conditioned:
         code = EXIT_NOT_CONVERGED
     elif p < GOODNESS_P_MIN:
@@ -95,6 +104,18 @@ def run_housed(cfg: HousedConfig, *, out: str | Path | None = None, quick: bool 
             "bore": 1e3 * (h.outer_diameter_m - 2 * h.wall_m),
         },
         "housing_front": h.front,
+        "wavefront": None
+        if wave is None
+        else {
+            "path": str(wave_path),
+            "points": len(wave.x_m),
+            "z_m": wave.z_m,
+            "sigma_deg": cfg.solver.wave_sigma_deg,
+            "notes": list(wave_notes),
+            "rms_deg": best.rms_wave_deg,
+            "residual_deg": None if best.wave_residual_deg is None else [float(v) for v in best.wave_residual_deg],
+        },
+        "goodness": best.goodness,
         "families": _family_rows(ladder),
         "chosen": ladder.chosen,
         "reason": ladder.reason,
@@ -104,7 +125,7 @@ def run_housed(cfg: HousedConfig, *, out: str | Path | None = None, quick: bool 
         "cells_per_wavelength": cpw,
         "resolution_cells_per_wavelength": res_cpw,
         "wall_time_s": wall_s,
-        "provenance": provenance(cfg.path, [sheet.path]),
+        "provenance": provenance(cfg.path, [sheet.path] + ([wave_path] if wave_path is not None else [])),
     }
     (out_dir / "report.json").write_text(json.dumps(rep, indent=2, default=str))
     o = rep["housing_outline_mm"]
@@ -112,6 +133,12 @@ def run_housed(cfg: HousedConfig, *, out: str | Path | None = None, quick: bool 
         f"# Housed fit: {sheet.part}\n\nData: {sheet.source['document']}, {sheet.source['revision']}, "
         f"{sheet.source['location']} (digitised: {table['method']}, sigma {table['sigma_db']} dB).\n\n"
         f"Outline: can {o['outer_diameter']:.2f} mm across, {o['length']:.2f} mm long, bore {o['bore']:.2f} mm.\n\n"
+        + (
+            ""
+            if wave is None
+            else f"Wavefront (fitted with the lobe): {'; '.join(wave_notes)}. Chosen family: wavefront RMS "
+            f"{best.rms_wave_deg:.3g} deg, joint chi-square probability {p:.3g}.\n\n"
+        )
         + ladder.markdown()
         + f"\nExit code {code} ({cpw:g} cells per wavelength).\n"
     )

@@ -12,6 +12,11 @@ which families to fit, run by `difflattice fit` like any fit config.
     outer_diameter_m = 0.016
     length_m = 0.012
 
+A measured wavefront (a near-field phase scan) is fitted jointly with the lobe where `[data]`
+names one, with the keys of the ordinary fit configs (`fit.config`): `wave` (a capture file or a
+plain table with a units header), `wave_z_m` (the scan line's distance in front of the can's
+front face), `wave_mask_m`, and `[solver] wave_sigma_deg`. `load_housed_wave` reads it.
+
 A config is recognised by `model = "housed"` (`is_housed_config`); `load_housed_config` checks it
 into a `HousedConfig` with one-line `ConfigError`s naming the key, and docs/housed.md's key tables
 are generated from the declarations below. No JAX here.
@@ -38,6 +43,31 @@ class HousedDataSection(Section):
         kind="str",
         doc="datasheet record (TOML, data/datasheets/README.md), relative to the config file",
         fix="give the path of a record with a [table] (a digitised directivity)",
+    )
+    wave: str | None = setting(
+        None,
+        kind="str",
+        doc="wavefront file, fitted with the lobe: capture (`difflattice capture wave`), or plain table with a "
+        "units header (e.g. x_mm,phase_deg), relative to the config file",
+        fix="give the path relative to the config file",
+    )
+    wave_z_m: float | None = setting(
+        None,
+        kind="number",
+        gt=0,
+        le=10,
+        unit="m",
+        doc="distance of the wavefront's scan line in front of the can's front face (the face the fit puts): "
+        "required for a plain table; with a capture file it must agree with its z",
+        fix="give the scan line's distance in front of the front face in metres, e.g. 0.01",
+    )
+    wave_mask_m: tuple = setting(
+        [],
+        kind="list",
+        items="range",
+        unit="m",
+        doc="positions x ranges [lo, hi] of the wavefront left out of the fit (inclusive)",
+        fix="give [[lo, hi], ...] in metres with lo < hi",
     )
 
 
@@ -142,6 +172,22 @@ class HousingSection(Section):
 
 
 @dataclass(frozen=True)
+class HousedSolverSection(Section):
+    """The wavefront's uncertainty (as `[solver]` of the ordinary fit configs); only with `[data] wave`."""
+
+    SECTION: ClassVar[str] = "solver"
+    wave_sigma_deg: float = setting(
+        1.0,
+        kind="number",
+        ge=0.001,
+        le=90,
+        unit="deg",
+        doc="1-sigma of the measured phase, used as given (the rig reports phases in mdeg)",
+        fix="give the phase noise of the mean of the bursts, e.g. 0.3 deg / sqrt(n_avg)",
+    )
+
+
+@dataclass(frozen=True)
 class HousedOutputSection(Section):
     """Where the report goes."""
 
@@ -149,7 +195,7 @@ class HousedOutputSection(Section):
     dir: str = setting("out/fits/housed", kind="str", doc="output directory (report.json, report.md)")
 
 
-SECTIONS = (HousedDataSection, HousedModelSection, HousingSection, HousedOutputSection)
+SECTIONS = (HousedDataSection, HousedModelSection, HousingSection, HousedSolverSection, HousedOutputSection)
 
 
 @dataclass(frozen=True)
@@ -160,6 +206,7 @@ class HousedConfig:
     model: HousedModelSection
     housing: HousingSection
     output: HousedOutputSection
+    solver: HousedSolverSection = HousedSolverSection()
     path: Path | None = None
 
     @property
@@ -169,6 +216,10 @@ class HousedConfig:
     @property
     def datasheet_path(self) -> Path:
         return self.base / self.data.datasheet
+
+    def error(self, key: str, problem: str) -> ConfigError:
+        """A one-line `ConfigError` about `[key]` of this config's file."""
+        return ConfigError(message(self.path, key, None, problem))
 
 
 def is_housed_config(path: str | Path) -> bool:
@@ -184,7 +235,7 @@ def is_housed_config(path: str | Path) -> bool:
 def housed_config_from_dict(raw: dict[str, Any], *, path: str | Path | None = None) -> HousedConfig:
     """Check a parsed housed-fit config."""
     path = None if path is None else Path(path)
-    allowed = ("data", "model", "output")
+    allowed = ("data", "model", "solver", "output")
     for k in raw:
         if k not in allowed:
             raise ConfigError(message(path, k, None, f"unknown section; allowed: {', '.join(allowed)}"))
@@ -203,8 +254,18 @@ def housed_config_from_dict(raw: dict[str, Any], *, path: str | Path | None = No
         model=parse_section(HousedModelSection, model, file=path),
         housing=parse_section(HousingSection, housing, file=path),
         output=parse_section(HousedOutputSection, raw.get("output"), file=path),
+        solver=parse_section(HousedSolverSection, raw.get("solver"), file=path),
         path=path,
     )
+    d = cfg.data
+    if d.wave is None:
+        for key, given in (
+            ("data.wave_z_m", d.wave_z_m is not None),
+            ("data.wave_mask_m", bool(d.wave_mask_m)),
+            ("solver.wave_sigma_deg", "wave_sigma_deg" in (raw.get("solver") or {})),
+        ):
+            if given:
+                raise cfg.error(key, 'is given but there is no wavefront; fix: remove it or give [data] wave = "..."')
     h = cfg.housing
     if h.front == "flange" and h.back == "open":
         raise ConfigError(
@@ -236,3 +297,90 @@ def housed_config_markdown() -> str:
     from ..config import markdown_tables
 
     return markdown_tables(SECTIONS)
+
+
+def load_housed_wave(cfg: HousedConfig, frequency_hz: float) -> tuple[Any, tuple[str, ...]]:
+    """The wavefront `[data] wave` names, as `fit.data.WaveData` (or None without one), and notes
+    for the report. A capture file carries its frequency (it must be the datasheet record's
+    `frequency_hz`) and z (it must agree with `wave_z_m` where that is given); a plain table takes
+    z from `wave_z_m` (required). Phases are the rig's lag behind the drive (`fit.data`); sigma is
+    `[solver] wave_sigma_deg`. Raises `ConfigError` naming the key for a missing or unreadable
+    file, a lobe capture given as the wave, disagreeing frequency or z, or fewer than 3 points."""
+    import math
+
+    import numpy as np
+
+    from ..capture.errors import CaptureFileError
+    from ..capture.files import WaveCapture, is_capture_file, load_capture, load_wave_table
+    from ..config import show
+    from .data import mask_counts, mask_wave, wave_from_capture, wave_from_table
+
+    d = cfg.data
+    if d.wave is None:
+        return None, ()
+    p = Path(d.wave).expanduser()
+    p = p if p.is_absolute() else cfg.base / p
+    if not p.is_file():
+        where = "not a file" if p.exists() else "not found"
+        raise cfg.error(
+            "data.wave", f"= {show(d.wave)}: {where} ({p}); fix: paths are relative to the config file's folder"
+        )
+    sigma = cfg.solver.wave_sigma_deg
+    notes: list[str] = []
+    try:
+        if is_capture_file(p):
+            cap = load_capture(p, allow_incomplete=True)
+            if not isinstance(cap, WaveCapture):
+                raise cfg.error(
+                    "data.wave",
+                    f"= {show(d.wave)} is a {cap.kind} capture (its header says kind: {cap.kind}); "
+                    "fix: give a wavefront capture (the lobe comes from the datasheet record)",
+                )
+            f_cap = float(cap.metadata["freq_hz"])
+            if abs(f_cap - frequency_hz) > 0.5:
+                raise cfg.error(
+                    "data.wave",
+                    f"= {show(d.wave)} was captured at {f_cap:g} Hz but the datasheet record is at "
+                    f"{frequency_hz:g} Hz; fix: fit a wavefront of the record's frequency",
+                )
+            if len(cap.seq) < 3:
+                raise cfg.error("data.wave", f"= {show(d.wave)} holds only {len(cap.seq)} points; a fit needs >= 3")
+            z_cap = float(np.median(cap.z_m))
+            if d.wave_z_m is not None and abs(d.wave_z_m - z_cap) > 1e-4:
+                raise cfg.error(
+                    "data.wave_z_m",
+                    f"= {show(d.wave_z_m)} m but {p.name} says z = {z_cap:g} m; fix: correct it or "
+                    "leave it out (a capture carries its own)",
+                )
+            wave = wave_from_capture(cap, sigma_deg=sigma)
+            if not cap.complete:
+                notes.append(f"{p.name}: incomplete capture, fitted the {len(cap.seq)} points present")
+        else:
+            table = load_wave_table(p)
+            if d.wave_z_m is None:
+                raise cfg.error(
+                    "data.wave_z_m",
+                    f"is required: {p.name} is a plain table without metadata; fix: give the scan "
+                    "line's distance in front of the front face in m",
+                )
+            wave = wave_from_table(
+                table, frequency_hz=frequency_hz, z_m=d.wave_z_m, temperature_c=math.nan, sigma_deg=sigma
+            )  # the housed fit's sound speed is [model] speed_of_sound_m_s; the table carries no temperature
+    except CaptureFileError as e:
+        raise cfg.error("data.wave", f"= {show(d.wave)} cannot be used: {e}") from None
+    except ValueError as e:  # WaveData's own checks (non-finite phases, < 3 points)
+        raise cfg.error("data.wave", f"= {show(d.wave)} cannot be used: {e}") from None
+    notes.append(
+        f"{p.name}: wavefront, {len(wave.x_m)} points at {wave.z_m:g} m in front of the front face, sigma {sigma:g} deg"
+    )
+    if d.wave_mask_m:
+        n_out = mask_counts(wave.x_m, d.wave_mask_m)
+        if len(wave.x_m) - n_out < 3:
+            raise cfg.error(
+                "data.wave_mask_m",
+                f"= {show(d.wave_mask_m)} leaves {len(wave.x_m) - n_out} of {len(wave.x_m)} "
+                "wavefront points; a fit needs >= 3; fix: narrow the ranges",
+            )
+        wave = mask_wave(wave, d.wave_mask_m)
+        notes.append(f"{p.name}: wave_mask_m {show(d.wave_mask_m)} left out {n_out} points")
+    return wave, tuple(notes)

@@ -114,3 +114,31 @@ def test_synthetic_record_is_reproduced_by_its_script(tmp_path):
     spec.loader.exec_module(mod)
     out = mod.run(out=tmp_path / "record.toml")
     assert out.read_text() == (ROOT / "data" / "emulated" / "housed_recessed" / "record.toml").read_text()
+
+
+SHIPPED = sorted((ROOT / "fitting").glob("housed_*.toml"))
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=[p.stem for p in SHIPPED])
+def test_every_shipped_housed_config_loads_with_its_record(path):
+    """Each fitting/housed_*.toml is a housed config whose record has a digitised table, and the
+    can it models is the one its record states (where the record states an outline)."""
+    from difflattice.fit.datasheet import load_datasheet
+
+    assert is_housed_config(path)
+    cfg = load_housed_config(path)
+    sheet = load_datasheet(cfg.datasheet_path)
+    assert sheet.table is not None and len(sheet.lobe().angle_deg) >= 3
+    h = cfg.housing
+    for key, value in (("outer_diameter_m", h.outer_diameter_m), ("length_m", h.length_m)):
+        if key in sheet.outline:
+            assert value == sheet.outline[key], (path.name, key, value, sheet.outline[key])
+
+
+def test_the_weak_provenance_record_says_so():
+    """The MA40S4S table's sources cite no datasheet figure: its record says so where a reader looks."""
+    from difflattice.fit.datasheet import load_datasheet
+
+    sheet = load_datasheet(ROOT / "data" / "datasheets" / "murata_ma40s4s.toml")
+    assert sheet.notes.startswith("WEAK PROVENANCE") and "NOT cited" in sheet.source["document"]
+    assert list(sheet.table["angle_deg"]) == list(range(0, 91, 2)) and sheet.table["level_db"][-1] == -20.0

@@ -142,3 +142,34 @@ def test_the_weak_provenance_record_says_so():
     sheet = load_datasheet(ROOT / "data" / "datasheets" / "murata_ma40s4s.toml")
     assert sheet.notes.startswith("WEAK PROVENANCE") and "NOT cited" in sheet.source["document"]
     assert list(sheet.table["angle_deg"]) == list(range(0, 91, 2)) and sheet.table["level_db"][-1] == -20.0
+
+
+def test_lobe_mask_leaves_angles_out_and_is_checked(tmp_path):
+    """`[data] lobe_mask_deg` (as the ordinary fit configs): the record's angles in the closed
+    ranges are not fitted; a mask that leaves < 3 points is an error, one that leaves out nothing
+    a warning."""
+    import warnings
+
+    from difflattice.config import ConfigWarning
+    from difflattice.fit.datasheet import load_datasheet
+    from difflattice.fit.housed_config import housed_lobe
+
+    record = ROOT / "data" / "datasheets" / "murata_ma40s4s.toml"
+    sheet = load_datasheet(record)
+
+    def cfg(mask):
+        raw = {
+            "data": {"datasheet": str(record), "lobe_mask_deg": mask},
+            "model": {"model": "housed", "housing": {"outer_diameter_m": 0.0099, "length_m": 0.0071}},
+        }
+        return housed_config_from_dict(raw, path=tmp_path / "c.toml")
+
+    lobe, notes = housed_lobe(cfg([[60, 90]]), sheet)
+    assert list(lobe.angle_deg) == list(range(0, 60, 2)) and "left out 16 of 46" in notes[0]
+    assert housed_lobe(cfg([]), sheet)[0].angle_deg.size == 46
+    with pytest.raises(ConfigError, match=r"\[data.lobe_mask_deg\] .* leaves 2 of 46"):
+        housed_lobe(cfg([[4, 90]]), sheet)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ConfigWarning, match="excludes no angle"):
+            housed_lobe(cfg([[91, 100]]), sheet)

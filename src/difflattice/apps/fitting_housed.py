@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any, cast
 
 from ..config import ConfigError
-from ..fit.housed_config import HousedConfig, load_housed_config, load_housed_wave
+from ..fit.housed_config import HousedConfig, housed_lobe, load_housed_config, load_housed_wave
 
 
 def _family_rows(ladder) -> list[dict]:
@@ -44,7 +44,7 @@ def run_housed(cfg: HousedConfig, *, out: str | Path | None = None, quick: bool 
     from .provenance import provenance
 
     sheet = load_datasheet(cfg.datasheet_path)
-    lobe = sheet.lobe()  # refuses a record without a table, naming the fix
+    lobe, lobe_notes = housed_lobe(cfg, sheet)  # refuses a record without a table, naming the fix
     wave, wave_notes = load_housed_wave(cfg, sheet.frequency_hz)
     wave_path = None if cfg.data.wave is None else cfg.base / Path(cfg.data.wave).expanduser()
     table = sheet.table or {}
@@ -104,6 +104,7 @@ def run_housed(cfg: HousedConfig, *, out: str | Path | None = None, quick: bool 
             "bore": 1e3 * (h.outer_diameter_m - 2 * h.wall_m),
         },
         "housing_front": h.front,
+        "lobe_notes": list(lobe_notes),
         "wavefront": None
         if wave is None
         else {
@@ -116,6 +117,12 @@ def run_housed(cfg: HousedConfig, *, out: str | Path | None = None, quick: bool 
             "residual_deg": None if best.wave_residual_deg is None else [float(v) for v in best.wave_residual_deg],
         },
         "goodness": best.goodness,
+        "chosen_lobe": {  # the chosen family's lobe against the data, per angle
+            "angle_deg": [float(v) for v in lobe.angle_deg],
+            "data_db": [float(v) for v in lobe.level_db],
+            "model_db": [float(v) for v in best.model_db],
+            "residual_db": [float(v) for v in best.residual_db],
+        },
         "families": _family_rows(ladder),
         "chosen": ladder.chosen,
         "reason": ladder.reason,
@@ -131,7 +138,9 @@ def run_housed(cfg: HousedConfig, *, out: str | Path | None = None, quick: bool 
     o = rep["housing_outline_mm"]
     md = (
         f"# Housed fit: {sheet.part}\n\nData: {sheet.source['document']}, {sheet.source['revision']}, "
-        f"{sheet.source['location']} (digitised: {table['method']}, sigma {table['sigma_db']} dB).\n\n"
+        f"{sheet.source['location']} (digitised: {table['method']}, sigma {table['sigma_db']} dB)"
+        + "".join(f"; {n}" for n in lobe_notes)
+        + ".\n\n"
         f"Outline: can {o['outer_diameter']:.2f} mm across, {o['length']:.2f} mm long, bore {o['bore']:.2f} mm.\n\n"
         + (
             ""

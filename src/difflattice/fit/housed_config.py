@@ -16,6 +16,7 @@ A measured wavefront (a near-field phase scan) is fitted jointly with the lobe w
 names one, with the keys of the ordinary fit configs (`fit.config`): `wave` (a capture file or a
 plain table with a units header), `wave_z_m` (the scan line's distance in front of the can's
 front face), `wave_mask_m`, and `[solver] wave_sigma_deg`. `load_housed_wave` reads it.
+`lobe_mask_deg` leaves angle ranges of the record's table out of the fit (`housed_lobe`).
 
 A config is recognised by `model = "housed"` (`is_housed_config`); `load_housed_config` checks it
 into a `HousedConfig` with one-line `ConfigError`s naming the key, and docs/housed.md's key tables
@@ -43,6 +44,16 @@ class HousedDataSection(Section):
         kind="str",
         doc="datasheet record (TOML, data/datasheets/README.md), relative to the config file",
         fix="give the path of a record with a [table] (a digitised directivity)",
+    )
+    lobe_mask_deg: tuple = setting(
+        [],
+        kind="list",
+        items="range",
+        ge=-180,
+        le=180,
+        unit="deg",
+        doc="angle ranges [lo, hi] of the record's table left out of the fit (inclusive), e.g. [[60, 90]]",
+        fix="give [[lo, hi], ...] in degrees with lo < hi",
     )
     wave: str | None = setting(
         None,
@@ -384,3 +395,38 @@ def load_housed_wave(cfg: HousedConfig, frequency_hz: float) -> tuple[Any, tuple
         wave = mask_wave(wave, d.wave_mask_m)
         notes.append(f"{p.name}: wave_mask_m {show(d.wave_mask_m)} left out {n_out} points")
     return wave, tuple(notes)
+
+
+def housed_lobe(cfg: HousedConfig, sheet) -> tuple[Any, tuple[str, ...]]:
+    """The record's lobe (`fit.datasheet.Datasheet.lobe`) less the angles `[data] lobe_mask_deg`
+    leaves out, and a note for the report. ConfigError if the mask leaves fewer than 3 points;
+    a ConfigWarning if it leaves out none."""
+    import warnings
+
+    from ..config import ConfigWarning, show
+    from .data import mask_counts, mask_lobe
+
+    lobe = sheet.lobe()  # refuses a record without a table, naming the fix
+    ranges = cfg.data.lobe_mask_deg
+    if not ranges:
+        return lobe, ()
+    n_out = mask_counts(lobe.angle_deg, ranges)
+    if len(lobe.angle_deg) - n_out < 3:
+        raise cfg.error(
+            "data.lobe_mask_deg",
+            f"= {show(ranges)} leaves {len(lobe.angle_deg) - n_out} of {len(lobe.angle_deg)} lobe points; "
+            "a fit needs >= 3; fix: narrow the ranges",
+        )
+    if n_out == 0:
+        warnings.warn(
+            message(
+                cfg.path,
+                "data.lobe_mask_deg",
+                None,
+                f"= {show(ranges)} excludes no angle of the table "
+                f"({lobe.angle_deg.min():g}..{lobe.angle_deg.max():g} deg)",
+            ),
+            ConfigWarning,
+            stacklevel=2,
+        )
+    return mask_lobe(lobe, ranges), (f"lobe_mask_deg {show(ranges)} left out {n_out} of {len(lobe.angle_deg)} angles",)

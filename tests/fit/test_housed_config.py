@@ -173,3 +173,15 @@ def test_lobe_mask_leaves_angles_out_and_is_checked(tmp_path):
         warnings.simplefilter("error")
         with pytest.raises(ConfigWarning, match="excludes no angle"):
             housed_lobe(cfg([[91, 100]]), sheet)
+
+
+def test_report_names_the_families_that_did_not_converge():
+    """report.md says which families stopped at the iteration limit (their rows are not minima)."""
+    from types import SimpleNamespace
+
+    from difflattice.apps.fitting_housed import _not_converged_line
+
+    ok, stuck = SimpleNamespace(converged=True), SimpleNamespace(converged=False)
+    line = _not_converged_line(SimpleNamespace(fits={"flat": ok, "opening": stuck, "profile": stuck}))
+    assert "Not converged" in line and line.strip().endswith("opening, profile.") and "flat" not in line
+    assert _not_converged_line(SimpleNamespace(fits={"flat": ok})) == ""

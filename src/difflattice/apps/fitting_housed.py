@@ -23,6 +23,18 @@ def _family_rows(ladder) -> list[dict]:
     return out
 
 
+def _not_converged_line(ladder) -> str:
+    """A line naming the families whose fit stopped at its iteration limit (the table's values and
+    errors for them are where it stopped, not a minimum)."""
+    names = [name for name, f in ladder.fits.items() if not f.converged]
+    if not names:
+        return ""
+    return (
+        f"\nNot converged (stopped at the iteration limit; their rows are where they stopped, not minima): "
+        f"{', '.join(names)}.\n"
+    )
+
+
 def run_housed(cfg: HousedConfig, *, out: str | Path | None = None, quick: bool = False, verbose: bool = True) -> dict:
     """Run a checked housed-fit config; returns the report dict (also written as report.json and
     report.md in the output dir). `quick`: 12 cells per wavelength and no resolution term."""
@@ -149,6 +161,7 @@ def run_housed(cfg: HousedConfig, *, out: str | Path | None = None, quick: bool 
             f"{best.rms_wave_deg:.3g} deg, joint chi-square probability {p:.3g}.\n\n"
         )
         + ladder.markdown()
+        + _not_converged_line(ladder)
         + f"\nExit code {code} ({cpw:g} cells per wavelength).\n"
     )
     (out_dir / "report.md").write_text(md)

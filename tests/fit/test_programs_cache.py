@@ -1,7 +1,9 @@
-"""The disk cache of the fit's small programs (`fit.program_cache`, issue 30): a hit gives the same
-bits as tracing afresh, in this process and in a new one; a changed shape, static value, package
-source or package version misses; a corrupt file is ignored without an error; a value the key
-cannot describe falls back to the ordinary path."""
+"""The disk cache of compiled programs (`solver.program_cache`, issue 30): for the fit's small
+programs, a hit gives the same bits as tracing afresh, in this process and in a new one; a
+changed shape, static value, package source or package version misses; a corrupt file is ignored
+without an error; a value the key cannot describe falls back to the ordinary path. For a lattice
+run on the native kernels (`simulate`, eagerly), the stored program gives the same bits in a new
+process and a program whose kernels are not registered is neither loaded nor stored."""
 
 from __future__ import annotations
 
@@ -20,8 +22,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from difflattice.fit import program_cache as pc
 from difflattice.fit.programs import SMALL_PROGRAM_OPTIONS, small_jit
+from difflattice.solver import program_cache as pc
 
 jax.config.update("jax_enable_x64", True)
 
@@ -217,7 +219,7 @@ SCRIPT = textwrap.dedent(
     import sys
     import jax, jax.numpy as jnp, numpy as np
     jax.config.update("jax_enable_x64", True)
-    from difflattice.fit import program_cache as pc
+    from difflattice.solver import program_cache as pc
     from difflattice.fit.programs import small_jit
 
     where = pc.Path(sys.argv[1])
@@ -258,7 +260,7 @@ def test_a_program_calling_an_unknown_kernel_is_not_stored():
     """A stored program may call LAPACK (set up before loading) but no other custom call: a kernel
     registered lazily (e.g. the native lattice's FFI targets) could be missing in the process that
     loads it, which would crash it rather than raise."""
-    from difflattice.fit import program_cache as pc
+    from difflattice.solver import program_cache as pc
 
     class Stub:
         def __init__(self, text):
@@ -283,8 +285,8 @@ def test_stored_output_structure_keeps_equinox_sentinels():
     import jax
     import jax.numpy as jnp
 
-    from difflattice.fit import program_cache as pc
     from difflattice.fit.model import LineParams
+    from difflattice.solver import program_cache as pc
 
     p = LineParams(**{f.name: jnp.zeros(()) for f in dataclasses.fields(LineParams)})
     tree = jax.tree_util.tree_structure(p)

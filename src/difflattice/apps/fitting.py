@@ -221,8 +221,10 @@ def run_fit(cfg: FitConfig, *, out: str | Path | None = None, quick: bool = Fals
             RuntimeWarning,
             stacklevel=2,
         )
+    from ..fit.figures import prestart_worker
     from ..fit.report import start_figures, write_report
 
+    prestart_worker()  # the report's figure worker imports matplotlib beside the fit
     data = load_fit_data(cfg)
     lobe, wave, f = data.lobe, data.wave, data.frequency_hz
     air_used = fit_air(cfg, data)

@@ -86,6 +86,8 @@ def test_a_native_run_is_stored_loaded_and_gives_the_same_bits(cache, monkeypatc
     second = _run()
     assert loads and loads[0] is not None  # read from disk
     assert _same(first, second) and second.backend == "native"
+    # a preload (which registers no kernels) leaves it to its CachedProgram
+    assert pc._from_bytes(path.read_bytes(), None, path) is None
 
 
 @pytest.mark.parametrize("garbage", [b"", b"\x80\x04K\x01."], ids=["empty", "an int"])

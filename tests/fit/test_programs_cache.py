@@ -292,3 +292,56 @@ def test_stored_output_structure_keeps_equinox_sentinels():
     tree = jax.tree_util.tree_structure(p)
     assert pickle.loads(pickle.dumps(tree)) != tree  # the defect this guards against
     assert pc._load_skeleton(pc._dump_skeleton({"in_structure": tree})) == {"in_structure": tree}
+
+
+def _session_run(cache, monkeypatch, sizes) -> tuple[pc._Session, list]:
+    """A new "process": a fresh session and fresh programs, called on arguments of these sizes."""
+    session = pc._Session()
+    monkeypatch.setattr(pc, "_SESSION", session)
+    p = _fresh()
+    return session, [p(_args(n=n), {}) for n in sizes]
+
+
+def test_the_next_process_preloads_the_programs_of_the_last(cache, monkeypatch):
+    """The programs a process used are listed under its first program's key; a process starting
+    with the same program loads the others in a thread, and they give the same bits."""
+    sizes = (3, 4, 5, 6)
+    _, first = _session_run(cache, monkeypatch, sizes)
+    (manifest,) = cache.glob("*.manifest")
+    assert len(manifest.read_text().split()) == len(sizes)
+    taken = []
+    real = pc._Session.take
+    monkeypatch.setattr(pc._Session, "take", lambda self, p: taken.append(real(self, p)) or taken[-1])
+    written = manifest.stat().st_mtime_ns
+    session = pc._Session()
+    monkeypatch.setattr(pc, "_SESSION", session)
+    p = _fresh()
+    second = [p(_args(n=sizes[0]), {})]  # tells which manifest to read: the thread starts
+    deadline = time.monotonic() + 120
+    while not all(f.done() for f in session.pending.values()) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    second += [p(_args(n=n), {}) for n in sizes[1:]]
+    assert all(_same(a, b) for a, b in zip(first, second, strict=True))
+    assert taken[0] is None  # the first program the caller loads itself
+    assert len(taken) == len(sizes) and all(e is not None for e in taken[1:])  # the others preloaded
+    assert not session.pending and manifest.stat().st_mtime_ns == written  # the same order: not rewritten
+
+
+def test_a_manifest_naming_missing_or_corrupt_files_costs_nothing(cache, monkeypatch):
+    sizes = (3, 4, 5)
+    _, first = _session_run(cache, monkeypatch, sizes)
+    progs = sorted(cache.glob("*.prog"), key=lambda p: p.stat().st_mtime_ns)
+    progs[1].unlink()
+    progs[2].write_bytes(b"garbage")
+    _, second = _session_run(cache, monkeypatch, sizes)
+    assert all(_same(a, b) for a, b in zip(first, second, strict=True))
+    assert pc._load(progs[2], 2) is not None  # recompiled and stored whole
+
+
+def test_another_order_rewrites_the_manifest(cache, monkeypatch):
+    _session_run(cache, monkeypatch, (3, 4, 5))
+    (manifest,) = cache.glob("*.manifest")
+    before = manifest.read_text().split()
+    _session_run(cache, monkeypatch, (3, 5, 4))
+    after = manifest.read_text().split()
+    assert sorted(before) == sorted(after) and before != after

@@ -274,11 +274,13 @@ _simulate = eqx.filter_jit(_simulate_fn)
 """The whole run as one program (`simulate`'s; traced into a caller's program under its `jit`)."""
 
 NATIVE_GLUE_OPTIONS = MappingProxyType({"xla_backend_optimization_level": 0})
-"""XLA compiler options of an eagerly called run on the native kernels. The program is glue round
-the kernels' FFI calls (the chunk loop, sources' tables, sensors' records), whose run time LLVM's
-optimisation passes barely change, while they were most of its compile time (a fit's first
-lattice run: 1.1 s -> 0.7 s CPU). The JAX scan, whose run time is the loop itself, keeps XLA's
-default (`_simulate`)."""
+"""XLA compiler options of an eagerly called run on the native kernels on a plane (2-D) grid. The
+program is glue round the kernels' FFI calls (the chunk loop, sources' tables, sensors' records),
+whose run time LLVM's optimisation passes barely change, while they were most of its compile time
+(a fit's first lattice run: 1.0 -> 0.6 s CPU); its results are the same bits (tests). Not on rz
+grids, where level 0 changed a disc's run by rounding (5.6e-15 relative in float64, 3.7e-6 in
+float32), nor on 3-D grids (not compared): they keep XLA's default, as does the JAX scan, whose
+run time is the loop itself (`_simulate`)."""
 
 _GLUE_JIT: dict[str, Any] = {"compiler_options": dict(NATIVE_GLUE_OPTIONS)}  # passed on to jax.jit
 _simulate_native = eqx.filter_jit(_simulate_fn, **_GLUE_JIT)
@@ -302,13 +304,14 @@ def _native_key() -> str:
 
 _NATIVE_KERNELS = Kernels(frozenset(native.build.TARGETS), _native_ready, _native_key)
 _simulate_native_cached = CachedProgram(_simulate_fn, NATIVE_GLUE_OPTIONS, kernels=_NATIVE_KERNELS)
+_simulate_cached = CachedProgram(_simulate_fn, {}, kernels=_NATIVE_KERNELS)
 
 
 def _eager(stepper: Stepper, n_steps, checkpoint, unroll, sharding, adjoint, backend) -> Result:
     """`simulate`'s program, called eagerly (no host callback): a run the chooser gives to the
-    native kernels is compiled with `NATIVE_GLUE_OPTIONS` and kept whole on disk where the program
-    cache is on (`program_cache`: a new process neither traces nor lowers it); any other run is
-    `_simulate`."""
+    native kernels is kept whole on disk where the program cache is on (`program_cache`: a new
+    process neither traces nor lowers it), compiled with `NATIVE_GLUE_OPTIONS` on a plane grid;
+    any other run is `_simulate`."""
     args = (stepper, n_steps, checkpoint, unroll, sharding, adjoint, False, backend)
     kwargs: dict[str, Any] = {"speed_check": False}
     try:
@@ -319,5 +322,8 @@ def _eager(stepper: Stepper, n_steps, checkpoint, unroll, sharding, adjoint, bac
         on_native = False
     if not on_native:
         return _simulate(*args, **kwargs)
-    out = _simulate_native_cached(args, kwargs)
-    return _simulate_native(*args, **kwargs) if out is NotImplemented else out
+    plane = stepper.grid.kind is PLANE
+    out = (_simulate_native_cached if plane else _simulate_cached)(args, kwargs)
+    if out is not NotImplemented:
+        return out
+    return (_simulate_native if plane else _simulate)(*args, **kwargs)

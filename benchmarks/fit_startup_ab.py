@@ -6,7 +6,7 @@ medians; every run records the wall time, the CPU time of the process and its ch
 average before it and the fit's printed result line (so the variants can be seen to agree).
 
     .venv/bin/python benchmarks/fit_startup_ab.py --variant new=src --variant old=/path/to/other/src \
-        [--config fitting/polaroid_like.toml] [--rounds 3] [--out docs/benchmarks/fit_startup]
+        [--config fitting/polaroid_like.toml] [--rounds 3] [--modes cold,warm] [--out docs/benchmarks/fit_startup]
 
 Each variant runs as `python -m difflattice.cli fit` with PYTHONPATH=<its src> (the native
 kernels are built once per source hash beforehand by the variant's own first run). A variant
@@ -65,22 +65,24 @@ def main() -> None:
     ap.add_argument("--variant", action="append", required=True, help="NAME=SRC_DIR (repeatable)")
     ap.add_argument("--config", default="fitting/polaroid_like.toml")
     ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--modes", default="cold,warm", help="which of cold,warm to run (default both)")
     ap.add_argument("--out", default=str(ROOT / "docs" / "benchmarks" / "fit_startup"))
     args = ap.parse_args()
     variants = dict(v.split("=", 1) for v in args.variant)
+    modes = [m for m in ("cold", "warm") if m in args.modes.split(",")]
     warm = {name: tempfile.mkdtemp(prefix=f"dl-xla-{name}-") for name in variants}
     for name, src in variants.items():  # fill the warm caches (and build the native kernels)
         run_once(src, args.config, warm[name])
     runs: list[dict] = []
     for rnd in range(args.rounds):
-        for mode in ("cold", "warm"):
+        for mode in modes:
             for name, src in variants.items():
                 cache = tempfile.mkdtemp(prefix="dl-xla-cold-") if mode == "cold" else warm[name]
                 r = run_once(src, args.config, cache) | {"variant": name, "mode": mode, "round": rnd}
                 print(json.dumps(r), flush=True)
                 runs.append(r)
     summary = []
-    for mode in ("cold", "warm"):
+    for mode in modes:
         for name in variants:
             rs = [r for r in runs if r["variant"] == name and r["mode"] == mode]
             summary.append(

@@ -1,7 +1,9 @@
-"""The disk cache of the fit's small programs (`fit.program_cache`, issue 30): a hit gives the same
-bits as tracing afresh, in this process and in a new one; a changed shape, static value, package
-source or package version misses; a corrupt file is ignored without an error; a value the key
-cannot describe falls back to the ordinary path."""
+"""The disk cache of compiled programs (`solver.program_cache`, issue 30): for the fit's small
+programs, a hit gives the same bits as tracing afresh, in this process and in a new one; a
+changed shape, static value, package source or package version misses; a corrupt file is ignored
+without an error; a value the key cannot describe falls back to the ordinary path. For a lattice
+run on the native kernels (`simulate`, eagerly), the stored program gives the same bits in a new
+process and a program whose kernels are not registered is neither loaded nor stored."""
 
 from __future__ import annotations
 
@@ -20,8 +22,8 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from difflattice.fit import program_cache as pc
 from difflattice.fit.programs import SMALL_PROGRAM_OPTIONS, small_jit
+from difflattice.solver import program_cache as pc
 
 jax.config.update("jax_enable_x64", True)
 
@@ -217,7 +219,7 @@ SCRIPT = textwrap.dedent(
     import sys
     import jax, jax.numpy as jnp, numpy as np
     jax.config.update("jax_enable_x64", True)
-    from difflattice.fit import program_cache as pc
+    from difflattice.solver import program_cache as pc
     from difflattice.fit.programs import small_jit
 
     where = pc.Path(sys.argv[1])
@@ -258,7 +260,7 @@ def test_a_program_calling_an_unknown_kernel_is_not_stored():
     """A stored program may call LAPACK (set up before loading) but no other custom call: a kernel
     registered lazily (e.g. the native lattice's FFI targets) could be missing in the process that
     loads it, which would crash it rather than raise."""
-    from difflattice.fit import program_cache as pc
+    from difflattice.solver import program_cache as pc
 
     class Stub:
         def __init__(self, text):
@@ -283,10 +285,63 @@ def test_stored_output_structure_keeps_equinox_sentinels():
     import jax
     import jax.numpy as jnp
 
-    from difflattice.fit import program_cache as pc
     from difflattice.fit.model import LineParams
+    from difflattice.solver import program_cache as pc
 
     p = LineParams(**{f.name: jnp.zeros(()) for f in dataclasses.fields(LineParams)})
     tree = jax.tree_util.tree_structure(p)
     assert pickle.loads(pickle.dumps(tree)) != tree  # the defect this guards against
     assert pc._load_skeleton(pc._dump_skeleton({"in_structure": tree})) == {"in_structure": tree}
+
+
+def _session_run(cache, monkeypatch, sizes) -> tuple[pc._Session, list]:
+    """A new "process": a fresh session and fresh programs, called on arguments of these sizes."""
+    session = pc._Session()
+    monkeypatch.setattr(pc, "_SESSION", session)
+    p = _fresh()
+    return session, [p(_args(n=n), {}) for n in sizes]
+
+
+def test_the_next_process_preloads_the_programs_of_the_last(cache, monkeypatch):
+    """The programs a process used are listed under its first program's key; a process starting
+    with the same program loads the others in a thread, and they give the same bits."""
+    sizes = (3, 4, 5, 6)
+    _, first = _session_run(cache, monkeypatch, sizes)
+    (manifest,) = cache.glob("*.manifest")
+    assert len(manifest.read_text().split()) == len(sizes)
+    taken = []
+    real = pc._Session.take
+    monkeypatch.setattr(pc._Session, "take", lambda self, p: taken.append(real(self, p)) or taken[-1])
+    written = manifest.stat().st_mtime_ns
+    session = pc._Session()
+    monkeypatch.setattr(pc, "_SESSION", session)
+    p = _fresh()
+    second = [p(_args(n=sizes[0]), {})]  # tells which manifest to read: the thread starts
+    deadline = time.monotonic() + 120
+    while not all(f.done() for f in session.pending.values()) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    second += [p(_args(n=n), {}) for n in sizes[1:]]
+    assert all(_same(a, b) for a, b in zip(first, second, strict=True))
+    assert taken[0] is None  # the first program the caller loads itself
+    assert len(taken) == len(sizes) and all(e is not None for e in taken[1:])  # the others preloaded
+    assert not session.pending and manifest.stat().st_mtime_ns == written  # the same order: not rewritten
+
+
+def test_a_manifest_naming_missing_or_corrupt_files_costs_nothing(cache, monkeypatch):
+    sizes = (3, 4, 5)
+    _, first = _session_run(cache, monkeypatch, sizes)
+    progs = sorted(cache.glob("*.prog"), key=lambda p: p.stat().st_mtime_ns)
+    progs[1].unlink()
+    progs[2].write_bytes(b"garbage")
+    _, second = _session_run(cache, monkeypatch, sizes)
+    assert all(_same(a, b) for a, b in zip(first, second, strict=True))
+    assert pc._load(progs[2], 2) is not None  # recompiled and stored whole
+
+
+def test_another_order_rewrites_the_manifest(cache, monkeypatch):
+    _session_run(cache, monkeypatch, (3, 4, 5))
+    (manifest,) = cache.glob("*.manifest")
+    before = manifest.read_text().split()
+    _session_run(cache, monkeypatch, (3, 5, 4))
+    after = manifest.read_text().split()
+    assert sorted(before) == sorted(after) and before != after

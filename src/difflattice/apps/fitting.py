@@ -132,7 +132,6 @@ def _fit_line(cfg: FitConfig, lobe, wave, f: float, c: float, ppw: float, opts, 
         raise cfg.error("model", str(e)) from None
     # a given diameter is the start of a fitted one (no scan over diameters)
     params0 = spec.init_params() if (m.fit_diameter and m.diameter_m is not None) else None
-    fitted = fit(spec, transfer, lobe, wave, opts, progress=verbose, params0=params0, multistart=True)
     uspec = ModelSpec(
         n_cells=n_cells,
         dx_m=dx,
@@ -142,8 +141,22 @@ def _fit_line(cfg: FitConfig, lobe, wave, f: float, c: float, ppw: float, opts, 
         fit_diameter=False,
         diameter_m=m.diameter_m or m.line_length_m,
     )
-    uniform = fit(uspec, transfer, lobe, wave, opts)
-    return fitted, uniform, transfer, make_transfer, t_transfer
+    uniform = _beside(fit, uspec, transfer, lobe, wave, opts)
+    fitted = fit(spec, transfer, lobe, wave, opts, progress=verbose, params0=params0, multistart=True)
+    return fitted, uniform.result(), transfer, make_transfer, t_transfer
+
+
+def _beside(fn, *args):
+    """`fn(*args)` in a thread from now on (`.result()` waits for it and raises its error): the
+    untuned uniform fit beside the main fit, which does not need it. On a first run XLA compiles
+    the two fits' programs on two cores (compilation releases the GIL); the results are the same
+    as one after the other (independent programs)."""
+    import concurrent.futures
+
+    pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="difflattice-uniform-fit")
+    future = pool.submit(fn, *args)
+    pool.shutdown(wait=False)
+    return future
 
 
 class _Prefetched:
@@ -202,9 +215,9 @@ def _fit_disc(cfg: FitConfig, lobe, wave, f: float, c: float, ppw: float, opts, 
     make_transfer = _Prefetched(setup.make_transfer, prefetch)
     spec, transfer = setup.spec, cast(Any, setup.transfer)  # a DiscTransfer: the interface of a Transfer
     params0 = spec.init_params() if (m.fit_diameter and m.diameter_m is not None) else None
+    uniform = _beside(fit, setup.uniform_spec, transfer, lobe, wave, opts)
     fitted = fit(spec, transfer, lobe, wave, opts, progress=verbose, params0=params0, multistart=True)
-    uniform = fit(setup.uniform_spec, transfer, lobe, wave, opts)
-    return fitted, uniform, transfer, make_transfer, t_transfer
+    return fitted, uniform.result(), transfer, make_transfer, t_transfer
 
 
 def run_fit(cfg: FitConfig, *, out: str | Path | None = None, quick: bool = False, verbose: bool = True) -> dict:
@@ -221,8 +234,10 @@ def run_fit(cfg: FitConfig, *, out: str | Path | None = None, quick: bool = Fals
             RuntimeWarning,
             stacklevel=2,
         )
+    from ..fit.figures import prestart_worker
     from ..fit.report import start_figures, write_report
 
+    prestart_worker()  # the report's figure worker imports matplotlib beside the fit
     data = load_fit_data(cfg)
     lobe, wave, f = data.lobe, data.wave, data.frequency_hz
     air_used = fit_air(cfg, data)

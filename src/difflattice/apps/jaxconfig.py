@@ -4,9 +4,10 @@ scene in a new process does not compile again.
 
 The cache lives in ``$DIFFLATTICE_CACHE_DIR`` (default ``~/.cache/difflattice/xla``); set it to
 ``0`` to disable. ``$DIFFLATTICE_CACHE_MIN_COMPILE_S`` (default 0: cache every program) is the
-compile time below which a program is not cached. With it on, the fit's small programs are also
-kept whole (traced, lowered and compiled) in its ``programs/`` folder (`fit.program_cache`: a warm
-fit neither traces nor lowers them); ``DIFFLATTICE_PROGRAM_CACHE=0`` keeps only JAX's cache.
+compile time below which a program is not cached. With it on, the fit's small programs and the
+lattice runs on the native kernels are also kept whole (traced, lowered and compiled) in its
+``programs/`` folder (`solver.program_cache`: a warm fit neither traces nor lowers them, and loads
+them in a thread as the last run used them); ``DIFFLATTICE_PROGRAM_CACHE=0`` keeps only JAX's cache.
 """
 
 from __future__ import annotations

@@ -21,7 +21,7 @@ from typing import Any
 import equinox as eqx
 import jax
 
-from .program_cache import CachedProgram
+from ..solver.program_cache import CachedProgram
 
 __all__ = ["SMALL_PROGRAM_OPTIONS", "small_jit"]
 

@@ -151,6 +151,9 @@ def error_budget(
     options = options or fitted.options or FitOptions()
     say = print if progress else (lambda *a, **k: None)
     vf = fitted.variance_factor
+    # the refit at a second resolution runs in a background thread while the quantities and the
+    # model-family refits run here (XLA's compilation and the solver's steps release the GIL)
+    res = _ResolutionRefit.start(fitted, transfer, lobe, wave, options, make_transfer, second_cells_per_wavelength, say)
     v, names, units, G = _quantities_and_jacobian(spec, params)
     v, G = np.asarray(v), np.asarray(G)
     cov = fitted.covariance_raw
@@ -161,9 +164,6 @@ def error_budget(
     window = np.asarray(ph["weights"]) / np.asarray(ph["weights_raw"])
     active = window >= 0.5  # cells inside the active aperture
 
-    # the refit at a second resolution runs in a background thread while the model-family refits
-    # run here (XLA's compilation and the solver's steps release the GIL)
-    res = _ResolutionRefit.start(fitted, transfer, lobe, wave, options, make_transfer, second_cells_per_wavelength, say)
     fams = default_families(spec) if model_families is None else [_family(spec, f) for f in model_families]
     spread = family_spread(fitted, transfer, lobe, wave, options, fams, names, v, stat, active, say)
     sys_res, resolution, res_notes = res.finish(names, v)

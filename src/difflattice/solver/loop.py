@@ -9,8 +9,10 @@ per-chunk record of the peak |p| (instability detection), and memory-bounded rev
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from typing import Literal
+from types import MappingProxyType
+from typing import Any, Literal
 
 import equinox as eqx
 import jax
@@ -21,8 +23,10 @@ from ..lattice.coefficients import Edges, speed_limit
 from ..lattice.grid import Grid
 from ..lattice.kinds import PLANE, VOLUME
 from ..lattice.medium import Medium
-from .backends import Request, choose
+from . import native
+from .backends import Native, Request, choose
 from .estimate import preflight as _preflight
+from .program_cache import CachedProgram, Kernels
 from .scan import Checkpoint, Joiner, Result, chunking
 from .sensors import Sensors
 from .sources import PointSources
@@ -147,7 +151,7 @@ def simulate(
     # callback and so goes to the persistent compilation cache (a program with eqx.error_if's
     # callback never does: each new process compiled the whole run again)
     check_speed(stepper)
-    result = _simulate(stepper, n_steps, checkpoint, unroll, sharding, adjoint, False, backend, speed_check=False)
+    result = _eager(stepper, n_steps, checkpoint, unroll, sharding, adjoint, backend)
     if throw:
         check_finite(result.peak_history)
     return result
@@ -242,8 +246,7 @@ def check_finite(peak_history) -> None:
         raise eqx.EquinoxRuntimeError(INSTABILITY_MESSAGE)
 
 
-@eqx.filter_jit
-def _simulate(
+def _simulate_fn(
     stepper: Stepper,
     n_steps: int,
     checkpoint,
@@ -265,3 +268,62 @@ def _simulate(
     if throw:
         result = check_result(result, stepper)
     return result
+
+
+_simulate = eqx.filter_jit(_simulate_fn)
+"""The whole run as one program (`simulate`'s; traced into a caller's program under its `jit`)."""
+
+NATIVE_GLUE_OPTIONS = MappingProxyType({"xla_backend_optimization_level": 0})
+"""XLA compiler options of an eagerly called run on the native kernels on a plane (2-D) grid. The
+program is glue round the kernels' FFI calls (the chunk loop, sources' tables, sensors' records),
+whose run time LLVM's optimisation passes barely change, while they were most of its compile time
+(a fit's first lattice run: 1.0 -> 0.6 s CPU); its results are the same bits (tests). Not on rz
+grids, where level 0 changed a disc's run by rounding (5.6e-15 relative in float64, 3.7e-6 in
+float32), nor on 3-D grids (not compared): they keep XLA's default, as does the JAX scan, whose
+run time is the loop itself (`_simulate`)."""
+
+_GLUE_JIT: dict[str, Any] = {"compiler_options": dict(NATIVE_GLUE_OPTIONS)}  # passed on to jax.jit
+_simulate_native = eqx.filter_jit(_simulate_fn, **_GLUE_JIT)
+
+
+def _native_ready() -> bool:
+    return not isinstance(native.load(), str)
+
+
+def _native_key() -> str:
+    """What fixes a native run's program beyond its arguments: the kernels' settings read while
+    tracing (threads, levels, schedule), the CPUs this process may use, the kernels' library."""
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        cpus = os.cpu_count() or 1
+    settings = sorted((k, v) for k, v in os.environ.items() if k.startswith("DIFFLATTICE_NATIVE"))
+    lib = native.load()
+    return f"{settings};cpus={cpus};lib={getattr(lib, 'path', lib)}"
+
+
+_NATIVE_KERNELS = Kernels(frozenset(native.build.TARGETS), _native_ready, _native_key)
+_simulate_native_cached = CachedProgram(_simulate_fn, NATIVE_GLUE_OPTIONS, kernels=_NATIVE_KERNELS)
+_simulate_cached = CachedProgram(_simulate_fn, {}, kernels=_NATIVE_KERNELS)
+
+
+def _eager(stepper: Stepper, n_steps, checkpoint, unroll, sharding, adjoint, backend) -> Result:
+    """`simulate`'s program, called eagerly (no host callback): a run the chooser gives to the
+    native kernels is kept whole on disk where the program cache is on (`program_cache`: a new
+    process neither traces nor lowers it), compiled with `NATIVE_GLUE_OPTIONS` on a plane grid;
+    any other run is `_simulate`."""
+    args = (stepper, n_steps, checkpoint, unroll, sharding, adjoint, False, backend)
+    kwargs: dict[str, Any] = {"speed_check": False}
+    try:
+        on_native = isinstance(
+            choose(Request(stepper, n_steps, None, checkpoint, unroll, sharding, adjoint), backend).backend, Native
+        )
+    except Exception:  # noqa: BLE001 - a request the trace refuses: `_simulate` raises its own error
+        on_native = False
+    if not on_native:
+        return _simulate(*args, **kwargs)
+    plane = stepper.grid.kind is PLANE
+    out = (_simulate_native_cached if plane else _simulate_cached)(args, kwargs)
+    if out is not NotImplemented:
+        return out
+    return (_simulate_native if plane else _simulate)(*args, **kwargs)

@@ -116,7 +116,7 @@ def test_shape_gradient_matches_central_differences(family):
 
 def test_shapes_reduce_to_the_flat_piston_and_are_bounded():
     """A cone of depth 0 and q = 0 are the flat piston, to round-off (free can); a cone deeper
-    than the can is refused naming the bound; the rings' centroids carry the disc's first moment
+    than the can, or a bending q outside (-1, 3), is refused naming the bound; the rings' centroids carry the disc's first moment
     exactly (sum of ring area x centroid radius = 2/3 pi a^3, the edge ring part-filled)."""
     h = Housing(outer_diameter_m=10e-3, length_m=7e-3)
     ang = np.array([0.0, 30.0, 60.0])
@@ -128,6 +128,8 @@ def test_shapes_reduce_to_the_flat_piston_and_are_bounded():
         np.testing.assert_allclose(lobe, flat, atol=1e-10)
     with pytest.raises(ValueError, match="the can's length"):
         dataclasses.replace(base, family="cone", cone_m=8e-3)
+    with pytest.raises(ValueError, match="twice the centre"):
+        dataclasses.replace(base, family="bending", bend=5.0)
     a = 6.4  # cells
     s = np.asarray(ring_centroid_s(a, 8))
     j = np.arange(8)

@@ -51,7 +51,7 @@ from jaxtyping import Array, Float
 from ..lattice.window import Span
 from ..transforms import logit
 from .family import FamilyParams
-from .housed_profiles import bending_weights, cone_lags_s, ring_centroid_s
+from .housed_profiles import bend_from_raw, bend_to_raw, bending_weights, cone_lags_s, ring_centroid_s
 
 FAMILIES = ("flat", "recessed", "opening", "cone", "bending", "profile")
 """The ladder of housed model families, simplest first: a flat piston flush with the can's front
@@ -81,7 +81,7 @@ class HousedParams(FamilyParams):
     (`ravel_pytree`) order. R_in is the bore's radius."""
 
     bend: Float[Array, ""] | None = None
-    """Bending profile's q ("bending": velocity 1 - q (r/a)^2; raw = q, unbounded)."""
+    """Bending profile's q ("bending": velocity 1 - q (r/a)^2; `housed_profiles.bend_from_raw`)."""
     cone: Float[Array, ""] | None = None
     """Cone depth, artanh(h / L) ("cone": h in (-L, L), L the can's length; rim lag h (r/a) / c)."""
     diam: Float[Array, ""] | None = None
@@ -206,7 +206,8 @@ class HousedSpec:
     (or fixed) geometry (`diaphragm_m`, `recess_m`, `opening_m`: diameters and depth in metres;
     defaults: 0.8 x the bore, 1 mm, 0.8 x the bore), `dtype`, the absorbing layer `pml_cells`,
     the surface's gap `surface_gap` (cells), the lattice `stencil` and the geometry held `fixed`
-    at the given values (names in `FIXABLE`: "diaphragm", "recess", "opening")."""
+    at the given values (names in `FIXABLE`: "diaphragm", "recess", "opening"); the initial cone
+    depth `cone_m` (m, signed) and bending `bend` (q) of those families (`fit.housed_profiles`)."""
 
     housing: Housing
     frequency_hz: float
@@ -264,8 +265,8 @@ class HousedSpec:
             raise ValueError(
                 f"cone_m = {self.cone_m} m must be inside (-{h.length_m}, {h.length_m}) m (the can's length)"
             )
-        if self.bend is not None and not math.isfinite(self.bend):
-            raise ValueError(f"bend = {self.bend!r} must be a finite number (the profile 1 - bend (r/a)^2)")
+        if self.bend is not None:
+            bend_to_raw(self.bend)  # refuses a q outside its bounds
         if self.n_rings < 2:
             raise ValueError(
                 f"the bore ({2 * h.bore_radius_m * 1e3:.3g} mm) is {self.n_rings} rings of {self.dx_m * 1e3:.3g} mm: "
@@ -336,7 +337,7 @@ class HousedSpec:
                 h0 = self.cone_m if self.cone_m is not None else 1e-3
                 out[key] = jnp.asarray(math.atanh(h0 / h.length_m))
             elif key == "bend":
-                out[key] = jnp.asarray(self.bend if self.bend is not None else 0.3)
+                out[key] = jnp.asarray(bend_to_raw(self.bend if self.bend is not None else 0.3))
             else:  # w, lag: the free profile, rings 1 .. n-1
                 out[key] = jnp.zeros(self.n_rings - 1)
         return HousedParams(**out)
@@ -373,10 +374,10 @@ class HousedSpec:
             if cone is not None:
                 lag = cone_lags_s(s_ring, cone, self.c_m_s)
             if params.bend is not None:
-                w = bending_weights(s_ring, params.bend)
+                w = bending_weights(s_ring, bend_from_raw(params.bend))
         return {
             "cone_m": cone,
-            "bend": params.bend,
+            "bend": None if params.bend is None else bend_from_raw(params.bend),
             "diaphragm_m": 2 * a,
             "recess_m": d,
             "opening_m": None if b is None else 2 * b,
@@ -410,7 +411,7 @@ class HousedSpec:
                 p, cone=jnp.asarray(math.atanh(_inside(0.5 + 0.5 * cone_m / self.housing.length_m) * 2 - 1))
             )
         if p.bend is not None and bend is not None:
-            p = dataclasses.replace(p, bend=jnp.asarray(float(bend)))
+            p = dataclasses.replace(p, bend=jnp.asarray(bend_to_raw(bend)))
         return p
 
     def bounds_mm(self) -> dict:

@@ -15,7 +15,11 @@ that, each reducing to the flat piston at its parameter's zero:
   from apex back; h is fitted signed and reported as fitted.
 - "bending": the velocity falls with radius as a plate's first axisymmetric bending mode to second
   order, w(s) = 1 - q s^2: q = 0 the piston, q = 1 a rim at rest (clamped or supported edge),
-  q > 1 a nodal circle at s = 1 / sqrt(q) and the rim in antiphase.
+  q > 1 a nodal circle at s = 1 / sqrt(q) and the rim in antiphase. q is bounded to
+  (`BEND_MIN`, `BEND_MAX`) = (-1, 3): a rim moving at most twice the centre's velocity, in phase
+  (q = -1) or in antiphase (q = 3, the nodal circle at 0.58 a; a free-edge plate's first
+  axisymmetric mode has it at 0.68 a, q ~ 2.2). Beyond that the "profile" is a ring radiator,
+  the free profile's freedom, not a plate's mode.
 
 The profiles are evaluated at each ring's area centroid inside the diaphragm (`ring_centroid_s`):
 the lattice's ring source is piecewise constant, and the centroid makes its ring-area integral of
@@ -24,6 +28,9 @@ a smooth profile exact to second order in the ring width.
 
 from __future__ import annotations
 
+import math
+
+import jax
 import jax.numpy as jnp
 
 
@@ -42,6 +49,23 @@ def ring_centroid_s(radius_cells, n_rings: int, dtype=float):
 def cone_lags_s(s, cone_m, c_m_s: float):
     """Per-ring lags (s) of a cone of depth `cone_m` (rim relative to centre): h s / c."""
     return cone_m * s / c_m_s
+
+
+BEND_MIN, BEND_MAX = -1.0, 3.0
+"""Bounds of the bending profile's q (see the module docstring)."""
+
+
+def bend_from_raw(raw):
+    """q = BEND_MIN + (BEND_MAX - BEND_MIN) sigmoid(raw) (raw 0: q = 1, the rim at rest)."""
+    return BEND_MIN + (BEND_MAX - BEND_MIN) * jax.nn.sigmoid(raw)
+
+
+def bend_to_raw(q: float) -> float:
+    """The raw parameter of q (inside the bounds: refused otherwise)."""
+    if not BEND_MIN < q < BEND_MAX:
+        raise ValueError(f"bend = {q} must be inside ({BEND_MIN:g}, {BEND_MAX:g}): the rim at most twice the centre")
+    f = (q - BEND_MIN) / (BEND_MAX - BEND_MIN)
+    return math.log(f / (1 - f))
 
 
 def bending_weights(s, bend):

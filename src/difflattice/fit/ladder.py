@@ -101,6 +101,7 @@ class HousedFit:
             ("recess", "recess", AT_BOUND),
             ("opening", "opening", AT_BOUND),
             ("cone", "cone", 0.5 * AT_BOUND),  # tanh(x) = 2 sigmoid(2x) - 1: the same slope criterion
+            ("bend", "bending q", AT_BOUND),
         ):
             v = getattr(self.params, key)
             if v is not None and abs(float(v)) > lim:

@@ -585,7 +585,7 @@ def _grid_start(s: HousedSpec, lobe: LobeData) -> HousedParams:
     fw = HousedForward(s, lobe.angle_deg)
     lob = jax.jit(fw.lobe_db)
     y, w = np.asarray(lobe.level_db, float), 1 / np.asarray(lobe.sigma_db, float) ** 2
-    best = (math.inf, None)
+    best: tuple[float, HousedParams | None] = (math.inf, None)
     for v in SHAPE_GRID[s.family]:
         if s.family == "cone" and v >= 0.95 * s.housing.length_m:
             continue

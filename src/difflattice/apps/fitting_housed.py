@@ -17,9 +17,12 @@ from ..fit.housed_config import HousedConfig, housed_lobe, load_housed_config, l
 
 
 def _family_rows(ladder) -> list[dict]:
+    """The families' summaries, each with its lobe residual per angle (model - data, dB)."""
     out = []
-    for row in ladder.table():
-        out.append({k: (v if not isinstance(v, float) or math.isfinite(v) else str(v)) for k, v in row.items()})
+    for row, f in zip(ladder.table(), ladder.fits.values(), strict=True):
+        row = {k: (v if not isinstance(v, float) or math.isfinite(v) else str(v)) for k, v in row.items()}
+        row["residual_db"] = [float(v) for v in f.residual_db]
+        out.append(row)
     return out
 
 

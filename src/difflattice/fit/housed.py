@@ -51,17 +51,21 @@ from jaxtyping import Array, Float
 from ..lattice.window import Span
 from ..transforms import logit
 from .family import FamilyParams
+from .housed_profiles import bend_from_raw, bend_to_raw, bending_weights, cone_lags_s, ring_centroid_s
 
-FAMILIES = ("flat", "recessed", "opening", "profile")
+FAMILIES = ("flat", "recessed", "opening", "cone", "bending", "profile")
 """The ladder of housed model families, simplest first: a flat piston flush with the can's front
 ("flat"), a piston recessed in the bore ("recessed"), recessed behind a front plate with an
-opening ("opening"), a flush face with a free velocity profile ("profile", the free-profile disc
-of `fit.disc` in its can: the family that fits by freedom)."""
+opening ("opening"), a flush cone of depth h ("cone") or a flush plate in bending ("bending"), one
+shape parameter each (`fit.housed_profiles`), a flush face with a free velocity profile
+("profile", the free-profile disc of `fit.disc` in its can: the family that fits by freedom)."""
 
 FAMILY_PARAMS = {
     "flat": ("diam", "gain_db"),
     "recessed": ("diam", "recess", "gain_db"),
     "opening": ("diam", "recess", "opening", "gain_db"),
+    "cone": ("diam", "cone", "gain_db"),
+    "bending": ("diam", "bend", "gain_db"),
     "profile": ("diam", "gain_db", "w", "lag"),
 }
 
@@ -76,6 +80,10 @@ class HousedParams(FamilyParams):
     (`FAMILY_PARAMS`) less those held `fixed`, the rest None. Fields in alphabetical
     (`ravel_pytree`) order. R_in is the bore's radius."""
 
+    bend: Float[Array, ""] | None = None
+    """Bending profile's q ("bending": velocity 1 - q (r/a)^2; `housed_profiles.bend_from_raw`)."""
+    cone: Float[Array, ""] | None = None
+    """Cone depth, artanh(h / L) ("cone": h in (-L, L), L the can's length; rim lag h (r/a) / c)."""
     diam: Float[Array, ""] | None = None
     """Diaphragm, logit(a / R_in) (radius a = R_in sigmoid(diam))."""
     gain_db: Float[Array, ""] | None = None
@@ -198,7 +206,8 @@ class HousedSpec:
     (or fixed) geometry (`diaphragm_m`, `recess_m`, `opening_m`: diameters and depth in metres;
     defaults: 0.8 x the bore, 1 mm, 0.8 x the bore), `dtype`, the absorbing layer `pml_cells`,
     the surface's gap `surface_gap` (cells), the lattice `stencil` and the geometry held `fixed`
-    at the given values (names in `FIXABLE`: "diaphragm", "recess", "opening")."""
+    at the given values (names in `FIXABLE`: "diaphragm", "recess", "opening"); the initial cone
+    depth `cone_m` (m, signed) and bending `bend` (q) of those families (`fit.housed_profiles`)."""
 
     housing: Housing
     frequency_hz: float
@@ -214,6 +223,8 @@ class HousedSpec:
     cycles: float = 4.0
     stencil: Literal["standard", "isotropic"] = "standard"
     fixed: tuple[str, ...] = ()
+    cone_m: float | None = None
+    bend: float | None = None
 
     def __post_init__(self):
         if self.family not in FAMILIES:
@@ -250,6 +261,12 @@ class HousedSpec:
                 )
             if getattr(self, f"{name}_m") is None:
                 raise ValueError(f"fixed {name!r} needs its value: give {name}_m (e.g. from the outline drawing)")
+        if self.cone_m is not None and not abs(self.cone_m) < h.length_m:
+            raise ValueError(
+                f"cone_m = {self.cone_m} m must be inside (-{h.length_m}, {h.length_m}) m (the can's length)"
+            )
+        if self.bend is not None:
+            bend_to_raw(self.bend)  # refuses a q outside its bounds
         if self.n_rings < 2:
             raise ValueError(
                 f"the bore ({2 * h.bore_radius_m * 1e3:.3g} mm) is {self.n_rings} rings of {self.dx_m * 1e3:.3g} mm: "
@@ -316,13 +333,19 @@ class HousedSpec:
                 out[key] = jnp.asarray(logit(_inside(0.5 * (self.opening_m or 1.6 * rb) / rb)))
             elif key == "gain_db":
                 out[key] = jnp.asarray(0.0)
+            elif key == "cone":  # not 0: the lobe is even in h, its slope vanishes there
+                h0 = self.cone_m if self.cone_m is not None else 1e-3
+                out[key] = jnp.asarray(math.atanh(h0 / h.length_m))
+            elif key == "bend":
+                out[key] = jnp.asarray(bend_to_raw(self.bend if self.bend is not None else 0.3))
             else:  # w, lag: the free profile, rings 1 .. n-1
                 out[key] = jnp.zeros(self.n_rings - 1)
         return HousedParams(**out)
 
     def physical(self, params: HousedParams) -> dict:
         """Raw -> physical: `diaphragm_m`, `recess_m`, `opening_m` (None where the family has no
-        plate), `gain_db`, per-ring `weights` and `lags_s` (the profile; 1 and 0 for a piston)."""
+        plate), `cone_m`, `bend` (None outside their families), `gain_db`, per-ring `weights` and
+        `lags_s` (the profile; 1 and 0 for a piston)."""
         h = self.housing
         rb = h.bore_radius_m
         s = jax.nn.sigmoid
@@ -345,7 +368,16 @@ class HousedSpec:
             w = jnp.exp(jnp.concatenate([jnp.zeros(1), params.w]))
         if params.lag is not None:
             lag = 0.5 * self.period_s * jnp.tanh(jnp.concatenate([jnp.zeros(1), params.lag]))
+        cone = None if params.cone is None else h.length_m * jnp.tanh(params.cone)
+        if params.cone is not None or params.bend is not None:
+            s_ring = ring_centroid_s(a / self.dx_m, n, jnp.result_type(float))
+            if cone is not None:
+                lag = cone_lags_s(s_ring, cone, self.c_m_s)
+            if params.bend is not None:
+                w = bending_weights(s_ring, bend_from_raw(params.bend))
         return {
+            "cone_m": cone,
+            "bend": None if params.bend is None else bend_from_raw(params.bend),
             "diaphragm_m": 2 * a,
             "recess_m": d,
             "opening_m": None if b is None else 2 * b,
@@ -355,10 +387,16 @@ class HousedSpec:
         }
 
     def truth_params(
-        self, *, diaphragm_m: float, recess_m: float | None = None, opening_m: float | None = None
+        self,
+        *,
+        diaphragm_m: float,
+        recess_m: float | None = None,
+        opening_m: float | None = None,
+        cone_m: float | None = None,
+        bend: float | None = None,
     ) -> HousedParams:
-        """Raw parameters of a given geometry (for synthetic data and warm starts); a recess or
-        opening not given keeps its initial value (`init_params`)."""
+        """Raw parameters of a given geometry (for synthetic data and warm starts); a recess,
+        opening, cone depth or bending q not given keeps its initial value (`init_params`)."""
         rb = self.housing.bore_radius_m
         p = self.init_params()
         if p.diam is not None:
@@ -368,6 +406,12 @@ class HousedSpec:
             p = dataclasses.replace(p, recess=jnp.asarray(logit(_inside((recess_m - lo) / (hi - lo)))))
         if p.opening is not None and opening_m is not None:
             p = dataclasses.replace(p, opening=jnp.asarray(logit(_inside(0.5 * opening_m / rb))))
+        if p.cone is not None and cone_m is not None:
+            p = dataclasses.replace(
+                p, cone=jnp.asarray(math.atanh(_inside(0.5 + 0.5 * cone_m / self.housing.length_m) * 2 - 1))
+            )
+        if p.bend is not None and bend is not None:
+            p = dataclasses.replace(p, bend=jnp.asarray(bend_to_raw(bend)))
         return p
 
     def bounds_mm(self) -> dict:
@@ -377,6 +421,7 @@ class HousedSpec:
             "diaphragm_mm": (0.0, 2e3 * rb),
             "recess_mm": (1e3 * self.recess_min_m, 1e3 * self.recess_max_m),
             "opening_mm": (0.0, 2e3 * rb),
+            "cone_mm": (-1e3 * self.housing.length_m, 1e3 * self.housing.length_m),
         }
 
     # -- the lattice -------------------------------------------------------------------------

@@ -32,7 +32,14 @@ from typing import Any, ClassVar
 
 from ..config import ConfigError, Section, message, parse_section, setting
 
-HOUSED_FAMILIES = ("flat", "recessed", "opening", "profile")  # fit.housed.FAMILIES (not imported: no JAX here)
+HOUSED_FAMILIES = (
+    "flat",
+    "recessed",
+    "opening",
+    "cone",
+    "bending",
+    "profile",
+)  # fit.housed.FAMILIES (not imported: no JAX here)
 
 
 @dataclass(frozen=True)
@@ -92,7 +99,8 @@ class HousedModelSection(Section):
         "ladder",
         kind="str",
         choices=("ladder", *HOUSED_FAMILIES),
-        doc="ladder (flat, recessed, opening, profile compared by AIC/BIC, the simplest adequate chosen) or one family",
+        doc="ladder (flat, recessed, opening, cone, bending, profile compared by AIC/BIC, the simplest adequate "
+        "chosen) or one family",
         fix='use "ladder" or one of ' + ", ".join(HOUSED_FAMILIES),
     )
     cells_per_wavelength: float = setting(

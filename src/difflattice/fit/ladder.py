@@ -96,9 +96,15 @@ class HousedFit:
         the can's length. Such a value is the model saying the data want more (or less) than the
         can allows; its error is not a spread."""
         out = []
-        for key, label in (("diam", "diaphragm"), ("recess", "recess"), ("opening", "opening")):
+        for key, label, lim in (
+            ("diam", "diaphragm", AT_BOUND),
+            ("recess", "recess", AT_BOUND),
+            ("opening", "opening", AT_BOUND),
+            ("cone", "cone", 0.5 * AT_BOUND),  # tanh(x) = 2 sigmoid(2x) - 1: the same slope criterion
+            ("bend", "bending q", AT_BOUND),
+        ):
             v = getattr(self.params, key)
-            if v is not None and abs(float(v)) > AT_BOUND:
+            if v is not None and abs(float(v)) > lim:
                 out.append(label)
         return out
 
@@ -137,6 +143,8 @@ def _physical_vector(spec: HousedSpec, params: HousedParams):
         ("diaphragm_m", 1e3, "diaphragm_mm"),
         ("recess_m", 1e3, "recess_mm"),
         ("opening_m", 1e3, "opening_mm"),
+        ("cone_m", 1e3, "cone_mm"),
+        ("bend", 1.0, "bend_q"),
         ("gain_db", 1.0, "gain_db"),
     ):
         v = ph[key]
@@ -457,7 +465,10 @@ class Ladder:
         head = (
             "| family | k | chi2 | chi2_red | p | AIC | BIC | RMS dB | cond | diaphragm mm | recess mm | opening mm |"
         )
-        rows = [head, "|" + "---|" * 12]
+        shaped = any(("cone_mm" in f.physical or "bend_q" in f.physical) for f in self.fits.values())
+        if shaped:  # the one-parameter shapes (`fit.housed_profiles`)
+            head += " shape |"
+        rows = [head, "|" + "---|" * (13 if shaped else 12)]
         for name, f in self.fits.items():
             s = f.summary()
             mark = " (chosen)" if name == self.chosen else (" (ill-conditioned)" if f.ill_conditioned else "")
@@ -466,6 +477,7 @@ class Ladder:
                 f"| {name}{mark} | {s['k']} | {s['chi2']:.1f} | {s['chi2_reduced']:.2f} | {s['p']:.2g} | "
                 f"{s['aic']:.1f} | {s['bic']:.1f} | {s['rms_db']:.2f} | {s['condition']:.2g} | "
                 f"{_pm(s, 'diaphragm_mm')} | {_pm(s, 'recess_mm')} | {_pm(s, 'opening_mm')} |"
+                + (f" {_shape(s)} |" if shaped else "")
             )
         return "\n".join(rows) + f"\n\nChosen: **{self.chosen}**. {self.reason}\n"
 
@@ -476,6 +488,14 @@ def _pm(s: dict, key: str) -> str:
     if key + "_err" not in s:
         return f"{s[key]:.2f} (fixed)"
     return f"{s[key]:.2f} +- {s[key + '_err']:.2f}"
+
+
+def _shape(s: dict) -> str:
+    if "cone_mm" in s:
+        return f"cone {_pm(s, 'cone_mm')} mm"
+    if "bend_q" in s:
+        return f"q {_pm(s, 'bend_q')}"
+    return "-"
 
 
 def choose_family(fits: dict) -> tuple[str, str]:
@@ -503,9 +523,9 @@ def choose_family(fits: dict) -> tuple[str, str]:
     return chosen, reason
 
 
-NESTED_IN = {"recessed": "flat", "opening": "recessed", "profile": "flat"}
-"""The family each one reduces to (recess 0; no plate, i.e. an opening as wide as the bore; a
-uniform profile): its fit seeds the richer family's, and the richer family's chi-square should
+NESTED_IN = {"recessed": "flat", "opening": "recessed", "cone": "flat", "bending": "flat", "profile": "flat"}
+"""The family each one reduces to (recess 0; no plate, i.e. an opening as wide as the bore; a cone
+of depth 0; q = 0; a uniform profile): its fit seeds the richer family's, and the richer family's chi-square should
 not exceed it."""
 
 
@@ -528,6 +548,16 @@ def _warm_starts(s: HousedSpec, parent: HousedFit) -> list[HousedParams]:
         cases.append((near_rec, None))
     if s.family == "opening":
         cases.append((max(rec * 1e-3, lo + 0.5 * s.dx_m) if rec is not None else near_rec, 2 * 0.97 * rb))
+    if s.family == "cone":  # the lobe is even in h (flat at 0): start off it, shallow and deep
+        return [
+            dataclasses.replace(s.truth_params(diaphragm_m=diam, cone_m=h), gain_db=jnp.asarray(ph["gain_db"]))
+            for h in (0.5e-3, 2e-3)
+        ]
+    if s.family == "bending":
+        return [
+            dataclasses.replace(s.truth_params(diaphragm_m=diam, bend=q), gain_db=jnp.asarray(ph["gain_db"]))
+            for q in (0.3, -0.3, 1.5)
+        ]
     out = []
     for recess_m, opening_m in cases:
         q = s.truth_params(
@@ -537,6 +567,38 @@ def _warm_starts(s: HousedSpec, parent: HousedFit) -> list[HousedParams]:
         )
         out.append(dataclasses.replace(q, gain_db=jnp.asarray(ph["gain_db"])))
     return out
+
+
+SHAPE_GRID = {
+    "cone": (0.5e-3, 1e-3, 2e-3, 3e-3, 4e-3, 5e-3, 6e-3),
+    "bending": (-0.9, -0.5, 0.5, 1.0, 1.5, 2.0, 2.5, 2.9),
+}
+"""Shape values (cone depth h in m, capped below the can's length; bending q) of the grid start
+(`_grid_start`); h > 0 only: the lobe is even in h."""
+
+
+def _grid_start(s: HousedSpec, lobe: LobeData) -> HousedParams:
+    """The best point of a coarse grid (`SHAPE_GRID` x diaphragm 0.35-0.99 of the bore) by the
+    sigma-weighted RMS after the best gain: the shape families' cost has separate minima (measured,
+    the T4010A1 table: a bending fit from the flat piston's diameter went to q = -1 at 0.63 dB while
+    q = 2.3 at a 3.5 mm diaphragm gives 0.58 dB), which starts next to the parent's fit miss."""
+    fw = HousedForward(s, lobe.angle_deg)
+    lob = jax.jit(fw.lobe_db)
+    y, w = np.asarray(lobe.level_db, float), 1 / np.asarray(lobe.sigma_db, float) ** 2
+    best: tuple[float, HousedParams | None] = (math.inf, None)
+    for v in SHAPE_GRID[s.family]:
+        if s.family == "cone" and v >= 0.95 * s.housing.length_m:
+            continue
+        for frac in (0.35, 0.45, 0.55, 0.65, 0.75, 0.87, 0.99):
+            kw = {"cone_m": v} if s.family == "cone" else {"bend": v}
+            q = s.truth_params(diaphragm_m=2 * frac * s.housing.bore_radius_m, **kw)
+            r = np.asarray(lob(q)) - y
+            gain = -float(np.sum(w * r) / np.sum(w))
+            cost = float(np.sum(w * (r + gain) ** 2))
+            if cost < best[0]:
+                best = (cost, dataclasses.replace(q, gain_db=jnp.asarray(gain)))
+    assert best[1] is not None
+    return best[1]
 
 
 def family_ladder(
@@ -551,8 +613,8 @@ def family_ladder(
 ) -> Ladder:
     """Fit each of `families` (a `HousedSpec` like `spec` with its family replaced) to `lobe`
     (and the wavefront `wave`, if given: `fit_housed`),
-    from the fit of the family it reduces to (`NESTED_IN`, `_warm_starts`) and, with `starts` > 1,
-    from its own starts, keeping the best; then choose (`choose_family`). With `resolution_cpw`,
+    from the fit of the family it reduces to (`NESTED_IN`, `_warm_starts`), a shape family also from
+    its grid start (`_grid_start`), and, with `starts` > 1, from its own starts, keeping the best; then choose (`choose_family`). With `resolution_cpw`,
     the chosen fit's errors get the resolution term (`add_resolution_term`). A richer family whose
     chi-square stays above its parent's (a local minimum the starts did not escape) is named in
     the reason."""
@@ -562,6 +624,8 @@ def family_ladder(
         s = dataclasses.replace(spec, family=fam)
         parent = fits.get(NESTED_IN.get(fam, ""))
         inits: list = [] if parent is None else _warm_starts(s, parent)
+        if fam in SHAPE_GRID:
+            inits.append(_grid_start(s, lobe))
         cands = [fit_housed(s, lobe, wave=wave, init=q, max_iter=max_iter) for q in inits]
         if not inits or starts > 1:
             cands.append(fit_housed(s, lobe, wave=wave, max_iter=max_iter, starts=starts))

@@ -149,7 +149,7 @@ class Pulse:
         s0, s1 = lo - margin, hi + margin
         out = object.__new__(Pulse)
         out.n = self.n
-        out.n_fft = 1 << int(math.ceil(math.log2(2 * (s1 - s0))))
+        out.n_fft = 1 << int(math.ceil(math.log2(s1 - s0)))  # a shift within the margin wraps nothing into the window
         out.spec = np.fft.fft(a[np.arange(s0, s1) % self.n_fft], out.n_fft)
         out.w = 2 * np.pi * np.fft.fftfreq(out.n_fft)
         out.centre, out.bandwidth, out.offset = self.centre, self.bandwidth, s0
@@ -170,7 +170,11 @@ def _design(pulse: Pulse, taus, lo: int, hi: int) -> np.ndarray:
 
 def _solve(pulse, y, taus, lo, hi):
     B = _design(pulse, taus, lo, hi)
-    c, *_ = np.linalg.lstsq(B, y, rcond=None)
+    G = B.T @ B  # normal equations (a tall, thin system: ~10x faster than lstsq's SVD) ...
+    if np.linalg.cond(G) < 1e10:
+        c = np.linalg.solve(G, B.T @ y)
+    else:  # ... unless copies lie on top of each other: the minimum-norm amplitudes
+        c, *_ = np.linalg.lstsq(B, y, rcond=None)
     return c, y - B @ c
 
 
@@ -287,7 +291,7 @@ def fit_arrivals(
     y = x[lo:hi]
     bound = 2.0 * samples_per_period  # a prediction moves at most two periods
     # the pulse on a grid round the window: shifts reach across it and the bounds beyond
-    pulse = pulse.around(lo, hi, int(math.ceil(2 * (hi - lo) + abs(pulse.centre - 0.5 * (lo + hi)) + 2 * bound)))
+    pulse = pulse.around(lo, hi, int(math.ceil((hi - lo) + abs(pulse.centre - 0.5 * (lo + hi)) + 2 * bound)))
     inflation = max(1.0, 1.0 / (2 * pulse.bandwidth))
     n_eff = (hi - lo) / inflation  # independent samples of a residual in the pulse's band
     k_max = min(len(predicted) + max_extra, int((n_eff - 1) // 3))  # no more parameters than data

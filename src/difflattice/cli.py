@@ -96,8 +96,9 @@ def _isolate_echoes(scene, sr, out) -> None:
     doc = isolate_echoes(scene, out, full=sr, log=lambda m: print(m, file=sys.stderr, flush=True))
     for e in doc["echoes"]:
         print(
-            f"isolated echo {e['surface']!r} ({e['first_arrival']}): path {e['path_m']:.4f} m, {e['level_db']:.1f} dB, arrival "
-            f"{e['error_periods']:+.3f} periods vs lattice delay, {e['error_periods_air']:+.2f} vs air"
+            f"isolated echo {e['surface']!r} ({e['first_arrival']}): path {e['path_m']:.4f} m, {e['level_db']:.1f} dB, first "
+            f"arrival {e['error_periods']:+.3f} ± {e['sigma_periods']:.3f} periods vs lattice delay "
+            f"({'separable' if e['separable'] else 'not separable: ' + e['why']}), {e['error_periods_air']:+.2f} vs air"
         )
 
 

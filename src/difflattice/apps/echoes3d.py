@@ -212,6 +212,36 @@ def path_phase(grid, w: np.ndarray, keep: np.ndarray, paths_m, weights, directio
     return sum(wt * np.exp(-1j * w * slowness * p / grid.dx_m) for p, wt in zip(paths_m, weights))
 
 
+def model_echo(grid, ref: np.ndarray, n: int, paths_m, weights, direction) -> np.ndarray:
+    """The model echo on an A-scan's `n` samples: `ref` (the drive's samples) carried along
+    `paths_m` (summed with `weights`) with the lattice's dispersion relation along `direction`,
+    advanced one step (the soft source's lead: the A-scan's sample i is at (i + 1) dt)."""
+    n_fft = 1 << int(math.ceil(math.log2(2 * max(n, len(ref)))))
+    r = np.fft.rfft(ref, n_fft)
+    w = 2 * np.pi * np.fft.rfftfreq(n_fft)  # rad/step
+    keep = np.abs(r) > 1e-6 * np.abs(r).max()
+    keep[0] = False
+    phase = path_phase(grid, w, keep, paths_m, weights, direction, lattice=True)
+    return np.fft.irfft(np.where(keep, r * phase * np.exp(1j * w), 0.0), n_fft)[:n]
+
+
+def fit_first_arrival(
+    trace, template, lag_steps: float, burst_steps: float, steps_per_period: float, others_steps=(), gate_step: int = 0
+):
+    """`observe.arrivals.fit_arrivals` of copies of `template` (a model echo whose burst starts
+    at time of flight `lag_steps`) to `trace` from half a burst before it to two bursts after (not
+    before `gate_step`), from the template where it is and the `others_steps` (other predicted
+    arrivals, steps relative to it, those inside the window); the first arrival's delay is its
+    excess over the template's, in steps."""
+    from ..observe.arrivals import Pulse, fit_arrivals
+
+    start = lag_steps - 1  # the template's burst starts on this sample (its one-step lead)
+    lo = max(int(math.floor(start - 0.5 * burst_steps)), gate_step)
+    hi = int(math.ceil(start + 2.0 * burst_steps))
+    predicted = [0.0] + [float(d) for d in others_steps if lo < start + d < hi - 0.5 * burst_steps and abs(d) > 0.5]
+    return fit_arrivals(trace, Pulse(template, len(trace)), predicted, lo, hi, samples_per_period=steps_per_period)
+
+
 def propagated_envelope_peak_s(
     grid, path_m, direction, cycles: float, n: int, *, lattice: bool = True, weights=None
 ) -> float:
@@ -277,6 +307,7 @@ def label_echoes(t_s, a_scan, scene, grid, *, cycles: float, gate_start_step: in
     rows = []
     found = surfaces(scene, grid, centre_m)
     mirrors = _rigid_planes(scene, grid, centre_m)
+    fits = _fit_all(a, found, mirrors, grid, cycles, gate_start_step, half * c_air)
     for s in found:
         path = 2 * s["distance_m"]
         vg = float(group_velocity_3d(grid.omega, grid.courant, s["direction"], stencil=grid.stencil))
@@ -305,12 +336,16 @@ def label_echoes(t_s, a_scan, scene, grid, *, cycles: float, gate_start_step: in
                 "resolved": bool(inside and gate_start_step <= lo),
                 "level_db": level_db,
                 "detected": {f"{th:g}": bool(level_db >= th) for th in THRESHOLDS_DB},
+                "fit": fits.get(s["surface"]),
             }
         )
     return {
         "what": "first echo of each surface: the delay of its first geometric arrival (first_arrival: the image "
         "source's, or the edge path's where no face has a specular point) in air and with the lattice's "
-        "group velocity, the A-scan's envelope peak within half a burst of it, level dB re the transmit peak",
+        "group velocity, the A-scan's envelope peak within half a burst of it (error_periods), level dB re the "
+        "transmit peak; fit: the first arrival of copies of the surface's model echo fitted to the A-scan from "
+        "every surface's predicted delay in the window (observe.arrivals), its excess over the lattice delay "
+        "with its standard error and whether it is separable from the arrivals round it",
         "first_arrival": FIRST_ARRIVAL,
         "frequency_hz": f0,
         "burst_cycles": cycles,
@@ -319,9 +354,69 @@ def label_echoes(t_s, a_scan, scene, grid, *, cycles: float, gate_start_step: in
     }
 
 
+def _fit_all(a, found, mirrors, grid, cycles: float, gate_start_step: int, within_m: float) -> dict[str, dict]:
+    """Per surface the fitted first arrival (`fit_first_arrival`) of the A-scan `a` after the gate:
+    the copies started at its model echo and at every other surface's lattice delay in the window."""
+    from ..solver.sources import ToneBurst
+
+    dt, f0 = grid.dt_s, grid.frequency_hz
+    burst = cycles / f0 / dt
+    t = np.arange(1, len(a) + 1) * dt
+    ref = np.asarray(ToneBurst(f0, cycles)(t), float)[: int(math.ceil(burst)) + 2]
+    trace = np.where(np.arange(len(a)) >= gate_start_step, a, 0.0)
+    models = {}
+    for s in found:
+        paths, weights = _merged_paths(s, mirrors, within_m)
+        lag = 2 * s["distance_m"] / (grid.dx_m * float(_vg(grid, s["direction"])))  # the group delay, steps
+        models[s["surface"]] = (lag, model_echo(grid, ref, len(a), paths, weights, s["direction"]))
+    out = {}
+    for name, (lag, template) in models.items():
+        if lag - 1 < gate_start_step:
+            continue
+        others = [o - lag for n, (o, _) in models.items() if n != name]
+        fit = fit_first_arrival(trace, template, lag, burst, 1 / (f0 * dt), others, gate_start_step)
+        first = fit.first_arrival
+        out[name] = {
+            "error_periods": first.delay * dt * f0,
+            "sigma_periods": first.sigma_delay * dt * f0,
+            "separable": fit.separable,
+            "why": fit.why,
+            "n_arrivals": len(fit.arrivals),
+            "residual_rel": fit.residual_rel,
+        }
+    return out
+
+
+def _vg(grid, direction) -> float:
+    from ..observe.analytic3d import group_velocity_3d
+
+    return float(group_velocity_3d(grid.omega, grid.courant, direction, stencil=grid.stencil))
+
+
 def _label(e: dict) -> str:
     """A surface's name, with "(edge)" where its first arrival is edge-diffracted."""
     return e["surface"] + (" (edge)" if e.get("first_arrival") == "edge" else "")
+
+
+def _fit_text(e: dict) -> str:
+    """The fitted first arrival as a label: ": +0.03 +- 0.01 T" (periods), "not separable" flagged."""
+    f = e.get("fit")
+    if not f:
+        return ""
+    return f": {f['error_periods']:+.2f} ± {f['sigma_periods']:.2f} T" + ("" if f["separable"] else " (not separable)")
+
+
+def fit_line(e: dict) -> str:
+    """One console line of a surface's fitted first arrival against its lattice delay."""
+    f = e.get("fit")
+    head = f"echo {e['surface']!r} ({e.get('first_arrival', 'specular')}): path {e['path_m']:.4f} m, {e['level_db']:.1f} dB"
+    if not f:
+        return f"{head}, envelope peak {e['error_periods']:+.3f} periods vs lattice delay"
+    sep = "separable" if f["separable"] else f"not separable: {f['why']}"
+    return (
+        f"{head}, first arrival {f['error_periods']:+.3f} ± {f['sigma_periods']:.3f} periods vs lattice delay "
+        f"(fit of {f['n_arrivals']} arrival(s); {sep}), envelope peak {e['error_periods']:+.3f}"
+    )
 
 
 def plot_labelled(t_s, a_scan, table: dict, gate_start_step: int, path):
@@ -341,7 +436,7 @@ def plot_labelled(t_s, a_scan, table: dict, gate_start_step: int, path):
     ax.plot(t_ms, db, lw=0.8)
     for i, e in enumerate(table["echoes"]):
         ax.axvline(e["delay_lattice_s"] * 1e3, color="C1", lw=0.6, ls="--")
-        ax.text(e["delay_lattice_s"] * 1e3, -5 - 6 * (i % 4), f" {_label(e)}", fontsize=7, color="C1")
+        ax.text(e["delay_lattice_s"] * 1e3, -5 - 6 * (i % 4), f" {_label(e)}{_fit_text(e)}", fontsize=7, color="C1")
     for th in table["thresholds_db"]:
         ax.axhline(th, color="0.7", lw=0.5)
     ax.set_ylim(-90, 0)

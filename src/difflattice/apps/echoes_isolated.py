@@ -50,14 +50,19 @@ import numpy as np
 
 from . import echoes3d
 
-ESTIMATORS = ("matched", "envelope")
-"""The arrival measures: the matched-filtered echo's envelope peak, or the echo's own."""
-PRIMARY = "matched"
-"""The one the table's top-level fields give (the other under `by_estimator`)."""
+ESTIMATORS = ("fit", "matched", "envelope")
+"""The arrival measures: the first of the copies of the model echo fitted to the isolated echo
+(`observe.arrivals`), the matched-filtered echo's envelope peak, or the echo's own."""
+PRIMARY = "fit"
+"""The one the table's top-level fields give (the others under `by_estimator`)."""
 
 ARRIVAL = (
-    "peak of the Hilbert envelope of the isolated echo matched-filtered with the drive burst (parabolic "
-    "refinement), as a time of flight: the lag + one step (the soft source's one-step lead)"
+    "the first significant arrival of a sum of delayed, scaled (complex amplitude: free phase) copies of the model "
+    "echo fitted to the isolated echo from half a burst before its lattice delay to two bursts after "
+    "(observe.arrivals: the first copy started at the lattice delay, more added while the BIC falls), as a time "
+    "of flight with its standard error and whether it is separable from the arrivals behind it; by_estimator "
+    "also gives the peak of the Hilbert envelope of the isolated echo matched-filtered with the drive burst "
+    "(matched) and of the echo itself (envelope)"
 )
 
 
@@ -251,6 +256,33 @@ def _measure(echo, ref, model, dt: float, f0: float, burst_steps: float, *, matc
     }
 
 
+def measure_echo(grid, echo, ref, model, paths, weights, direction, burst_steps: float) -> dict[str, dict]:
+    """Every estimator's arrival (`ESTIMATORS`) of one isolated echo against its lattice delay."""
+    dt, f0 = grid.dt_s, grid.frequency_hz
+    got = {m: _measure(echo, ref, model, dt, f0, burst_steps, matched=m == "matched") for m in ESTIMATORS if m != "fit"}
+    lag_lat = model(lattice=True, matched=True)
+    lag_air = model(lattice=False, matched=True)
+    fit = echoes3d.fit_first_arrival(
+        echo, echoes3d.model_echo(grid, ref, len(echo), paths, weights, direction), lag_lat, burst_steps, 1 / (f0 * dt)
+    )
+    first = fit.first_arrival
+    got["fit"] = {
+        "delay_lattice_s": lag_lat * dt,
+        "delay_air_s": lag_air * dt,
+        "arrival_s": (lag_lat + first.delay) * dt,
+        "error_periods": first.delay * dt * f0,
+        "error_periods_air": (lag_lat + first.delay - lag_air) * dt * f0,
+        "sigma_periods": first.sigma_delay * dt * f0,
+        "separable": fit.separable,
+        "resolved": fit.separable,
+        "why": fit.why,
+        "arrivals_periods": [a.delay * dt * f0 for a in fit.arrivals],
+        "arrivals_relative_amplitude": [abs(a.amplitude) / abs(first.amplitude) for a in fit.arrivals],
+        "residual_rel": fit.residual_rel,
+    }
+    return {m: got[m] for m in ESTIMATORS}
+
+
 def _directivity(axis, direction, ka: float) -> float:
     """The far-field directivity 2 J1(x) / x, x = ka sin(theta), of a disc whose axis is `axis`
     towards `direction` (signed: the side lobes' phase)."""
@@ -316,21 +348,40 @@ def _check_pulse_echo(scene) -> float:
     return float(t.cycles)
 
 
-def isolate_echoes(scene, out_dir, *, full=None, only=None, quiet: bool = True, log=None) -> dict[str, Any]:
+def _saved(scene, path) -> tuple[Any, Any, np.ndarray, np.ndarray, np.ndarray, dict]:
+    """(grid, receiver, t_s, A-scan, centre m, isolated echoes by surface) of a saved
+    echoes_isolated.npz of `scene`, the scene built (not run) for its grid and transducer. An npz
+    written before the A-scan was saved in it gives zeros for the A-scan (levels then unknown)."""
+    built = scene.build()
+    r = built.receivers[0]
+    src = built.sources[r.source]
+    centre = np.average(np.asarray(src.cells_array, float), axis=0, weights=np.abs(np.asarray(src.weights)))
+    with np.load(path) as z:
+        t = np.asarray(z["t_s"], float)
+        a = np.asarray(z["a_scan"], float) if "a_scan" in z else np.zeros_like(t)
+        echoes = {str(k): np.asarray(v, float) for k, v in zip(z["surfaces"], z["echoes"])}
+    return built.grid, r, t, a, centre * built.grid.dx_m, echoes
+
+
+def isolate_echoes(scene, out_dir, *, full=None, only=None, saved=None, quiet: bool = True, log=None) -> dict[str, Any]:
     """Each surface's first echo isolated by a difference of runs (module docstring): the scene run
     as it is (or `full`, its `SceneRun3D` already run) and once without each surface whose echo
     comes after the transmit; its arrival against the lattice and air delays. Writes
-    OUT/echoes_isolated.json, echoes_isolated.png and echoes_isolated.npz (t_s, surfaces, echoes:
-    the isolated A-scans); returns the table. `only`: the surfaces to
-    isolate (names as in echoes.json; default all). `log(str)` is told of each run."""
+    OUT/echoes_isolated.json, echoes_isolated.png and echoes_isolated.npz (t_s, a_scan, surfaces,
+    echoes: the isolated A-scans); returns the table. `only`: the surfaces to
+    isolate (names as in echoes.json; default all). `saved`: an echoes_isolated.npz of this scene
+    written before: its echoes measured again, no run. `log(str)` is told of each run."""
     from ..solver.sources import ToneBurst
     from .scene3d_run import run_scene3d
 
     cycles = _check_pulse_echo(scene)
     say = log or (lambda s: None)
-    sr = full if full is not None else run_scene3d(scene, quiet=quiet)
-    grid = sr.grid
-    r, t, a, centre = _receiver(sr)
+    if saved is not None:
+        grid, r, t, a, centre, saved_echoes = _saved(scene, saved)
+    else:
+        sr = full if full is not None else run_scene3d(scene, quiet=quiet)
+        grid = sr.grid
+        r, t, a, centre = _receiver(sr)
     centre = _on_mirrors(scene, grid, centre)
     dt, f0 = grid.dt_s, grid.frequency_hz
     burst_steps = cycles / f0 / dt
@@ -352,11 +403,16 @@ def isolate_echoes(scene, out_dir, *, full=None, only=None, quiet: bool = True, 
         model = functools.partial(model_lag_steps, grid, ref, len(a), paths, weights, s["direction"])
         if model(lattice=True) < r.gate_start_step:
             continue  # inside the transmit: no echo of its own (a floor beside the transducer)
-        say(f"isolating {s['surface']!r}: the scene without it ...")
-        sr_wo = run_scene3d(without(scene, grid, s, cycles), quiet=True)
-        _, _, a_wo, _ = _receiver(sr_wo)
-        echo = a - a_wo
-        got = {m: _measure(echo, ref, model, dt, f0, burst_steps, matched=m == "matched") for m in ESTIMATORS}
+        if saved is not None:
+            if s["surface"] not in saved_echoes:
+                continue
+            echo, without_shape = saved_echoes[s["surface"]], None
+        else:
+            say(f"isolating {s['surface']!r}: the scene without it ...")
+            sr_wo = run_scene3d(without(scene, grid, s, cycles), quiet=True)
+            _, _, a_wo, _ = _receiver(sr_wo)
+            echo, without_shape = a - a_wo, list(sr_wo.grid.shape)
+        got = measure_echo(grid, echo, ref, model, paths, weights, s["direction"], burst_steps)
         lo = int(got[PRIMARY]["delay_lattice_s"] / dt)
         level = float(echoes3d.envelope(echo)[lo : lo + int(2 * burst_steps)].max()) if lo < len(echo) else 0.0
         rows.append(
@@ -370,7 +426,7 @@ def isolate_echoes(scene, out_dir, *, full=None, only=None, quiet: bool = True, 
             | {
                 "level_db": 20 * math.log10(max(level, 1e-300) / transmit),
                 "by_estimator": got,
-                "without_shape": list(sr_wo.grid.shape),
+                "without_shape": without_shape,
             }
         )
         traces[s["surface"]] = echo
@@ -382,8 +438,9 @@ def isolate_echoes(scene, out_dir, *, full=None, only=None, quiet: bool = True, 
         "transducer's images in rigid window sides within a burst)",
         "first_arrival": echoes3d.FIRST_ARRIVAL,
         "arrival": ARRIVAL,
-        "reference": "the same matched filter applied to the drive burst carried along the paths with the "
-        "lattice's dispersion relation (delay_lattice_s) or the air's speed (delay_air_s)",
+        "reference": "the model echo: the drive burst carried along the paths with the lattice's dispersion relation "
+        "(delay_lattice_s) or the air's speed (delay_air_s), its delay read by the matched filter; the fit's "
+        "error is the excess delay of the first fitted copy of the lattice model echo",
         "frequency_hz": f0,
         "burst_cycles": cycles,
         "dt_s": dt,
@@ -393,7 +450,11 @@ def isolate_echoes(scene, out_dir, *, full=None, only=None, quiet: bool = True, 
     out.mkdir(parents=True, exist_ok=True)
     (out / "echoes_isolated.json").write_text(json.dumps(doc, indent=1, default=float))
     np.savez_compressed(  # the isolated echoes themselves, to measure again without running
-        out / "echoes_isolated.npz", t_s=t, surfaces=np.array(list(traces)), echoes=np.array(list(traces.values()))
+        out / "echoes_isolated.npz",
+        t_s=t,
+        a_scan=a,
+        surfaces=np.array(list(traces)),
+        echoes=np.array(list(traces.values())),
     )
     plot_isolated(t, traces, doc, transmit, out / "echoes_isolated.png")
     return doc

@@ -363,7 +363,8 @@ def _write_a_scans(sr: SceneRun3D, out: Path, arrays: dict) -> dict:
         png = echoes3d.plot_labelled(t, a, echoes, r.gate_start_step, out / "a_scan_labelled.png")
         files["a_scan_labelled"] = str(png)
         sr.summary["echoes"] = [
-            {k: e[k] for k in ("surface", "path_m", "error_periods", "level_db", "resolved")} for e in echoes["echoes"]
+            {k: e[k] for k in ("surface", "first_arrival", "path_m", "error_periods", "level_db", "resolved", "fit")}
+            for e in echoes["echoes"]
         ]
     return files
 
@@ -435,4 +436,8 @@ def report_lines(sr) -> list[str]:
             f"A-scan {name!r}: echo peak {rec['echo_peak']:.3g} at {rec['echo_peak_s'] * 1e6:.1f} µs "
             f"(window from {rec['gate_start_s'] * 1e6:.1f} µs; transmit peak {rec['transmit_peak']:.3g})"
         )
+    if s.get("echoes"):
+        from .echoes3d import fit_line
+
+        lines += [fit_line(e) for e in s["echoes"]]
     return lines

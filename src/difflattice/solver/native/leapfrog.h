@@ -151,7 +151,7 @@ bool leapfrog_steps(const LeapfrogArgs<T>& a) {
             const LayerBox<T>& b = la->boxes[f->box];
             if (f->ok) {
               if (f->first) layer_x_face(a, *la, iw, b, 0, i, c.qm, c.q0, *ls);
-              layer_row_planned(*f, *la, ny, c.q0, c.qp, out, *ls);
+              f->fn(*f, *la, ny, c.q0, c.qp, out, *ls);
             } else {
               layer_row(a, *la, iw, b, i, c.qm, c.q0, c.qp, out, *ls);
             }

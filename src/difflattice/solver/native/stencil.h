@@ -70,6 +70,43 @@ static inline T edge_cell(const RowCtx<T>& c, const RowIO<T>& io, int64_t j, T s
   return k * l;
 }
 
+// Explicit vectors of the build's width (build.py passes DL_VECTOR_BITS on x86) for the rz ring
+// form's loop: written as the auto-vectorised loop, GCC reads q0[j + 1] (or q0[j - 1]) twice as
+// memory operands; here each is one load held in a register (7 loads a cell: the unit stencil's
+// 6 and g), and the arithmetic is the scalar loop's, cell for cell.
+#if defined(DL_VECTOR_BITS) && defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__)) && \
+    ((DL_VECTOR_BITS == 512 && defined(__AVX512F__)) || (DL_VECTOR_BITS == 256 && defined(__AVX__)))
+#define DL_RING_VECTORS 1
+typedef float DlVf __attribute__((vector_size(DL_VECTOR_BITS / 8)));
+typedef double DlVd __attribute__((vector_size(DL_VECTOR_BITS / 8)));
+template <typename T>
+struct DlVec;
+template <>
+struct DlVec<float> {
+  using V = DlVf;
+};
+template <>
+struct DlVec<double> {
+  using V = DlVd;
+};
+template <typename V, typename T>
+static inline V dl_load(const T* p) {
+  V v;
+  std::memcpy(&v, p, sizeof(V));
+  return v;
+}
+// a register value the compiler may not re-read from memory
+template <typename V>
+static inline V dl_held(V v) {
+#if DL_VECTOR_BITS > 256
+  __asm__("" : "+v"(v));
+#else
+  __asm__("" : "+x"(v));
+#endif
+  return v;
+}
+#endif
+
 template <typename T, int BX, int BY, bool KREG, int CMB>
 static void row_kernel(const RowCtx<T>& c, const RowIO<T>& io, int64_t ny) {
   const T* __restrict qm = io.qm;
@@ -93,8 +130,25 @@ static void row_kernel(const RowCtx<T>& c, const RowIO<T>& io, int64_t ny) {
   const T last = edge_cell<T, BX, KREG, CMB>(c, io, ny - 1, q0[ny - 2], T(0), c.by_last_lo, c.by_last_hi);
   constexpr bool UNIT = BX == kUnit && BY == kUnit;
   constexpr bool RING = BX == kUnit && BY == kMetric;
+  int64_t j0 = 1;
+#ifdef DL_RING_VECTORS
+  if constexpr (RING && KREG && CMB == kFwd) {
+    using V = typename DlVec<T>::V;
+    constexpr int64_t W = int64_t(sizeof(V) / sizeof(T));
+    const V kv = V{} + k, c0v = V{} + c0;
+    for (; j0 + W <= ny - 1; j0 += W) {
+      const int64_t j = j0;
+      const V n = dl_held(dl_load<V>(q0 + j + 1)), s = dl_held(dl_load<V>(q0 + j - 1));
+      const V e = dl_load<V>(qp + j), w = dl_load<V>(qm + j), q = dl_load<V>(q0 + j);
+      const V ns = n + s;
+      const V sum = ((e + w) + ns) + dl_load<V>(cyg + j) * (T(2) * n - ns);
+      const V r = (c0v * q - dl_load<V>(pp0 + j)) + kv * sum;
+      std::memcpy(out + j, &r, sizeof(V));
+    }
+  }
+#endif
 #pragma GCC ivdep
-  for (int64_t j = 1; j < ny - 1; ++j) {
+  for (int64_t j = j0; j < ny - 1; ++j) {
     const T q = q0[j], e = qp[j], w = qm[j], n = q0[j + 1], s = q0[j - 1];
     T l, sum;
     if constexpr (UNIT) {

@@ -407,7 +407,8 @@ struct FastRows {
     values.push_back(std::make_unique<std::vector<T>>(ones.size(), v));
     return values.back()->data();
   }
-  FastRows(const LeapfrogArgs<T>& a, const LayerArgs<T>* la) {
+  // plan: the leapfrog's row plans (a row whose K it found one value has no K row pointer)
+  FastRows(const LeapfrogArgs<T>& a, const LayerArgs<T>* la, const RowPlan<T>& plan) {
     if (!la || a.iso || la->iso_faces || a.keep.present()) return;
     // a metric held in registers (a grid one cell wide): the general path
     for (const Coef<T>* c : {&a.my_lo, &a.my_hi})
@@ -426,7 +427,7 @@ struct FastRows {
         k_one = true;
       } else {
         kv = a.K.row(i)[0];
-        k_one = all_equal(a.K.row(i), ny);
+        k_one = (i < int64_t(plan.ctx.size()) && plan.ctx[i].krow == nullptr) || all_equal(a.K.row(i), ny);
       }
       start[i] = int64_t(rows.size());
       for (int bi : la->of_row[i]) {

@@ -79,7 +79,8 @@ def _flags(include_dir: str, native_arch: bool) -> list[str]:
     if native_arch:
         flags.append("-march=native")
         if platform.machine().lower() in ("x86_64", "amd64"):
-            flags.append(f"-mprefer-vector-width={vector_bits()}")
+            # the width also for the kernels' explicit vector loops (stencil.h: the rz ring form)
+            flags += [f"-mprefer-vector-width={vector_bits()}", f"-DDL_VECTOR_BITS={vector_bits()}"]
     return flags
 
 

@@ -293,16 +293,103 @@ DL_LAYER_VW inline void layer_parts(T* __restrict x, T* __restrict y, T* __restr
 // factors, so that a step's box row is its two loops (y faces; x face i + 1 and the parts).
 // Same arithmetic as layer_x_face + layer_y_faces + layer_parts.
 template <typename T>
+struct LayerScratch;
+
+template <typename T>
+struct FastRow;
+
+template <typename T>
+using BoxRowFn = void (*)(const FastRow<T>&, const LayerArgs<T>&, int64_t, const T*, const T*, T*, LayerScratch<T>&);
+
+template <typename T>
 struct FastRow {
   T *x, *y, *wlo, *fw, *wy, *cr;                  // parts, x faces i, i + 1, y faces, ring correction
   const T *fb, *cf, *af, *bf, *ayc, *byc, *ml, *mh;  // per column of the box (c0 on); faces: nc + 1
   T fA, fB, Ax, Bx, kv;
+  T fbv, cfv;       // fb and cf where each is one value over the box row (fn reads these, not the rows)
+  BoxRowFn<T> fn;   // the box row's loops (box_row<T, RZ, REG>)
   int64_t c0, nc, w_r;
   int box;                // its index in LayerArgs::boxes
   bool lo_edge, hi_edge;  // the box starts at column 0, ends at column ny
   bool first;             // the box's first row (its face r0 first)
   bool ok;                // planned (else the general path)
 };
+
+// a planned box row at one step: the y faces from q row i (q0; zero beyond the window), the ring
+// correction, then x face i + 1 (from q rows i, i + 1) with the parts and P into out. RZ: the
+// metric and the ring correction; REG: the x face's and the y faces' conductances one value each
+// (f.fbv, f.cfv; the same products as with the rows). Same arithmetic as layer_x_face +
+// layer_y_faces + layer_parts.
+template <typename T, bool RZ, bool REG>
+DL_LAYER_VW void box_row(const FastRow<T>& f, const LayerArgs<T>& la, int64_t ny, const T* q0, const T* qp, T* out,
+                         LayerScratch<T>& S) {
+  const int64_t nc = f.nc, c0 = f.c0;
+  const int64_t w_r = RZ ? f.w_r : 0;
+  T* __restrict w = f.wy;
+  T* old = S.old.data();
+  if (RZ && w_r) std::copy(w + nc - w_r, w + nc + 1, old);
+  {
+    const int64_t kb = f.lo_edge ? 1 : 0, ke = f.hi_edge ? nc : nc + 1;
+    const T* __restrict af = f.af;
+    const T* __restrict bf = f.bf;
+    const T* __restrict cf = f.cf;
+    if (kb) w[0] = af[0] * w[0] + bf[0] * (cf[0] * (q0[0] - T(0)));
+    if (ke == nc) w[nc] = af[nc] * w[nc] + bf[nc] * (cf[nc] * (T(0) - q0[ny - 1]));
+    const T* __restrict qf = q0 + c0;
+    if constexpr (REG) {
+      const T cv = f.cfv;
+#pragma GCC ivdep
+      for (int64_t k = kb; k < ke; ++k) w[k] = af[k] * w[k] + bf[k] * (cv * (qf[k] - qf[k - 1]));
+    } else {
+#pragma GCC ivdep
+      for (int64_t k = kb; k < ke; ++k) w[k] = af[k] * w[k] + bf[k] * (cf[k] * (qf[k] - qf[k - 1]));
+    }
+  }
+  if (RZ && w_r) {
+    T* __restrict c = f.cr + (nc - w_r);
+    const T* __restrict o = old;
+#pragma GCC ivdep
+    for (int64_t k = 0; k < w_r; ++k) {
+      const int64_t kk = nc - w_r + k;
+      const T sum = ((w[kk + 1] + w[kk]) + o[k + 1]) + o[k];
+      c[k] = la.rad_decay[k] * c[k] + la.rad_drive[k] * sum;
+    }
+  }
+  T* __restrict x = f.x;
+  T* __restrict y = f.y;
+  T* __restrict o = out + c0;
+  T* __restrict fw = f.fw;
+  const T* __restrict wlo = f.wlo;
+  const T* __restrict wy = f.wy;
+  const T* __restrict ayc = f.ayc;
+  const T* __restrict byc = f.byc;
+  const T* __restrict flo = q0 + c0;
+  const T* __restrict fhi = qp + c0;
+  const T* __restrict fb = f.fb;
+  const T* __restrict ml = f.ml;
+  const T* __restrict mh = f.mh;
+  const T* __restrict cr = f.cr;
+  const T fA = f.fA, fB = f.fB, Ax = f.Ax, Bx = f.Bx, kv = f.kv, fbv = f.fbv;
+  auto cell = [&](int64_t k, T dy) {
+    const T wh = fA * fw[k] + fB * ((REG ? fbv : fb[k]) * (fhi[k] - flo[k]));
+    fw[k] = wh;
+    const T xv = Ax * x[k] + Bx * (kv * (wh - wlo[k]));
+    const T yv = ayc[k] * y[k] + byc[k] * (kv * dy);
+    x[k] = xv;
+    y[k] = yv;
+    o[k] = xv + yv;
+  };
+  if constexpr (RZ) {
+    const int64_t k_r = nc - w_r;
+#pragma GCC ivdep
+    for (int64_t k = 0; k < k_r; ++k) cell(k, mh[k] * wy[k + 1] - ml[k] * wy[k]);
+#pragma GCC ivdep
+    for (int64_t k = k_r; k < nc; ++k) cell(k, (mh[k] * wy[k + 1] - ml[k] * wy[k]) + cr[k]);
+  } else {
+#pragma GCC ivdep
+    for (int64_t k = 0; k < nc; ++k) cell(k, wy[k + 1] - wy[k]);
+  }
+}
 
 template <typename T>
 struct FastRows {
@@ -320,7 +407,8 @@ struct FastRows {
     values.push_back(std::make_unique<std::vector<T>>(ones.size(), v));
     return values.back()->data();
   }
-  FastRows(const LeapfrogArgs<T>& a, const LayerArgs<T>* la) {
+  // plan: the leapfrog's row plans (a row whose K it found one value has no K row pointer)
+  FastRows(const LeapfrogArgs<T>& a, const LayerArgs<T>* la, const RowPlan<T>& plan) {
     if (!la || a.iso || la->iso_faces || a.keep.present()) return;
     // a metric held in registers (a grid one cell wide): the general path
     for (const Coef<T>* c : {&a.my_lo, &a.my_hi})
@@ -339,7 +427,7 @@ struct FastRows {
         k_one = true;
       } else {
         kv = a.K.row(i)[0];
-        k_one = all_equal(a.K.row(i), ny);
+        k_one = (i < int64_t(plan.ctx.size()) && plan.ctx[i].krow == nullptr) || all_equal(a.K.row(i), ny);
       }
       start[i] = int64_t(rows.size());
       for (int bi : la->of_row[i]) {
@@ -373,6 +461,14 @@ struct FastRows {
         f.ok = k_one;
         f.first = i == b.r0;
         f.box = bi;
+        // x face i + 1's conductances over the box (nc) and row i's inner y faces (those the
+        // loop reads, not the window's end faces) one value each: held in registers
+        const int64_t kb = f.lo_edge ? 1 : 0, ke = f.hi_edge ? nc : nc + 1;
+        const bool reg = all_equal(f.fb, nc) && all_equal(f.cf + kb, ke - kb);
+        f.fbv = f.fb[0];
+        f.cfv = f.cf[kb];
+        if (f.ml) f.fn = reg ? &box_row<T, true, true> : &box_row<T, true, false>;
+        else f.fn = reg ? &box_row<T, false, true> : &box_row<T, false, false>;
         rows.push_back(f);
         any = any || k_one;
       }
@@ -380,51 +476,6 @@ struct FastRows {
     start[nx] = int64_t(rows.size());
   }
 };
-
-// a planned box row at one step: the y faces from q row i (q0; zero beyond the window), the ring
-// correction, then x face i + 1 (from q rows i, i + 1) with the parts and P into out
-template <typename T>
-DL_LAYER_VW inline void layer_row_planned(const FastRow<T>& f, const LayerArgs<T>& la, int64_t ny, const T* q0, const T* qp,
-                              T* out, LayerScratch<T>& S) {
-  const int64_t nc = f.nc, c0 = f.c0, w_r = f.w_r;
-  T* __restrict w = f.wy;
-  T* old = S.old.data();
-  if (w_r) std::copy(w + nc - w_r, w + nc + 1, old);
-  {
-    const int64_t kb = f.lo_edge ? 1 : 0, ke = f.hi_edge ? nc : nc + 1;
-    const T* __restrict af = f.af;
-    const T* __restrict bf = f.bf;
-    const T* __restrict cf = f.cf;
-    if (kb) w[0] = af[0] * w[0] + bf[0] * (cf[0] * (q0[0] - T(0)));
-    if (ke == nc) w[nc] = af[nc] * w[nc] + bf[nc] * (cf[nc] * (T(0) - q0[ny - 1]));
-    const T* __restrict qf = q0 + c0;
-#pragma GCC ivdep
-    for (int64_t k = kb; k < ke; ++k) w[k] = af[k] * w[k] + bf[k] * (cf[k] * (qf[k] - qf[k - 1]));
-  }
-  if (w_r) {
-    T* __restrict c = f.cr + (nc - w_r);
-    const T* __restrict o = old;
-#pragma GCC ivdep
-    for (int64_t k = 0; k < w_r; ++k) {
-      const int64_t kk = nc - w_r + k;
-      const T sum = ((w[kk + 1] + w[kk]) + o[k + 1]) + o[k];
-      c[k] = la.rad_decay[k] * c[k] + la.rad_drive[k] * sum;
-    }
-  }
-  XFace<T> xf;
-  xf.w = f.fw;
-  xf.lo = q0 + c0;
-  xf.hi = qp + c0;
-  xf.b = f.fb;
-  xf.A = f.fA;
-  xf.B = f.fB;
-  if (f.ml)
-    layer_parts<T, true>(f.x, f.y, out + c0, f.wlo, f.fw, f.wy, f.ayc, f.byc, f.Ax, f.Bx, &xf, nullptr, f.kv, f.ml, f.mh,
-                         f.cr, nc, w_r);
-  else
-    layer_parts<T, false>(f.x, f.y, out + c0, f.wlo, f.fw, f.wy, f.ayc, f.byc, f.Ax, f.Bx, &xf, nullptr, f.kv, f.ml,
-                          f.mh, f.cr, nc, w_r);
-}
 
 // row i of box b at one step: its faces from the q rows of the previous step (qm, q0, qp: rows
 // i - 1, i, i + 1, zero beyond the window), its parts, and P = px + py into the new row `out`

@@ -35,7 +35,7 @@ bool leapfrog_steps(const LeapfrogArgs<T>& a) {
   T* buf[2] = {a.p, a.pp};  // step L lives in buf[L % 2] (step 0 = P(t) in buf[0])
   const LayerArgs<T>* la = a.layers;
   const IsoWeights<T> iw(la && a.iso ? ny : 0, a.my_lo.present());
-  const FastRows<T> fr(a, la);  // the common case's box rows, planned once
+  const FastRows<T> fr(a, la, plan);  // the common case's box rows, planned once
 
   // q of row i from step L - 1 (p_) and step L - 2 (pp_), before step L overwrites row i
   auto q_of = [&](int64_t i, T* dst, const T* p_, const T* pp_) {
@@ -151,7 +151,7 @@ bool leapfrog_steps(const LeapfrogArgs<T>& a) {
             const LayerBox<T>& b = la->boxes[f->box];
             if (f->ok) {
               if (f->first) layer_x_face(a, *la, iw, b, 0, i, c.qm, c.q0, *ls);
-              layer_row_planned(*f, *la, ny, c.q0, c.qp, out, *ls);
+              f->fn(*f, *la, ny, c.q0, c.qp, out, *ls);
             } else {
               layer_row(a, *la, iw, b, i, c.qm, c.q0, c.qp, out, *ls);
             }

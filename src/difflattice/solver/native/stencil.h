@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "cells.h"
+#include "threads.h"
 
 namespace dl {
 
@@ -25,8 +26,9 @@ namespace dl {
 
 enum Combine : int { kFwd = 0, kD = 1, kAdj = 2 };
 // a row's face conductances along one axis; kMetric: the rz ring metric alone (y only), whose two
-// factors sum to 2 inside the row (A_(j+1) + A_j = 2 V_j), so the update keeps the unit stencil's
-// form with two multiplies: qn m_hi + qs m_lo - 2 q
+// factors sum to 2 inside the row (A_(j+1) + A_j = 2 V_j): m_hi = 1 + g, m_lo = 1 - g with
+// g = 1 / (2 j + 1), so the update keeps the unit stencil's form plus one multiply-add and one
+// row of per-column factors: qn m_hi + qs m_lo - 2 q = (qn + qs) + g (qn - qs) - 2 q
 enum Faces : int { kUnit = 0, kReg = 1, kVec = 2, kMetric = 3 };
 
 template <typename T>
@@ -45,6 +47,7 @@ struct RowCtx {  // a row's coefficients (planned once per call)
   const T *bxlo_r, *bxhi_r;
   T by;                    // kReg: both y faces of every cell of the row
   const T *cyl, *cyh;      // kVec: the low and high y face of each cell (ny each)
+  const T* cyg;            // kMetric: (cyh - cyl) / 2 per cell (ny; the ring form's g)
   T by_first_lo, by_first_hi, by_last_lo, by_last_hi;  // y faces of the cells j = 0 and ny - 1
   const T *rl, *rh;        // isotropic stencil: weights of the filter across the x faces (ny each)
   T am, ap;                // isotropic stencil: 1 where the row has a low / high neighbour, else 0
@@ -68,6 +71,43 @@ static inline T edge_cell(const RowCtx<T>& c, const RowIO<T>& io, int64_t j, T s
   return k * l;
 }
 
+// Explicit vectors of the build's width (build.py passes DL_VECTOR_BITS on x86) for the rz ring
+// form's loop: written as the auto-vectorised loop, GCC reads q0[j + 1] (or q0[j - 1]) twice as
+// memory operands; here each is one load held in a register (7 loads a cell: the unit stencil's
+// 6 and g), and the arithmetic is the scalar loop's, cell for cell.
+#if defined(DL_VECTOR_BITS) && defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__)) && \
+    ((DL_VECTOR_BITS == 512 && defined(__AVX512F__)) || (DL_VECTOR_BITS == 256 && defined(__AVX__)))
+#define DL_RING_VECTORS 1
+typedef float DlVf __attribute__((vector_size(DL_VECTOR_BITS / 8)));
+typedef double DlVd __attribute__((vector_size(DL_VECTOR_BITS / 8)));
+template <typename T>
+struct DlVec;
+template <>
+struct DlVec<float> {
+  using V = DlVf;
+};
+template <>
+struct DlVec<double> {
+  using V = DlVd;
+};
+template <typename V, typename T>
+static inline V dl_load(const T* p) {
+  V v;
+  std::memcpy(&v, p, sizeof(V));
+  return v;
+}
+// a register value the compiler may not re-read from memory
+template <typename V>
+static inline V dl_held(V v) {
+#if DL_VECTOR_BITS > 256
+  __asm__("" : "+v"(v));
+#else
+  __asm__("" : "+x"(v));
+#endif
+  return v;
+}
+#endif
+
 template <typename T, int BX, int BY, bool KREG, int CMB>
 static void row_kernel(const RowCtx<T>& c, const RowIO<T>& io, int64_t ny) {
   const T* __restrict qm = io.qm;
@@ -81,6 +121,7 @@ static void row_kernel(const RowCtx<T>& c, const RowIO<T>& io, int64_t ny) {
   const T* __restrict bxhi = c.bxhi_r;
   const T* __restrict cyl = c.cyl;
   const T* __restrict cyh = c.cyh;
+  const T* __restrict cyg = c.cyg;
   const T k = c.k, c0 = c.c0, bxl = c.bxlo, bxh = c.bxhi, byv = c.by;
   if (ny == 1) {
     out[0] = edge_cell<T, BX, KREG, CMB>(c, io, 0, T(0), T(0), c.by_first_lo, c.by_last_hi);
@@ -90,15 +131,35 @@ static void row_kernel(const RowCtx<T>& c, const RowIO<T>& io, int64_t ny) {
   const T last = edge_cell<T, BX, KREG, CMB>(c, io, ny - 1, q0[ny - 2], T(0), c.by_last_lo, c.by_last_hi);
   constexpr bool UNIT = BX == kUnit && BY == kUnit;
   constexpr bool RING = BX == kUnit && BY == kMetric;
+  int64_t j0 = 1;
+#ifdef DL_RING_VECTORS
+  if constexpr (RING && KREG && CMB == kFwd) {
+    using V = typename DlVec<T>::V;
+    constexpr int64_t W = int64_t(sizeof(V) / sizeof(T));
+    const V kv = V{} + k, c0v = V{} + c0;
+    for (; j0 + W <= ny - 1; j0 += W) {
+      const int64_t j = j0;
+      const V n = dl_held(dl_load<V>(q0 + j + 1)), s = dl_held(dl_load<V>(q0 + j - 1));
+      const V e = dl_load<V>(qp + j), w = dl_load<V>(qm + j), q = dl_load<V>(q0 + j);
+      const V ns = n + s;
+      const V sum = ((e + w) + ns) + dl_load<V>(cyg + j) * (T(2) * n - ns);
+      const V r = (c0v * q - dl_load<V>(pp0 + j)) + kv * sum;
+      std::memcpy(out + j, &r, sizeof(V));
+    }
+  }
+#endif
 #pragma GCC ivdep
-  for (int64_t j = 1; j < ny - 1; ++j) {
+  for (int64_t j = j0; j < ny - 1; ++j) {
     const T q = q0[j], e = qp[j], w = qm[j], n = q0[j + 1], s = q0[j - 1];
     T l, sum;
     if constexpr (UNIT) {
       sum = ((e + w) + n) + s;
       l = sum - T(4) * q;
     } else if constexpr (RING) {
-      sum = ((e + w) + cyh[j] * n) + cyl[j] * s;
+      // (n + s) + g (n - s) with n - s as 2 n - (n + s) (exact but for the rounding of n + s, which
+      // g <= 1/3 scales down): s and n each read once, 7 loads a cell (the unit stencil's 6 and g)
+      const T ns = n + s;
+      sum = ((e + w) + ns) + cyg[j] * (T(2) * n - ns);
       l = sum - T(4) * q;
     } else {
       T tx, ty;
@@ -323,6 +384,7 @@ struct RowPlan {
   std::vector<RowCtx<T>> ctx;        // coefficient fields only
   std::vector<T> bx_full, by_full;  // both axes as full arrays where one is and the other not
   std::vector<T> cy_lo, cy_hi;      // metric x conductance per cell face (a row, or the grid)
+  std::vector<T> cy_g, m_g;         // the ring form's g per column: of cy_lo / cy_hi (one row), of m_lo / m_hi
   std::vector<T> r_lo, r_hi;        // isotropic stencil: the filter's weights across x faces
   std::vector<T> inva, m_lo, m_hi;  // isotropic stencil with face arrays: 1 / ring area, the metric
 };
@@ -482,6 +544,11 @@ bool plan_rows(const LeapfrogArgs<T>& a, int cmb, RowPlan<T>& plan) {
     const T d = plan.cy_lo[j] + plan.cy_hi[j] - T(2);
     ring_form = (d < T(0) ? -d : d) <= T(8) * std::numeric_limits<T>::epsilon();
   }
+  auto half_difference = [ny](const std::vector<T>& lo, const std::vector<T>& hi, std::vector<T>& g) {
+    g.resize(ny);
+    for (int64_t j = 0; j < ny; ++j) g[j] = (hi[j] - lo[j]) * T(0.5);
+  };
+  if (ring_form) half_difference(plan.cy_lo, plan.cy_hi, plan.cy_g);
   // rz rows of one material among face arrays: b times the ring form of the metric alone (its
   // interior factors summing to 2 in one shared row), K b as the coefficient
   bool metric_ring = metric && cy_rows && cmb == kFwd && ny > 2 && bx.mode == kFull && by.mode == kFull &&
@@ -497,13 +564,14 @@ bool plan_rows(const LeapfrogArgs<T>& a, int cmb, RowPlan<T>& plan) {
       const T d = plan.m_lo[j] + plan.m_hi[j] - T(2);
       metric_ring = (d < T(0) ? -d : d) <= T(8) * std::numeric_limits<T>::epsilon();
     }
+    if (metric_ring) half_difference(plan.m_lo, plan.m_hi, plan.m_g);
   }
   plan.fn.resize(nx);
   plan.ctx.resize(nx);
   // A row whose coefficients are one value (a layered medium, the rows that miss an obstacle) runs
   // the kernel of register coefficients: the arrays are not streamed for it
   auto uniform = [](const T* r, int64_t n) { return all_equal(r, n); };
-  for (int64_t i = 0; i < nx; ++i) {
+  auto plan_row = [&](int64_t i) -> bool {
     RowCtx<T>& c = plan.ctx[i];
     c = RowCtx<T>{};
     bool kreg = a.K.in_register();
@@ -573,6 +641,7 @@ bool plan_rows(const LeapfrogArgs<T>& a, int cmb, RowPlan<T>& plan) {
       c.c0 = T(2) - T(4) * c.k;
       c.cyl = plan.m_lo.data();
       c.cyh = plan.m_hi.data();
+      c.cyg = plan.m_g.data();
       c.by_first_lo = plan.m_lo[0];
       c.by_first_hi = plan.m_hi[0];
       c.by_last_lo = plan.m_lo[ny - 1];
@@ -592,13 +661,28 @@ bool plan_rows(const LeapfrogArgs<T>& a, int cmb, RowPlan<T>& plan) {
       bym = kUnit;
     }
     if (bxm == kVec && bym != kVec) return false;  // (by was materialised above)
-    if (ring_form && bxm == kUnit && bym == kVec) bym = kMetric;
+    if (ring_form && bxm == kUnit && bym == kVec) {
+      bym = kMetric;
+      c.cyg = plan.cy_g.data();
+    }
     RowFn<T> f = cmb == kAdj ? pick_row<T, kAdj>(bxm, bym, kreg)
                              : (cmb == kD ? pick_row<T, kD>(bxm, bym, kreg) : pick_row<T, kFwd>(bxm, bym, kreg));
     if (!f) return false;
     plan.fn[i] = f;
-  }
-  return true;
+    return true;
+  };
+  // the rows' plans on the call's threads (a pass over K and the face arrays when they are full:
+  // run serially it was ~3 % of a two-thread call of the full 840x630 scene)
+  const int nt = nx * ny >= (int64_t(1) << 16) ? std::max(1, a.n_threads) : 1;
+  std::vector<char> ok(nt, 1);
+  parallel(nt, [&](int t) {
+    for (int64_t i = nx * t / nt, e = nx * (t + 1) / nt; i < e; ++i)
+      if (!plan_row(i)) {
+        ok[t] = 0;
+        return;
+      }
+  });
+  return std::all_of(ok.begin(), ok.end(), [](char v) { return v != 0; });
 }
 
 }  // namespace dl

@@ -41,6 +41,7 @@ TARGETS = {
     "difflattice_volume_layered": "DifflatticeVolumeLayered",
 }
 COMPILE_TIMEOUT_S = 300
+GENERIC_NOTE = "generic.txt"  # beside a library built without -march=native: why
 
 
 @dataclass(frozen=True)
@@ -126,8 +127,17 @@ def _compiler_version(cxx: str) -> str:
         return ""
 
 
+class _Transient(str):
+    """A build failure worth retrying in the next process (a timeout on a busy machine)."""
+
+
 def _compile(cxx: str, out: Path, include_dir: str) -> str | None:
-    """Build the library at `out` (atomically); None on success, else the compiler's complaint."""
+    """Build the library at `out` (atomically); None on success, else the compiler's complaint.
+
+    Only a compiler that REJECTS -march=native gets the generic build (slower kernels): it is
+    said on stderr and recorded in ``generic.txt`` beside the library, which every later process
+    reports. A timeout or a missing compiler is not a reason for a generic build (returned as
+    `_Transient`: the next process tries again)."""
     out.parent.mkdir(parents=True, exist_ok=True)
     last = ""
     for native_arch in (True, False):  # a compiler without -march=native: a generic build
@@ -137,15 +147,18 @@ def _compile(cxx: str, out: Path, include_dir: str) -> str | None:
         try:
             r = subprocess.run(cmd, capture_output=True, text=True, timeout=COMPILE_TIMEOUT_S)
         except (OSError, subprocess.SubprocessError) as e:
-            r = None
-            last = str(e)
-        if r is not None and r.returncode == 0:
+            Path(tmp).unlink(missing_ok=True)
+            return _Transient(f"{e} (a busy machine? the next process tries again)")
+        if r.returncode == 0:
             os.replace(tmp, out)  # concurrent builders: the last complete library wins
+            if not native_arch:
+                note = f"built without -march=native (slower kernels): the native build failed: {last}"
+                print(f"difflattice: {note}", file=sys.stderr, flush=True)
+                out.with_name(GENERIC_NOTE).write_text(note + "\n")
             return None
-        if r is not None:
-            lines = (r.stderr or r.stdout).strip().splitlines()
-            errors = [ln for ln in lines if "error" in ln]
-            last = (errors or lines or [f"exit {r.returncode}"])[0][:300]
+        lines = (r.stderr or r.stdout).strip().splitlines()
+        errors = [ln for ln in lines if "error" in ln]
+        last = (errors or lines or [f"exit {r.returncode}"])[0][:300]
         Path(tmp).unlink(missing_ok=True)
     return last
 
@@ -203,11 +216,15 @@ def _load() -> Library | str:
             )
         if err is not None:
             reason = f"compiling {', '.join(s.name for s in SOURCES)} with {cxx} failed: {err}"
-            try:
-                failed.write_text(reason + "\n")
-            except OSError:
-                pass
+            if not isinstance(err, _Transient):
+                try:
+                    failed.write_text(reason + "\n")
+                except OSError:
+                    pass
             return reason
+    generic = path.with_name(GENERIC_NOTE)
+    if generic.exists():
+        print(f"difflattice: {generic.read_text().strip()} (delete {path.parent} to retry)", file=sys.stderr)
     try:
         handle = ctypes.cdll.LoadLibrary(str(path))
         for target, symbol in TARGETS.items():

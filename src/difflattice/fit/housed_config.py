@@ -332,7 +332,7 @@ def load_housed_wave(cfg: HousedConfig, frequency_hz: float) -> tuple[Any, tuple
     from ..capture.errors import CaptureFileError
     from ..capture.files import WaveCapture, is_capture_file, load_capture, load_wave_table
     from ..config import show
-    from .data import mask_counts, mask_wave, wave_from_capture, wave_from_table
+    from .data import mask_wave, wave_from_capture, wave_from_table
 
     d = cfg.data
     if d.wave is None:
@@ -393,13 +393,16 @@ def load_housed_wave(cfg: HousedConfig, frequency_hz: float) -> tuple[Any, tuple
         f"{p.name}: wavefront, {len(wave.x_m)} points at {wave.z_m:g} m in front of the front face, sigma {sigma:g} deg"
     )
     if d.wave_mask_m:
-        n_out = mask_counts(wave.x_m, d.wave_mask_m)
-        if len(wave.x_m) - n_out < 3:
-            raise cfg.error(
-                "data.wave_mask_m",
-                f"= {show(d.wave_mask_m)} leaves {len(wave.x_m) - n_out} of {len(wave.x_m)} "
-                "wavefront points; a fit needs >= 3; fix: narrow the ranges",
-            )
+        from .loading import checked_mask
+
+        n_out = checked_mask(
+            cfg,
+            "data.wave_mask_m",
+            d.wave_mask_m,
+            wave.x_m,
+            points="wavefront points",
+            none=f"point of {p.name} (x {wave.x_m.min():g}..{wave.x_m.max():g} m)",
+        )
         wave = mask_wave(wave, d.wave_mask_m)
         notes.append(f"{p.name}: wave_mask_m {show(d.wave_mask_m)} left out {n_out} points")
     return wave, tuple(notes)
@@ -409,32 +412,20 @@ def housed_lobe(cfg: HousedConfig, sheet) -> tuple[Any, tuple[str, ...]]:
     """The record's lobe (`fit.datasheet.Datasheet.lobe`) less the angles `[data] lobe_mask_deg`
     leaves out, and a note for the report. ConfigError if the mask leaves fewer than 3 points;
     a ConfigWarning if it leaves out none."""
-    import warnings
-
-    from ..config import ConfigWarning, show
-    from .data import mask_counts, mask_lobe
+    from ..config import show
+    from .data import mask_lobe
+    from .loading import checked_mask
 
     lobe = sheet.lobe()  # refuses a record without a table, naming the fix
     ranges = cfg.data.lobe_mask_deg
     if not ranges:
         return lobe, ()
-    n_out = mask_counts(lobe.angle_deg, ranges)
-    if len(lobe.angle_deg) - n_out < 3:
-        raise cfg.error(
-            "data.lobe_mask_deg",
-            f"= {show(ranges)} leaves {len(lobe.angle_deg) - n_out} of {len(lobe.angle_deg)} lobe points; "
-            "a fit needs >= 3; fix: narrow the ranges",
-        )
-    if n_out == 0:
-        warnings.warn(
-            message(
-                cfg.path,
-                "data.lobe_mask_deg",
-                None,
-                f"= {show(ranges)} excludes no angle of the table "
-                f"({lobe.angle_deg.min():g}..{lobe.angle_deg.max():g} deg)",
-            ),
-            ConfigWarning,
-            stacklevel=2,
-        )
+    n_out = checked_mask(
+        cfg,
+        "data.lobe_mask_deg",
+        ranges,
+        lobe.angle_deg,
+        points="lobe points",
+        none=f"angle of the table ({lobe.angle_deg.min():g}..{lobe.angle_deg.max():g} deg)",
+    )
     return mask_lobe(lobe, ranges), (f"lobe_mask_deg {show(ranges)} left out {n_out} of {len(lobe.angle_deg)} angles",)

@@ -228,13 +228,32 @@ def _wave_data(cfg: FitConfig, notes: list[str]):
     return wave_from_capture(cap, sigma_deg=cfg.solver.wave_sigma_deg), p
 
 
+def checked_mask(cfg, key: str, ranges, positions, *, points: str, none: str) -> int:
+    """How many of `positions` the inclusive `ranges` of config key `key` leave out: ConfigError if
+    fewer than 3 points are left (the fix: narrow the ranges), a ConfigWarning if none is left out
+    (`none` says of what, e.g. "point of lobe.csv (angles -90..90 deg)"). `points` names them in
+    the error, e.g. "lobe points". Shared by the fit configs and the housed configs."""
+    from .data import mask_counts
+
+    n_out = mask_counts(positions, ranges)
+    left = len(positions) - n_out
+    if left < 3:
+        raise cfg.error(
+            key,
+            f"= {show(ranges)} leaves {left} of {len(positions)} {points}; a fit needs >= 3; fix: narrow the ranges",
+        )
+    if n_out == 0:
+        warnings.warn(message(cfg.path, key, None, f"= {show(ranges)} excludes no {none}"), ConfigWarning, stacklevel=3)
+    return n_out
+
+
 def load_fit_data(cfg: FitConfig) -> FitData:
     """Load and check the data `cfg` names. Raises `ConfigError` naming the key for a missing or
     unreadable file, a wave capture given as lobe (or the reverse), a plain table without the
     metadata it needs, disagreeing frequencies or ranges, no points, or a mask that leaves fewer
     than 3; issues `ConfigWarning` for a mask that excludes nothing, a floor below the data's
     dynamic range and a one-sided scan fitted with an asymmetric model."""
-    from .data import mask_counts, mask_lobe, mask_wave
+    from .data import mask_lobe, mask_wave
 
     d = cfg.data
     notes: list[str] = []
@@ -244,26 +263,14 @@ def load_fit_data(cfg: FitConfig) -> FitData:
         lobe, p, is_capture = _lobe_data(cfg, notes)
         paths.append(p)
         if d.lobe_mask_deg:
-            n_out = mask_counts(lobe.angle_deg, d.lobe_mask_deg)
-            left = len(lobe.angle_deg) - n_out
-            if left < 3:
-                raise cfg.error(
-                    "data.lobe_mask_deg",
-                    f"= {show(d.lobe_mask_deg)} leaves {left} of "
-                    f"{len(lobe.angle_deg)} lobe points; a fit needs >= 3; fix: narrow the ranges",
-                )
-            if n_out == 0:
-                warnings.warn(
-                    message(
-                        cfg.path,
-                        "data.lobe_mask_deg",
-                        None,
-                        f"= {show(d.lobe_mask_deg)} excludes no "
-                        f"point of {p.name} (angles {lobe.angle_deg.min():g}..{lobe.angle_deg.max():g} deg)",
-                    ),
-                    ConfigWarning,
-                    stacklevel=2,
-                )
+            n_out = checked_mask(
+                cfg,
+                "data.lobe_mask_deg",
+                d.lobe_mask_deg,
+                lobe.angle_deg,
+                points="lobe points",
+                none=f"point of {p.name} (angles {lobe.angle_deg.min():g}..{lobe.angle_deg.max():g} deg)",
+            )
             lobe = mask_lobe(lobe, d.lobe_mask_deg)
             notes.append(f"{p.name}: lobe_mask_deg {show(d.lobe_mask_deg)} left out {n_out} points")
         if d.temperature_c is not None and is_capture:
@@ -276,26 +283,14 @@ def load_fit_data(cfg: FitConfig) -> FitData:
         wave, p = _wave_data(cfg, notes)
         paths.append(p)
         if d.wave_mask_m:
-            n_out = mask_counts(wave.x_m, d.wave_mask_m)
-            left = len(wave.x_m) - n_out
-            if left < 3:
-                raise cfg.error(
-                    "data.wave_mask_m",
-                    f"= {show(d.wave_mask_m)} leaves {left} of {len(wave.x_m)} "
-                    "wavefront points; a fit needs >= 3; fix: narrow the ranges",
-                )
-            if n_out == 0:
-                warnings.warn(
-                    message(
-                        cfg.path,
-                        "data.wave_mask_m",
-                        None,
-                        f"= {show(d.wave_mask_m)} excludes no "
-                        f"point of {p.name} (x {wave.x_m.min():g}..{wave.x_m.max():g} m)",
-                    ),
-                    ConfigWarning,
-                    stacklevel=2,
-                )
+            n_out = checked_mask(
+                cfg,
+                "data.wave_mask_m",
+                d.wave_mask_m,
+                wave.x_m,
+                points="wavefront points",
+                none=f"point of {p.name} (x {wave.x_m.min():g}..{wave.x_m.max():g} m)",
+            )
             wave = mask_wave(wave, d.wave_mask_m)
             notes.append(f"{p.name}: wave_mask_m {show(d.wave_mask_m)} left out {n_out} points")
         if d.temperature_c is not None:

@@ -332,7 +332,7 @@ def load_housed_wave(cfg: HousedConfig, frequency_hz: float) -> tuple[Any, tuple
     from ..capture.errors import CaptureFileError
     from ..capture.files import WaveCapture, is_capture_file, load_capture, load_wave_table
     from ..config import show
-    from .data import mask_wave, wave_from_capture, wave_from_table
+    from .data import wave_from_capture, wave_from_table
 
     d = cfg.data
     if d.wave is None:
@@ -392,19 +392,11 @@ def load_housed_wave(cfg: HousedConfig, frequency_hz: float) -> tuple[Any, tuple
     notes.append(
         f"{p.name}: wavefront, {len(wave.x_m)} points at {wave.z_m:g} m in front of the front face, sigma {sigma:g} deg"
     )
-    if d.wave_mask_m:
-        from .loading import checked_mask
+    from .loading import masked_wave
 
-        n_out = checked_mask(
-            cfg,
-            "data.wave_mask_m",
-            d.wave_mask_m,
-            wave.x_m,
-            points="wavefront points",
-            none=f"point of {p.name} (x {wave.x_m.min():g}..{wave.x_m.max():g} m)",
-        )
-        wave = mask_wave(wave, d.wave_mask_m)
-        notes.append(f"{p.name}: wave_mask_m {show(d.wave_mask_m)} left out {n_out} points")
+    wave, note = masked_wave(cfg, wave, p.name)
+    if note:
+        notes.append(note)
     return wave, tuple(notes)
 
 

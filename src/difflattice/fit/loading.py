@@ -247,13 +247,32 @@ def checked_mask(cfg, key: str, ranges, positions, *, points: str, none: str) ->
     return n_out
 
 
+def masked_wave(cfg, wave, name: str) -> tuple[Any, str | None]:
+    """`wave` less the positions `[data] wave_mask_m` leaves out (`checked_mask`), and the report's
+    note on it (None without a mask); `name` is the wavefront file's name."""
+    from .data import mask_wave
+
+    ranges = cfg.data.wave_mask_m
+    if not ranges:
+        return wave, None
+    n_out = checked_mask(
+        cfg,
+        "data.wave_mask_m",
+        ranges,
+        wave.x_m,
+        points="wavefront points",
+        none=f"point of {name} (x {wave.x_m.min():g}..{wave.x_m.max():g} m)",
+    )
+    return mask_wave(wave, ranges), f"{name}: wave_mask_m {show(ranges)} left out {n_out} points"
+
+
 def load_fit_data(cfg: FitConfig) -> FitData:
     """Load and check the data `cfg` names. Raises `ConfigError` naming the key for a missing or
     unreadable file, a wave capture given as lobe (or the reverse), a plain table without the
     metadata it needs, disagreeing frequencies or ranges, no points, or a mask that leaves fewer
     than 3; issues `ConfigWarning` for a mask that excludes nothing, a floor below the data's
     dynamic range and a one-sided scan fitted with an asymmetric model."""
-    from .data import mask_lobe, mask_wave
+    from .data import mask_lobe
 
     d = cfg.data
     notes: list[str] = []
@@ -282,17 +301,9 @@ def load_fit_data(cfg: FitConfig) -> FitData:
     if d.wave is not None:
         wave, p = _wave_data(cfg, notes)
         paths.append(p)
-        if d.wave_mask_m:
-            n_out = checked_mask(
-                cfg,
-                "data.wave_mask_m",
-                d.wave_mask_m,
-                wave.x_m,
-                points="wavefront points",
-                none=f"point of {p.name} (x {wave.x_m.min():g}..{wave.x_m.max():g} m)",
-            )
-            wave = mask_wave(wave, d.wave_mask_m)
-            notes.append(f"{p.name}: wave_mask_m {show(d.wave_mask_m)} left out {n_out} points")
+        wave, note = masked_wave(cfg, wave, p.name)
+        if note:
+            notes.append(note)
         if d.temperature_c is not None:
             notes.append(
                 f"{p.name}: temperature {d.temperature_c:g} degC from the config replaces the "

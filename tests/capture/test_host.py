@@ -80,8 +80,15 @@ def test_resume_with_other_parameters_is_refused(start_rig: Callable[..., Emulat
     path = tmp_path / "lobe.csv"
     with pytest.raises(RigTimeout, match="did not come back within 0.5 s.*re-run the same command"):
         capture_lobe(str(rig.path), path, **LOBE, metadata=META, timeout_s=TIMEOUT_S, reconnect_s=0.5)
-    with pytest.warns(UserWarning, match="5 of 41 points, seq 5-40 missing"):
-        assert load_capture(path, allow_incomplete=True).seq.tolist() == [0, 1, 2, 3, 4]
+    # The rig sent seq 0-4 before the unplug at seq 5; what the host had not yet read off the
+    # port when it went away is lost with it (as on a real USB unplug), so on a loaded machine
+    # the file may end one or more points early. What it holds is a gap-free prefix, and the
+    # warning names exactly what is missing.
+    with pytest.warns(UserWarning, match=r"incomplete: \d+ of 41 points") as record:
+        seq = load_capture(path, allow_incomplete=True).seq.tolist()
+    k = len(seq)
+    assert 1 <= k <= 5 and seq == list(range(k))
+    assert f"{k} of 41 points, seq {k}-40 missing" in str(record[0].message)
     with pytest.raises(CaptureFileError, match=r"a scan with other parameters \(n_avg: file 8, now 4"):
         capture_lobe(str(rig.path), path, **{**LOBE, "n_avg": 4}, metadata=META, timeout_s=TIMEOUT_S)
 

@@ -306,7 +306,7 @@ def test_given_diameter_starts_a_fitted_one(tmp_path: Path, monkeypatch: pytest.
     class Stop(Exception):
         pass
 
-    def fake_fit(spec, transfer, lobe, wave, options, *, params0=None, progress=False, multistart=False):
+    def fake_fit(spec, transfer, lobe, wave, options, *, params0=None, progress=False, multistart=False, solve_in=None):
         seen["params0"], seen["spec"], seen["multistart"] = params0, spec, multistart
         raise Stop
 

@@ -86,6 +86,7 @@ def _fit_line(cfg: FitConfig, lobe, wave, f: float, c: float, ppw: float, opts, 
     """The line model's transfer, fit and untuned uniform fit: (fitted, uniform, transfer,
     make_transfer(cells_per_wavelength), transfer time in s). `prefetch`: a resolution (cells per
     wavelength) whose transfer the error budget will ask for, simulated beside the fit (or None)."""
+    from ..fit.families import shared_family
     from ..fit.model import ModelSpec
     from ..fit.solve import fit
     from ..fit.transfer import free_field_transfer
@@ -142,7 +143,10 @@ def _fit_line(cfg: FitConfig, lobe, wave, f: float, c: float, ppw: float, opts, 
         diameter_m=m.diameter_m or m.line_length_m,
     )
     uniform = _beside(fit, uspec, transfer, lobe, wave, opts)
-    fitted = fit(spec, transfer, lobe, wave, opts, progress=verbose, params0=params0, multistart=True)
+    fitted = fit(
+        spec, transfer, lobe, wave, opts, progress=verbose, params0=params0, multistart=True,
+        solve_in=shared_family(spec, opts, list(cfg.uncertainty.model_families) or None),
+    )  # fmt: skip
     return fitted, uniform.result(), transfer, make_transfer, t_transfer
 
 
@@ -185,6 +189,7 @@ class _Prefetched:
 def _fit_disc(cfg: FitConfig, lobe, wave, f: float, c: float, ppw: float, opts, verbose: bool, prefetch):
     """The disc model's (`fit.disc`) transfer on the axisymmetric lattice, fit and untuned uniform
     piston fit, as `_fit_line`; `line_length_m` is the modelled disc's diameter."""
+    from ..fit.families import shared_family
     from ..fit.solve import fit
     from ..fit.transfer_disc import disc_setup
 
@@ -216,7 +221,10 @@ def _fit_disc(cfg: FitConfig, lobe, wave, f: float, c: float, ppw: float, opts, 
     spec, transfer = setup.spec, cast(Any, setup.transfer)  # a DiscTransfer: the interface of a Transfer
     params0 = spec.init_params() if (m.fit_diameter and m.diameter_m is not None) else None
     uniform = _beside(fit, setup.uniform_spec, transfer, lobe, wave, opts)
-    fitted = fit(spec, transfer, lobe, wave, opts, progress=verbose, params0=params0, multistart=True)
+    fitted = fit(
+        spec, transfer, lobe, wave, opts, progress=verbose, params0=params0, multistart=True,
+        solve_in=shared_family(spec, opts, list(cfg.uncertainty.model_families) or None),
+    )  # fmt: skip
     return fitted, uniform.result(), transfer, make_transfer, t_transfer
 
 

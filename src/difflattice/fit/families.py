@@ -40,6 +40,22 @@ def default_families(spec: ModelFamily) -> list[dict]:
     return out
 
 
+def shared_family(
+    spec: ModelFamily, options: FitOptions, model_families: Sequence[str | Mapping[str, Any]] | None = None
+) -> ModelFamily | None:
+    """The error budget's family refit that `spec` nests in (one more basis function, the same
+    settings) when the budget runs one (`model_families` as `error_budget` takes them), else None:
+    the family to solve the nominal fit in (`fit`'s `solve_in`), so that in a fresh process the two
+    fits compile their programs once (the refit is then the nominal model's structure)."""
+    fams = default_families(spec) if model_families is None else [_family(spec, f) for f in model_families]
+    for ov in fams:
+        if ov and set(ov) <= set(FAMILY_KEYS):
+            fspec, fopt = _check_family(spec, options, ov)
+            if fopt == options and spec.nests_in(fspec):
+                return fspec
+    return None
+
+
 def weak_smoothness_sigma(spec: ModelFamily) -> float:
     """The smoothness prior of a per-cell family that tests a smooth profile's shape: the weakest
     that still suppresses the non-radiating cell-to-cell oscillations, i.e. a Nyquist ripple of
@@ -129,7 +145,8 @@ def family_spread(
         if fspec == spec and fopt == options:
             continue  # the nominal model itself (e.g. "symmetric" of a model that is symmetric anyway)
         say(f"[budget] refit with {_family_label(ov)} (model-family spread)")
-        fam_fits.append((ov, fspec, fit(fspec, transfer, lobe, wave, fopt, params0=map_params(spec, params, fspec))))
+        p0 = map_params(spec, params, fspec, fitted.solved_in)
+        fam_fits.append((ov, fspec, fit(fspec, transfer, lobe, wave, fopt, params0=p0)))
     if not fam_fits:
         return FamilySpread(None, [], [])
     vf = fitted.variance_factor

@@ -20,6 +20,7 @@ from collections.abc import Callable, Iterable
 from typing import Any, ClassVar, Generic, Self, TypeVar, cast
 
 import equinox as eqx
+import jax
 import numpy as np
 
 
@@ -144,3 +145,50 @@ class ModelFamily(abc.ABC, Generic[P]):
     def symmetries(self) -> dict[str, Callable[[P], P]]:
         """Candidate symmetries of the data under this model: name -> map of the raw parameters
         (the error budget refits from each image to decide identifiability)."""
+
+    # -- nesting: solving in a richer family (shared compiled programs) ----------------------
+    def nests_in(self, other: ModelFamily) -> bool:
+        """Whether `other` is this family with more basis functions for its smooth profile(s), so
+        that these parameters are `other`'s with the extra coefficients at zero (both families'
+        smooth bases are the first `n_basis` functions of one sequence)."""
+        return (
+            type(other) is type(self)
+            and "smooth" in (self.weights, self.lags)
+            and other.n_basis > self.n_basis
+            and dataclasses.replace(self, n_basis=other.n_basis) == other
+        )
+
+    def _padded_keys(self) -> tuple[str, ...]:
+        return tuple(k for k, profile in (("w", self.weights), ("lag", self.lags)) if profile == "smooth")
+
+    def pad_params(self, params: P, other: ModelFamily) -> FamilyParams:
+        """These parameters as `other`'s (a family this one `nests_in`): the extra coefficients 0."""
+        extra = other.n_basis - self.n_basis
+        # on the host (eager jnp operations would each be a program of their own in a new process)
+        pad = {}
+        for k in self._padded_keys():
+            if params.has(k):
+                v = np.asarray(getattr(params, k))
+                pad[k] = jax.device_put(np.concatenate([v, np.zeros(extra, v.dtype)]))
+        return params.replace(**pad)
+
+    def unpad_params(self, params: FamilyParams, other: ModelFamily) -> P:
+        """`other`'s parameters (extra coefficients at zero) as this family's: the inverse of
+        `pad_params`."""
+        cut = {
+            k: jax.device_put(np.asarray(getattr(params, k))[: self.n_basis])
+            for k in self._padded_keys()
+            if params.has(k)
+        }
+        return cast(P, params.replace(**cut))
+
+    def kept_in(self, params: FamilyParams, other: ModelFamily) -> np.ndarray:
+        """(n,) bool over `params`, raw parameters of `other` (a family this one `nests_in`) in
+        `ravel_pytree` order: True for this family's, False for the extra coefficients."""
+        extra = other.n_basis - self.n_basis
+        padded = self._padded_keys()
+        out: list[bool] = []
+        for k in params.names():
+            n = int(np.size(getattr(params, k)))
+            out += [True] * (n - extra) + [False] * extra if k in padded else [True] * n
+        return np.asarray(out, bool)

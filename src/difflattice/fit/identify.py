@@ -109,13 +109,13 @@ def check_symmetries(
     notes: list[str] = []
     for name, g in spec.symmetries().items():
         pg = g(params)
-        vg = _values(spec, pg)
+        vg = _values(spec, pg, fitted.solved_in)
         if max(abs(vg[k] - val) for k, val in zip(names, values)) < 1e-9 * max(1.0, float(np.max(np.abs(values)))):
             continue
         say(f"[budget] refit from the '{name}' image of the solution (identifiability)")
-        fg = fit(spec, transfer, lobe, wave, options, params0=pg)
+        fg = fit(spec, transfer, lobe, wave, options, params0=pg, solve_in=fitted.solved_in)
         d = 2 * (fg.cost - fitted.cost) / max(vf, 1.0)
-        vals_g = _values(spec, fg.params)
+        vals_g = _values(spec, fg.params, fg.solved_in)
         changed = [
             k
             for k in names

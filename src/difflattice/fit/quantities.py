@@ -81,7 +81,37 @@ def _quantities_and_jacobian(spec: ModelFamily, params: FamilyParams):
     return v, names, units, _quantity_jacobian(spec, params)
 
 
-def _values(spec: ModelFamily, params: FamilyParams) -> dict:
+def _as_solved(spec: ModelFamily, params: FamilyParams, solved_in: ModelFamily | None) -> tuple:
+    """(family, parameters) to evaluate `spec`'s physics at `params` with: the richer family a fit
+    was solved in (`FitResult.solved_in`) with the padded parameters where given (the same
+    numbers from programs compiled for it already), else `spec` and `params`."""
+    return (spec, params) if solved_in is None else (solved_in, spec.pad_params(params, solved_in))
+
+
+def quantities_and_jacobian(spec: ModelFamily, params: FamilyParams, solved_in: ModelFamily | None = None) -> tuple:
+    """`_quantities_and_jacobian(spec, params)` as NumPy arrays, computed in `solved_in` (a family
+    `spec` nests in) where given: its rows and columns of the extra coefficients dropped."""
+    fam, p = _as_solved(spec, params, solved_in)
+    v, names, units, G = _quantities_and_jacobian(fam, p)
+    v, G = np.asarray(v), np.asarray(G)
+    if solved_in is None:
+        return v, list(names), list(units), G
+    keep = spec.kept_in(p, solved_in)
+    extra = {lab for lab, k in zip(solved_in.raw_labels(p), keep) if not k}
+    rows = [i for i, n in enumerate(names) if n not in extra]
+    return (
+        v[rows],
+        [names[i] for i in rows],
+        [units[i] for i in rows],
+        G[np.ix_(np.asarray(rows, int), np.flatnonzero(keep))],
+    )
+
+
+def _values(spec: ModelFamily, params: FamilyParams, solved_in: ModelFamily | None = None) -> dict:
+    """The quantities by name (computed in `solved_in` where given, as `quantities_and_jacobian`)."""
+    if solved_in is not None:
+        v, names, _, _ = quantities_and_jacobian(spec, params, solved_in)
+        return dict(zip(names, v.tolist()))
     v, names, _ = _quantities(spec, params)
     return dict(zip(names, np.asarray(v).tolist()))
 
@@ -127,10 +157,14 @@ def _per_cell(ospec: ModelFamily, p: FamilyParams, y_nom, y_other, key: str):
 
 
 @small_jit
-def _per_cell_raw(ospec: ModelFamily, params: FamilyParams, y_nom, y_other, key: str):
-    """`_per_cell` and its Jacobian w.r.t. the raw parameters (flat), as one compiled program."""
-    jac = jax.jacfwd(lambda p: _per_cell(ospec, p, y_nom, y_other, key))(params)
-    return _per_cell(ospec, params, y_nom, y_other, key), _flat_jacobian(jac, params)
+def _per_cell_raw(ospec: ModelFamily, params: FamilyParams, y_nom, y_other, keys: tuple[str, ...]):
+    """`_per_cell` and its Jacobian w.r.t. the raw parameters (flat) for each of `keys`, as one
+    compiled program."""
+    out = []
+    for key in keys:
+        jac = jax.jacfwd(lambda p, key=key: _per_cell(ospec, p, y_nom, y_other, key))(params)
+        out.append((_per_cell(ospec, params, y_nom, y_other, key), _flat_jacobian(jac, params)))
+    return tuple(out)
 
 
 def _implied_coefficients(spec: ModelFamily, active: np.ndarray, other: FitResult) -> tuple[dict, dict]:
@@ -147,8 +181,9 @@ def _implied_coefficients(spec: ModelFamily, active: np.ndarray, other: FitResul
     cov = np.asarray(other.covariance_raw) * max(other.variance_factor, 1.0)
     vals, ses = {}, {}
     step = 2 if spec.symmetric else 1
-    for key, profile in keys:
-        v, Gv = (np.asarray(a) for a in _per_cell_raw(ospec, other.params, y_nom, y_other, key))
+    raws = _per_cell_raw(ospec, other.params, y_nom, y_other, tuple(k for k, _ in keys))
+    for (key, profile), raw in zip(keys, raws):
+        v, Gv = (np.asarray(a) for a in raw)
         cv = Gv @ cov @ Gv.T
         var = np.clip(np.diag(cv), 1e-12 * max(float(np.max(np.diag(cv))), 1e-300), None)
         E = spec.expansion(profile)[active]
@@ -163,11 +198,13 @@ def _implied_coefficients(spec: ModelFamily, active: np.ndarray, other: FitResul
     return vals, ses
 
 
-def map_params(spec_from: ModelFamily, params: FamilyParams, spec_to: ModelFamily) -> FamilyParams:
+def map_params(
+    spec_from: ModelFamily, params: FamilyParams, spec_to: ModelFamily, solved_in: ModelFamily | None = None
+) -> FamilyParams:
     """A warm start for `spec_to` from a fit of `spec_from` (another resolution or family): the
     per-cell log weights and lag arguments interpolated at the new cells and projected on the new
-    parameterisation."""
-    ph = physical_of(spec_from, params)
+    parameterisation (`solved_in`: the family the fit was solved in, see `_as_solved`)."""
+    ph = physical_of(*_as_solved(spec_from, params, solved_in))
     logw = np.log(np.asarray(ph["weights_raw"]))
     arg = np.arctanh(np.clip(2 * np.asarray(ph["lags_s"]) / spec_from.period_s, -0.999999, 0.999999))
     y0, y1 = spec_from.y_m, spec_to.y_m

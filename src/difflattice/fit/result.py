@@ -103,6 +103,7 @@ class FitResult:
     variance_factor: float = 1.0  # multiplies the statistical covariance (chi2_red for l2, robust for others)
     effective_params: float = 0.0  # trace of the data rows' hat matrix (< n_params with the smoothness prior)
     options: FitOptions | None = None  # the settings it ran with (error budgets refit with them)
+    solved_in: ModelFamily | None = None  # the richer family it was solved in (`fit`'s `solve_in`), for refits from it
 
 
 @dataclass
@@ -202,13 +203,20 @@ def _result(
     lobe: LobeData | None,
     wave: WaveData | None,
     wall: float,
+    *,
+    solved_in: ModelFamily | None = None,
 ) -> FitResult:
-    """Assemble the `FitResult` of a solve from its stages (the last one's point is the solution)."""
+    """Assemble the `FitResult` of a solve from its stages (the last one's point is the solution).
+    With `solved_in` (the richer family `problem` is of, see `fit`'s `solve_in`) every array is
+    computed there and the extra coefficients' columns dropped: the same numbers as `spec`'s own
+    programs give, from the programs that family's fits compile anyway."""
     last = stages[-1][1]
-    params = jax.block_until_ready(last.y)
+    y = jax.block_until_ready(last.y)  # in the family `problem` is of
+    keep = slice(None) if solved_in is None else spec.kept_in(y, solved_in)
+    params = y if solved_in is None else spec.unpad_params(y, solved_in)
     warnings = []
     finite = all(bool(np.all(np.isfinite(np.asarray(v)))) for v in jax.tree_util.tree_leaves(params))
-    r = np.asarray(_residuals(problem, params))
+    r = np.asarray(_residuals(problem, y))
     converged = last.converged
     if not finite or not np.all(np.isfinite(r)):
         warnings.append("NON-FINITE parameters or residuals: the fit failed; check the data and the start point")
@@ -219,7 +227,7 @@ def _result(
             f"FIT DID NOT CONVERGE ({last.code} after {n_steps} steps): {last.reason}. The results below "
             "are the last iterate, not an optimum; raise solver.max_steps or check the model"
         )
-    J = np.asarray(_jacobian(problem, None, params))
+    J = np.asarray(_jacobian(problem, None, y))[:, keep]
     m, npar = J.shape
     cost = 0.5 * float(np.sum(r * r))
     cv = _Covariance.of(J, spec, params, finite and bool(np.all(np.isfinite(J))))
@@ -228,7 +236,8 @@ def _result(
             f"ill-conditioned: Jacobian condition number {cv.condition_number:.3g}; some parameters are not "
             "determined by the data: the error budget names them"
         )
-    arrays = jax.tree_util.tree_map(np.asarray, _result_arrays(problem, params))
+    arrays = jax.tree_util.tree_map(np.asarray, _result_arrays(problem, y))
+    arrays["G"] = arrays["G"][:, keep]
     # residual statistics: RMS per observable, outliers, chi2 of all data points
     data_res = arrays["data_res"]
     goodness = goodness_of_fit(
@@ -278,6 +287,7 @@ def _result(
         variance_factor=var_factor,
         effective_params=cv.effective_params,
         options=options,
+        solved_in=solved_in,
     )
 
 

@@ -130,15 +130,30 @@ def _step(solver, y, state, args):
     return y_new, state, done, code, r, moved
 
 
-def _free(y: FamilyParams, hold: frozenset) -> FamilyParams:
-    """`y` without the parameters named in `hold`."""
-    return y.without(*hold)
+def _free_mask(y0: FamilyParams, hold: frozenset, keep: np.ndarray | None) -> np.ndarray:
+    """(n_params,) bool in `ravel_pytree` order: the parameters a stage moves (not named in
+    `hold`, and marked by `keep` where given: the extra coefficients of a richer family the fit is
+    solved in stay at zero)."""
+    flat = np.concatenate([np.full(np.size(getattr(y0, k)), k not in hold) for k in y0.names()])
+    return flat if keep is None else flat & keep
 
 
-def _stationarity(problem: Problem, fixed: FamilyParams, y: FamilyParams, r: np.ndarray) -> tuple[float, float]:
-    """(relative, in SE) further decrease the Gauss-Newton model predicts from `y`: the
-    predicted decrease 0.5 ||J dy||^2 over the cost, and ||J dy|| / sqrt(max(chi2_red, 1))."""
-    J = np.asarray(_jacobian(problem, fixed, y))
+def _per_leaf(y0: FamilyParams, flat: np.ndarray) -> FamilyParams:
+    """A flat (n_params,) array in `ravel_pytree` order as arrays of `y0`'s structure."""
+    out, i = {}, 0
+    for k in y0.names():
+        shape = np.shape(getattr(y0, k))
+        n = int(np.prod(shape, dtype=int))
+        out[k] = device_array(flat[i : i + n].reshape(shape))
+        i += n
+    return y0.replace(**out)
+
+
+def _stationarity(problem: Problem, free: np.ndarray, y: FamilyParams, r: np.ndarray) -> tuple[float, float]:
+    """(relative, in SE) further decrease the Gauss-Newton model predicts from `y` moving the
+    parameters `free` marks: the predicted decrease 0.5 ||J dy||^2 over the cost, and
+    ||J dy|| / sqrt(max(chi2_red, 1))."""
+    J = np.asarray(_jacobian(problem, None, y))[:, free]
     if not (np.all(np.isfinite(J)) and np.all(np.isfinite(r))):
         return math.inf, math.inf
     dy = np.linalg.lstsq(J, r, rcond=None)[0]
@@ -150,19 +165,28 @@ def _stationarity(problem: Problem, fixed: FamilyParams, y: FamilyParams, r: np.
 
 
 def _run_stage(
-    problem: Problem, y0: FamilyParams, options: FitOptions, *, hold: frozenset = frozenset(), stage: int, bar=None
+    problem: Problem,
+    y0: FamilyParams,
+    options: FitOptions,
+    *,
+    hold: frozenset = frozenset(),
+    keep: np.ndarray | None = None,
+    stage: int,
+    bar=None,
 ) -> _Stage:
     """Step the solver from `y0` (every parameter) until optimistix's test or ours says converged,
-    or max_steps; the parameters named in `hold` keep their values in `y0`."""
+    or max_steps; the parameters named in `hold`, and those `keep` (flat, `ravel_pytree` order)
+    marks False, keep their values in `y0`. Which parameters are held is data (a boolean per
+    element): every stage, and every fit of one model structure, runs the same compiled programs."""
     solver = _make_solver(options)
     # strongly typed leaves: a weakly typed start would make the second step compile again
     y0 = jax.tree_util.tree_map(lambda v: device_array(np.asarray(v)), y0)
-    free = y0.replace(**{k: device_array(np.asarray(k not in hold)) for k in y0.names()})
+    free_flat = _free_mask(y0, hold, keep)
+    free = _per_leaf(y0, free_flat)
     args = (problem, y0, free)
-    fixed = y0.only(hold)  # for the stationarity test's Jacobian (the free ones only)
     w = CONVERGENCE_WINDOW
     r0 = np.asarray(_residuals(problem, y0))
-    npar = int(sum(np.size(v) for v in jax.tree_util.tree_leaves(_free(y0, hold))))
+    npar = int(free_flat.sum())
     dof = max(len(r0) - npar, 1)
     hist = [(0.5 * float(r0 @ r0), r0)]  # accepted iterates (cost, residuals), the start included
     costs, accepted, times = [], [], []
@@ -207,7 +231,7 @@ def _run_stage(
                 )
                 break
         if since >= 2 * w:  # many rejections in a row: test for a stationary point
-            rc, se = _stationarity(problem, fixed, _free(y, hold), r)
+            rc, se = _stationarity(problem, free_flat, _held(y, y0, free), r)
             if rc <= options.rtol_cost and se <= options.rtol_step:
                 conv, code = True, "stationary"
                 reason = (
@@ -218,7 +242,8 @@ def _run_stage(
                 break
             since = 0
     else:
-        rc, se = _stationarity(problem, fixed, _free(y, hold), np.asarray(_residuals(problem, y.merged(fixed))))
+        y_held = _held(y, y0, free)
+        rc, se = _stationarity(problem, free_flat, y_held, np.asarray(_residuals(problem, y_held)))
         if rc <= options.rtol_cost and se <= options.rtol_step:
             conv, code = True, "stationary"
             reason = (
@@ -244,7 +269,7 @@ def _run_stage(
         dt[:2] -= extra
     n_acc = len(hist) - 1
     return _Stage(
-        y=y.merged(fixed),  # the held parameters exactly as given (the solver never moves them)
+        y=_held(y, y0, free),  # the held parameters exactly as given (the solver never moves them)
         converged=conv,
         code=code,
         reason=reason,
@@ -257,6 +282,11 @@ def _run_stage(
         accepted=accepted,
         step_s=dt.tolist(),
     )
+
+
+def _held(y: FamilyParams, y0: FamilyParams, free: FamilyParams) -> FamilyParams:
+    """`y` with the parameters `free` marks False exactly as in `y0` (on the host: no program)."""
+    return jax.tree_util.tree_map(lambda a, b, f: device_array(np.where(np.asarray(f), a, b)), y, y0, free)
 
 
 def _relaxed(problem: Problem, lobe_sigma_db: float = 1.0, wave_sigma_rad: float = math.radians(5.0)) -> Problem:
@@ -286,6 +316,7 @@ def fit(
     params0: FamilyParams | None = None,
     progress: bool = False,
     multistart: bool = False,
+    solve_in: ModelFamily | None = None,
 ) -> FitResult:
     """Fit `spec` to the data. Never raises on non-convergence: the result says so (`converged`,
     `result_code`, `convergence`, `warnings`). `progress` shows a bar of solver steps with the cost.
@@ -300,11 +331,26 @@ def fit(
     `multistart` (with a `params0` whose diameter is fitted, e.g. a user's start diameter): the
     first stage runs from `params0` and from the diameter scan's best start, and the fit goes on
     from the lower cost: a lobe's cost in D has a local minimum near every null, so a start far
-    from the truth (0.75 x, 1.3 x) would otherwise stay in one."""
+    from the truth (0.75 x, 1.3 x) would otherwise stay in one.
+
+    `solve_in`: a richer family `spec` nests in (`spec.nests_in`: more basis functions), e.g. the
+    error budget's refit with one more; the fit is solved there with the extra coefficients held
+    at zero (the same optimum, to rounding), so that fit's compiled programs are this one's: in a
+    fresh process they compile once for both. The result is `spec`'s (the extra columns dropped)
+    and records the family in `solved_in`, for refits from it."""
     t_start = time.perf_counter()
     _check_params(spec, params0, "params0")
-    problem = build_problem(spec, transfer, lobe, wave, options)
+    if solve_in is not None and not spec.nests_in(solve_in):
+        raise ValueError(
+            f"solve_in must be the model with more basis functions for its smooth profile(s) (n_basis > "
+            f"{spec.n_basis}, everything else equal); got {solve_in!r} for {spec!r}"
+        )
+    big = solve_in or spec
+    problem = build_problem(big, transfer, lobe, wave, options)
+    if solve_in is not None and params0 is not None:
+        params0 = spec.pad_params(params0, solve_in)
     p0 = initial_params(problem, params0)
+    keep = None if solve_in is None else spec.kept_in(p0, solve_in)
     starts = [p0]
     if multistart and params0 is not None and p0.has("diam"):
         starts.append(initial_params(problem, None))
@@ -314,11 +360,11 @@ def fit(
 
         bar = tqdm(desc="fit", unit="step")
     try:
-        stages = _fit_stages(problem, starts, options, params0 is None, bar)
+        stages = _fit_stages(problem, starts, options, params0 is None, bar, keep)
     finally:
         if bar is not None:
             bar.close()
-    return _result(problem, spec, stages, options, lobe, wave, time.perf_counter() - t_start)
+    return _result(problem, spec, stages, options, lobe, wave, time.perf_counter() - t_start, solved_in=solve_in)
 
 
 def _check_params(spec: ModelFamily, params: object, name: str) -> None:
@@ -332,25 +378,30 @@ def _check_params(spec: ModelFamily, params: object, name: str) -> None:
 
 
 def _fit_stages(
-    problem: Problem, starts: FamilyParams | list[FamilyParams], options: FitOptions, scan: bool, bar
+    problem: Problem,
+    starts: FamilyParams | list[FamilyParams],
+    options: FitOptions,
+    scan: bool,
+    bar,
+    keep: np.ndarray | None = None,
 ) -> list[tuple[int, _Stage]]:
     """The stages from one start or the first stage from each of several (a list), the rest from
-    the best of those."""
+    the best of those (`keep`: as for `_run_stage`)."""
     starts = [starts] if isinstance(starts, FamilyParams) else list(starts)
     out = []
     p0 = start = starts[0]
     profiles = frozenset(k for k in p0.names() if k in ("w", "lag"))
     if (profiles and scan and p0.has("diam")) or len(starts) > 1:
-        firsts = [_run_stage(_relaxed(problem), p, options, hold=profiles, stage=1, bar=bar) for p in starts]
+        firsts = [_run_stage(_relaxed(problem), p, options, hold=profiles, keep=keep, stage=1, bar=bar) for p in starts]
         ok = [s for s in firsts if _finite(s.y)]
         s1 = min(ok, key=lambda s: s.cost[-1] if s.cost else math.inf) if ok else firsts[0]
         out.append((1, s1))
         if _finite(s1.y):
             start = s1.y
-    s2 = _run_stage(_relaxed(problem), start, options, stage=2, bar=bar)
+    s2 = _run_stage(_relaxed(problem), start, options, keep=keep, stage=2, bar=bar)
     out.append((2, s2))
     start = s2.y if _finite(s2.y) else start
-    out.append((3, _run_stage(problem, start, options, stage=3, bar=bar)))
+    out.append((3, _run_stage(problem, start, options, keep=keep, stage=3, bar=bar)))
     return out
 
 

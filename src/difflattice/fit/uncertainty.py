@@ -83,7 +83,15 @@ from .identify import (
     mirror_aliases,
 )
 from .model import physical_of
-from .quantities import NUISANCE, _on_nominal, _quantities_and_jacobian, _values, map_params, quantities
+from .quantities import (
+    NUISANCE,
+    _as_solved,
+    _on_nominal,
+    _values,
+    map_params,
+    quantities,
+    quantities_and_jacobian,
+)
 from .solve import FitOptions, FitResult, fit
 from .transfer import Transfer
 
@@ -147,20 +155,15 @@ def error_budget(
     options = options or fitted.options or FitOptions()
     say = print if progress else (lambda *a, **k: None)
     vf = fitted.variance_factor
-    spec, params = fitted.spec, fitted.params
-    options = options or fitted.options or FitOptions()
-    say = print if progress else (lambda *a, **k: None)
-    vf = fitted.variance_factor
     # the refit at a second resolution runs in a background thread while the quantities and the
     # model-family refits run here (XLA's compilation and the solver's steps release the GIL)
     res = _ResolutionRefit.start(fitted, transfer, lobe, wave, options, make_transfer, second_cells_per_wavelength, say)
-    v, names, units, G = _quantities_and_jacobian(spec, params)
-    v, G = np.asarray(v), np.asarray(G)
+    v, names, units, G = quantities_and_jacobian(spec, params, fitted.solved_in)
     cov = fitted.covariance_raw
     stat = (
         np.sqrt(np.clip(np.einsum("ij,jk,ik->i", G, cov, G), 0, None)) if cov is not None else np.full(len(v), np.nan)
     )
-    ph = physical_of(spec, params)
+    ph = physical_of(*_as_solved(spec, params, fitted.solved_in))
     window = np.asarray(ph["weights"]) / np.asarray(ph["weights_raw"])
     active = window >= 0.5  # cells inside the active aperture
 
@@ -272,7 +275,8 @@ class _ResolutionRefit:
         T2 = make_transfer(m2)
         spec2 = dataclasses.replace(spec, n_cells=T2.n_cells, dx_m=T2.grid.dx_m)
         pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="difflattice-budget")
-        future = pool.submit(fit, spec2, T2, lobe, wave, options, params0=map_params(spec, params, spec2))
+        params2 = map_params(spec, params, spec2, fitted.solved_in)
+        future = pool.submit(fit, spec2, T2, lobe, wave, options, params0=params2)
         pool.shutdown(wait=False)
         return cls(spec, m1, m2, spec2, future)
 

@@ -145,7 +145,7 @@ def family_spread(
         if fspec == spec and fopt == options:
             continue  # the nominal model itself (e.g. "symmetric" of a model that is symmetric anyway)
         say(f"[budget] refit with {_family_label(ov)} (model-family spread)")
-        p0 = map_params(spec, params, fspec, fitted.solved_in)
+        p0 = map_params(spec, params, fspec, physical=fitted.physical)
         fam_fits.append((ov, fspec, fit(fspec, transfer, lobe, wave, fopt, params0=p0)))
     if not fam_fits:
         return FamilySpread(None, [], [])

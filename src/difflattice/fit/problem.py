@@ -133,12 +133,6 @@ def build_problem(
 
 
 @small_jit
-def _cost(problem: Problem, params: FamilyParams):
-    r = problem.residuals(params)
-    return jnp.sum(r * r)
-
-
-@small_jit
 def _residuals(problem: Problem, params: FamilyParams):
     return problem.residuals(params)
 
@@ -158,7 +152,8 @@ def initial_params(problem: Problem, params: FamilyParams | None = None) -> Fami
         best: tuple[float, FamilyParams] | None = None
         for frac in np.linspace(0.5, 0.98, 25):
             q = _with_offsets(problem, p.replace(diam=device_array(logit(frac))))
-            c = float(_cost(problem, q))
+            r = np.asarray(_residuals(problem, q))
+            c = float(r @ r)
             if np.isfinite(c) and (best is None or c < best[0]):
                 best = (c, q)
         if best is not None:  # else every scanned diameter gave a non-finite cost: the fit says so
@@ -168,12 +163,12 @@ def initial_params(problem: Problem, params: FamilyParams | None = None) -> Fami
 
 def _with_offsets(problem: Problem, p: FamilyParams) -> FamilyParams:
     if p.has("gain_db"):
-        m = np.asarray(_models(problem, p.replace(gain_db=device_array(0.0)))[0])
+        m = np.asarray(_evaluate(problem, p.replace(gain_db=device_array(0.0)))["lobe_db"])
         data = np.asarray(problem.lobe_db)
         top = data > data.max() - 10
         p = p.replace(gain_db=device_array(float(np.median(data[top] - m[top]))))
     if p.has("phase0"):
-        m = np.asarray(_models(problem, p.replace(phase0=device_array(0.0)))[1])
+        m = np.asarray(_evaluate(problem, p.replace(phase0=device_array(0.0)))["wave_phase"])
         d = np.asarray(problem.wave_phase) - m
         p = p.replace(phase0=device_array(float(np.angle(np.mean(np.exp(1j * d))))))
     return p
@@ -201,4 +196,47 @@ def _model_curves(problem: Problem, params: FamilyParams):
     return lobe, wave
 
 
-_models = small_jit(_model_curves)  # as one program
+def _flat_jacobian(jac: FamilyParams, params: FamilyParams) -> jnp.ndarray:
+    """A Jacobian computed w.r.t. parameters `params` (leaves (m, *shape) in their structure), as
+    (m, n) in `ravel_pytree` order."""
+    cols = [j.reshape(j.shape[0], -1) for j in jax.tree_util.tree_leaves(jac)]
+    return jnp.concatenate(cols, axis=1)
+
+
+def _physical_values(spec: ModelFamily, params: FamilyParams):
+    """The physical vector (`fit.result.physical_vector`'s values)."""
+    ph = spec.physical(params)
+    return jnp.concatenate(
+        [
+            ph["weights"],
+            ph["lags_s"] * 1e6,
+            jnp.atleast_1d(ph["diameter_m"] * 1e3),
+            jnp.atleast_1d(ph["gain_db"]),
+            jnp.atleast_1d(jnp.degrees(ph["phase0_rad"])),
+        ]
+    )
+
+
+def _physical_jacobian_of(spec: ModelFamily, params: FamilyParams):
+    jac = jax.jacfwd(lambda p: _physical_values(spec, p))(params)
+    return _flat_jacobian(jac, params)
+
+
+@small_jit
+def _evaluate(problem: Problem, params: FamilyParams) -> dict:
+    """Everything the fit reads at one point, as one program per model structure (in a fresh
+    process each program is traced, lowered and compiled: one serves the start's offsets and the
+    result): the residuals `r` and their Jacobian `J` (raw parameters, `ravel_pytree` order), the
+    data residuals, the physical quantities `phys` and their vector's Jacobian `G`, and the
+    models at the data points (`lobe_db`, `wave_phase`)."""
+    spec = problem.spec
+    lobe, wave = _model_curves(problem, params)
+    return {
+        "r": problem.residuals(params),
+        "J": _flat_jacobian(jax.jacfwd(problem.residuals)(params), params),
+        "G": _physical_jacobian_of(spec, params),
+        "data_res": problem.data_residuals(params),
+        "phys": spec.physical(params),
+        "lobe_db": lobe,
+        "wave_phase": wave,
+    }

@@ -199,12 +199,18 @@ def _implied_coefficients(spec: ModelFamily, active: np.ndarray, other: FitResul
 
 
 def map_params(
-    spec_from: ModelFamily, params: FamilyParams, spec_to: ModelFamily, solved_in: ModelFamily | None = None
+    spec_from: ModelFamily,
+    params: FamilyParams,
+    spec_to: ModelFamily,
+    solved_in: ModelFamily | None = None,
+    *,
+    physical: dict | None = None,
 ) -> FamilyParams:
     """A warm start for `spec_to` from a fit of `spec_from` (another resolution or family): the
     per-cell log weights and lag arguments interpolated at the new cells and projected on the new
-    parameterisation (`solved_in`: the family the fit was solved in, see `_as_solved`)."""
-    ph = physical_of(*_as_solved(spec_from, params, solved_in))
+    parameterisation (`solved_in`: the family the fit was solved in, see `_as_solved`;
+    `physical`: `spec_from.physical(params)` where known, e.g. a `FitResult`'s)."""
+    ph = physical if physical is not None else physical_of(*_as_solved(spec_from, params, solved_in))
     logw = np.log(np.asarray(ph["weights_raw"]))
     arg = np.arctanh(np.clip(2 * np.asarray(ph["lags_s"]) / spec_from.period_s, -0.999999, 0.999999))
     y0, y1 = spec_from.y_m, spec_to.y_m

@@ -8,7 +8,6 @@ import math
 from dataclasses import dataclass, field
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from .data import LobeData, WaveData
@@ -22,7 +21,14 @@ from .goodness import (
 )
 from .model import soft_floor_db
 from .options import CONVERGENCE_WINDOW, STAGE_NAMES, FitOptions
-from .problem import Problem, _model_curves, _residuals
+from .problem import (
+    Problem,
+    _evaluate,
+    _flat_jacobian,
+    _physical_jacobian_of,
+    _physical_values,
+    _residuals,
+)
 from .programs import small_jit
 
 
@@ -122,13 +128,6 @@ class _Stage:
     step_s: list
 
 
-def _flat_jacobian(jac: FamilyParams, params: FamilyParams) -> jnp.ndarray:
-    """A Jacobian computed w.r.t. parameters `params` (leaves (m, *shape) in their structure), as
-    (m, n) in `ravel_pytree` order."""
-    cols = [j.reshape(j.shape[0], -1) for j in jax.tree_util.tree_leaves(jac)]
-    return jnp.concatenate(cols, axis=1)
-
-
 @small_jit
 def _jacobian(problem: Problem, fixed: FamilyParams | None, params: FamilyParams):
     """Jacobian of the residuals w.r.t. the free parameters `params` (those present in `fixed`
@@ -137,29 +136,7 @@ def _jacobian(problem: Problem, fixed: FamilyParams | None, params: FamilyParams
     return _flat_jacobian(jac, params)
 
 
-def _physical_jacobian_of(spec: ModelFamily, params: FamilyParams):
-    jac = jax.jacfwd(lambda p: _physical_values(spec, p))(params)
-    return _flat_jacobian(jac, params)
-
-
 _physical_jacobian = small_jit(_physical_jacobian_of)
-
-
-@small_jit
-def _result_arrays(problem: Problem, params: FamilyParams) -> dict:
-    """What `_result` reports beyond the residuals and their Jacobian, as one program (five
-    programs' tracing, lowering and cache reads would be Python work in every new process):
-    the physical vector's Jacobian, the data residuals, the physical quantities and the
-    models at the data points."""
-    spec = problem.spec
-    lobe, wave = _model_curves(problem, params)
-    return {
-        "G": _physical_jacobian_of(spec, params),
-        "data_res": problem.data_residuals(params),
-        "phys": spec.physical(params),
-        "lobe_db": lobe,
-        "wave_phase": wave,
-    }
 
 
 def _trace(stages: list[tuple[int, _Stage]]) -> FitTrace:
@@ -216,7 +193,8 @@ def _result(
     params = y if solved_in is None else spec.unpad_params(y, solved_in)
     warnings = []
     finite = all(bool(np.all(np.isfinite(np.asarray(v)))) for v in jax.tree_util.tree_leaves(params))
-    r = np.asarray(_residuals(problem, y))
+    arrays = jax.tree_util.tree_map(np.asarray, _evaluate(problem, y))
+    r = arrays["r"]
     converged = last.converged
     if not finite or not np.all(np.isfinite(r)):
         warnings.append("NON-FINITE parameters or residuals: the fit failed; check the data and the start point")
@@ -227,7 +205,7 @@ def _result(
             f"FIT DID NOT CONVERGE ({last.code} after {n_steps} steps): {last.reason}. The results below "
             "are the last iterate, not an optimum; raise solver.max_steps or check the model"
         )
-    J = np.asarray(_jacobian(problem, None, y))[:, keep]
+    J = arrays["J"][:, keep]
     m, npar = J.shape
     cost = 0.5 * float(np.sum(r * r))
     cv = _Covariance.of(J, spec, params, finite and bool(np.all(np.isfinite(J))))
@@ -236,7 +214,6 @@ def _result(
             f"ill-conditioned: Jacobian condition number {cv.condition_number:.3g}; some parameters are not "
             "determined by the data: the error budget names them"
         )
-    arrays = jax.tree_util.tree_map(np.asarray, _result_arrays(problem, y))
     arrays["G"] = arrays["G"][:, keep]
     # residual statistics: RMS per observable, outliers, chi2 of all data points
     data_res = arrays["data_res"]
@@ -431,19 +408,6 @@ def _physical_labels(spec: ModelFamily) -> list[str]:
 @small_jit
 def _physical_array(spec: ModelFamily, params: FamilyParams):
     return _physical_values(spec, params)
-
-
-def _physical_values(spec: ModelFamily, params: FamilyParams):
-    ph = spec.physical(params)
-    return jnp.concatenate(
-        [
-            ph["weights"],
-            ph["lags_s"] * 1e6,
-            jnp.atleast_1d(ph["diameter_m"] * 1e3),
-            jnp.atleast_1d(ph["gain_db"]),
-            jnp.atleast_1d(jnp.degrees(ph["phase0_rad"])),
-        ]
-    )
 
 
 def physical_jacobian(spec: ModelFamily, params: FamilyParams) -> np.ndarray:

@@ -82,10 +82,8 @@ from .identify import (
     mark_reference_and_inactive,
     mirror_aliases,
 )
-from .model import physical_of
 from .quantities import (
     NUISANCE,
-    _as_solved,
     _on_nominal,
     _values,
     map_params,
@@ -163,7 +161,7 @@ def error_budget(
     stat = (
         np.sqrt(np.clip(np.einsum("ij,jk,ik->i", G, cov, G), 0, None)) if cov is not None else np.full(len(v), np.nan)
     )
-    ph = physical_of(*_as_solved(spec, params, fitted.solved_in))
+    ph = fitted.physical  # spec.physical(params), computed with the result
     window = np.asarray(ph["weights"]) / np.asarray(ph["weights_raw"])
     active = window >= 0.5  # cells inside the active aperture
 
@@ -275,7 +273,7 @@ class _ResolutionRefit:
         T2 = make_transfer(m2)
         spec2 = dataclasses.replace(spec, n_cells=T2.n_cells, dx_m=T2.grid.dx_m)
         pool = concurrent.futures.ThreadPoolExecutor(1, thread_name_prefix="difflattice-budget")
-        params2 = map_params(spec, params, spec2, fitted.solved_in)
+        params2 = map_params(spec, params, spec2, physical=fitted.physical)
         future = pool.submit(fit, spec2, T2, lobe, wave, options, params0=params2)
         pool.shutdown(wait=False)
         return cls(spec, m1, m2, spec2, future)

@@ -1,6 +1,6 @@
 """The report's figure worker started ahead (`figures.prestart_worker`, issue 30: its matplotlib
 import runs beside the fit): the next writer takes that process and draws with it; a spare that
-died is not taken; one never taken exits when its input ends."""
+died is not taken; one never taken exits when its input ends; a deferred figure goes to it when computed."""
 
 from __future__ import annotations
 
@@ -60,3 +60,32 @@ def test_a_spare_never_taken_exits_when_its_input_ends():
     out, _ = proc.communicate(timeout=120)  # closes its stdin, as this process's end would
     err.close()
     assert proc.returncode == 0 and out.strip().endswith(b"{}")
+
+
+def test_a_deferred_figure_goes_to_the_worker_when_computed(tmp_path):
+    """With a worker process the deferred job is sent as soon as its arguments are computed (it is
+    drawn beside the rest of the fit, not after it); its computation's error still reaches
+    `results`."""
+    import threading
+
+    w = figures.FigureWriter(background=True)
+    if w._proc is None:
+        pytest.skip("no worker process on this machine")
+    a = np.arange(-90, 91, 10.0)
+    done = threading.Event()
+
+    def compute():
+        done.set()
+        return (a, {"measured": (-np.abs(a) / 3, "o")}), {}
+
+    w.defer("lobe", "lobe_plots", tmp_path / "lobe.png", compute)
+    assert done.wait(60)
+    name, _, _, t, box = w._deferred[0]
+    t.join(60)
+    assert name == "lobe" and "value" not in box and "error" not in box  # sent by its thread
+    assert w.results()["lobe"].stat().st_size > 1000
+
+    w2 = figures.FigureWriter(background=True)
+    w2.defer("field", "field_image", tmp_path / "field.png", lambda: 1 / 0)
+    with pytest.raises(ZeroDivisionError):
+        w2.results()

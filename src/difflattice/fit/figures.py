@@ -117,7 +117,8 @@ class FigureWriter:
 
     def defer(self, name: str, fn: str, path: Path, compute) -> None:
         """Submit `fn(*args, **kwargs)` with `(args, kwargs) = compute()`, computed in a thread
-        from now on (its result, or error, is taken by `results`)."""
+        from now on (its error is raised by `results`). With a worker process the job goes to it
+        as soon as it is computed (drawn beside the rest of the fit); else `results` draws it."""
         import threading
 
         box: dict[str, Any] = {}
@@ -127,6 +128,10 @@ class FigureWriter:
                 box["value"] = compute()
             except BaseException as e:  # re-raised in `results`
                 box["error"] = e
+                return
+            if self._proc is not None:  # the job queue is thread-safe; `results` stops its writer later
+                args, kwargs = box.pop("value")
+                self.submit(name, fn, path, *args, **kwargs)
 
         t = threading.Thread(target=run, daemon=True)
         t.start()
@@ -139,8 +144,9 @@ class FigureWriter:
                 t.join()
                 if "error" in box:
                     raise box["error"]
-                args, kwargs = box["value"]
-                self.submit(name, fn, path, *args, **kwargs)
+                if "value" in box:  # not submitted by its thread (no worker process)
+                    args, kwargs = box["value"]
+                    self.submit(name, fn, path, *args, **kwargs)
             self._deferred = []
             if self._proc is not None:
                 self._stop_writer()

@@ -254,3 +254,64 @@ def test_fractional_speed_zero_walls_do_not_depend_on_the_edges():
     peak = float(jnp.abs(b).max())
     assert peak > 1e-3
     assert float(jnp.abs(a - b).max()) <= n * 16 * np.finfo(np.float64).eps * peak
+
+
+def _uniform_pml(stencil: str, shape, thickness: int = 5) -> Stepper:
+    kind = "3d" if len(shape) == 3 else "2d"
+    g = make_grid(
+        frequency_hz=50e3, cells_per_wavelength=10, c_max_m_s=343.0, shape=shape, dtype="float64", kind=kind,
+        stencil=stencil,
+    )  # fmt: skip
+    centre = [[s // 2 for s in shape]]
+    src = PointSources(cells=np.array(centre), signal=ToneBurst(50e3, 2.0), weights=jnp.ones(1), lags_s=jnp.zeros(1))
+    return Stepper.build(g, Medium(343.0, 1.2), src, Sensors(), Edges.all("pml", thickness_cells=thickness))
+
+
+@pytest.mark.parametrize(
+    ("stencil", "shape"), [("wide", (30, 27, 24)), ("isotropic", (30, 27, 24)), ("isotropic", (40, 34))]
+)
+def test_isotropic_and_wide_layers_take_their_face_values_from_the_box(stencil, shape):
+    """The isotropic and wide stencils' layer face values from each box and a two-cell halo
+    (`stepper._box_face_values`) are the whole grid's (`operators.face_gradient`, sliced): the same
+    arithmetic on the same values, so equal to rounding (<= 16 eps max|q|: a face value sums at
+    most ~10 terms of size <= 4 max|q|, each rounded once)."""
+    from difflattice.solver import stepper as stepper_mod
+
+    st = _uniform_pml(stencil, shape)
+    lat = st.lattice
+    q = jnp.asarray(np.random.default_rng(4).standard_normal(shape))
+    assert stepper_mod._local_face_values(lat, q.shape, q.dtype)
+    full = [np.asarray(face_gradient(lat, q, a)) for a in range(q.ndim)]
+    tol = 16 * np.finfo(float).eps * float(jnp.max(jnp.abs(q)))
+    for box in lat.pml.boxes:
+        got = stepper_mod._box_face_values(lat, q, box)
+        for a, g in enumerate(got):
+            want = full[a][tuple(slice(lo, hi + 1) if i == a else slice(lo, hi) for i, (lo, hi) in enumerate(box))]
+            assert g.shape == want.shape
+            np.testing.assert_allclose(np.asarray(g), want, rtol=0, atol=tol)
+
+
+def test_box_face_values_run_equals_the_whole_grid_form(monkeypatch):
+    """A 3-D wide-stencil PML scene stepped with the box-local face values and with the whole
+    grid's: float64 rounding (the file's criterion, n_steps * 16 eps * peak)."""
+    from difflattice.solver import stepper as stepper_mod
+
+    st = _uniform_pml("wide", (30, 27, 24))
+    n = 40
+    local = np.asarray(run(st, n).final.pressure)
+    monkeypatch.setattr(stepper_mod, "_local_face_values", lambda *a: False)
+    whole = np.asarray(run(st, n, backend="jax").final.pressure)
+    peak = np.abs(whole).max()
+    assert peak > 1e-6
+    np.testing.assert_allclose(local, whole, rtol=0, atol=n * 16 * np.finfo(float).eps * peak)
+
+
+def test_a_rigid_side_keeps_the_whole_grid_face_values():
+    from difflattice.solver import stepper as stepper_mod
+
+    g = make_grid(
+        frequency_hz=50e3, cells_per_wavelength=10, c_max_m_s=343.0, shape=(30, 27, 24), dtype="float64", kind="3d",
+        stencil="wide",
+    )  # fmt: skip
+    st = Stepper.build(g, Medium(343.0, 1.2), (), Sensors(), Edges(z_lo="rigid", thickness_cells=5))
+    assert not stepper_mod._local_face_values(st.lattice, tuple(g.shape), jnp.float64)

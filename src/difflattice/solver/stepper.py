@@ -299,7 +299,9 @@ class Stepper(eqx.Module):
                 f"{len(state.layers)}: start from stepper.init() (or the final state of a run of the same scene)"
             )
         lat = self.lattice
-        if lat.stencil in ("isotropic", "wide"):  # face values reaching past the box: the whole grid's, sliced
+        if lat.stencil in ("isotropic", "wide") and _local_face_values(lat, q.shape, q.dtype):
+            grads = lambda box: _box_face_values(lat, q, box)
+        elif lat.stencil in ("isotropic", "wide"):  # per-face arrays to cut: the whole grid's, sliced
             full = [face_gradient(lat, q, axis) for axis in range(q.ndim)]
             grads = lambda box: [g[_faces_of(box, a)] for a, g in enumerate(full)]
         else:  # from the box's cells and a one-cell halo (zero beyond the window)
@@ -422,6 +424,36 @@ def _box_gradients(q, box, faces) -> list:
     for axis, b in enumerate(faces):
         g = _along(qh, axis, slice(1, None), inner) - _along(qh, axis, slice(None, -1), inner)
         out.append(g if b is None else _cut(b, _faces_of(box, axis)) * g)
+    return out
+
+
+FACE_HALO = 2
+"""Cells round a layer box from which its isotropic or wide face values are formed: the wide
+stencil's axis term reaches two cells along the face normal, the cross-face average one across."""
+
+
+def _local_face_values(lat: Lattice, shape, dtype) -> bool:
+    """Whether `_box_face_values` applies: no per-face or per-cell arrays to cut (uniform faces,
+    no rigid window side, no paper-model factors) and no ring metric (whose weights count rings
+    from the axis)."""
+    if lat.bx is not None or lat.ax_lo is not None or lat.metric is not None:
+        return False
+    return all(b is None for b in _face_coefficients(lat, shape, dtype))
+
+
+def _box_face_values(lat: Lattice, q, box) -> list:
+    """`operators.face_gradient` (isotropic or wide stencil) on a box's faces along each axis,
+    formed on the box and a `FACE_HALO`-cell halo instead of the whole grid: where the block
+    meets the window its ghost rules are the window's; where it is cut inside, the values that
+    the cut spoils lie in the halo and are not kept. Uniform faces only (`_local_face_values`)."""
+    lo_s = [max(lo - FACE_HALO, 0) for lo, _ in box]
+    hi_s = [min(hi + FACE_HALO, n) for (_, hi), n in zip(box, q.shape)]
+    block = q[tuple(slice(a, b) for a, b in zip(lo_s, hi_s))]
+    out = []
+    for axis in range(q.ndim):
+        f = face_gradient(lat, block, axis)
+        keep = tuple(slice(lo - s, hi - s + (1 if a == axis else 0)) for a, ((lo, hi), s) in enumerate(zip(box, lo_s)))
+        out.append(f[keep])
     return out
 
 

@@ -30,6 +30,26 @@ MIN_FIT_CELLS_PER_WAVELENGTH = 8.0
 parameters (docs/accuracy.md); it is allowed, with a warning."""
 
 
+def lobe_mask_setting(doc: str) -> Any:
+    """The `[data] lobe_mask_deg` declaration (angle ranges left out of a fit), with its `doc`:
+    one declaration for the fit configs and the housed ones."""
+    return setting(
+        [],
+        kind="list",
+        items="range",
+        ge=-180,
+        le=180,
+        unit="deg",
+        doc=doc,
+        fix="give [[lo, hi], ...] in degrees with lo < hi",
+    )
+
+
+def wave_mask_setting(doc: str) -> Any:
+    """The `[data] wave_mask_m` declaration (wavefront position ranges left out of a fit)."""
+    return setting([], kind="list", items="range", unit="m", doc=doc, fix="give [[lo, hi], ...] in metres with lo < hi")
+
+
 @dataclass(frozen=True)
 class DataSection(Section):
     """What is fitted. Paths are relative to the config file. A lobe file is a capture file
@@ -52,24 +72,10 @@ class DataSection(Section):
         doc="wavefront file: capture (`difflattice capture wave`), or plain table with a units header (e.g. x_mm,phase_deg)",
         fix="give the path relative to the config file",
     )
-    lobe_mask_deg: tuple = setting(
-        [],
-        kind="list",
-        items="range",
-        ge=-180,
-        le=180,
-        unit="deg",
-        doc="angle ranges [lo, hi] left out of the fit (inclusive), e.g. [[-90, -60], [60, 90]]",
-        fix="give [[lo, hi], ...] in degrees with lo < hi",
+    lobe_mask_deg: tuple = lobe_mask_setting(
+        "angle ranges [lo, hi] left out of the fit (inclusive), e.g. [[-90, -60], [60, 90]]"
     )
-    wave_mask_m: tuple = setting(
-        [],
-        kind="list",
-        items="range",
-        unit="m",
-        doc="positions x ranges [lo, hi] left out of the fit (inclusive)",
-        fix="give [[lo, hi], ...] in metres with lo < hi",
-    )
+    wave_mask_m: tuple = wave_mask_setting("positions x ranges [lo, hi] left out of the fit (inclusive)")
     frequency_hz: float | None = setting(
         None,
         kind="number",

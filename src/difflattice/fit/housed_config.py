@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from ..config import ConfigError, Section, message, parse_section, setting
+from .config import lobe_mask_setting, wave_mask_setting
 
 HOUSED_FAMILIES = (
     "flat",
@@ -52,15 +53,8 @@ class HousedDataSection(Section):
         doc="datasheet record (TOML, data/datasheets/README.md), relative to the config file",
         fix="give the path of a record with a [table] (a digitised directivity)",
     )
-    lobe_mask_deg: tuple = setting(
-        [],
-        kind="list",
-        items="range",
-        ge=-180,
-        le=180,
-        unit="deg",
-        doc="angle ranges [lo, hi] of the record's table left out of the fit (inclusive), e.g. [[60, 90]]",
-        fix="give [[lo, hi], ...] in degrees with lo < hi",
+    lobe_mask_deg: tuple = lobe_mask_setting(
+        "angle ranges [lo, hi] of the record's table left out of the fit (inclusive), e.g. [[60, 90]]"
     )
     wave: str | None = setting(
         None,
@@ -79,13 +73,8 @@ class HousedDataSection(Section):
         "required for a plain table; with a capture file it must agree with its z",
         fix="give the scan line's distance in front of the front face in metres, e.g. 0.01",
     )
-    wave_mask_m: tuple = setting(
-        [],
-        kind="list",
-        items="range",
-        unit="m",
-        doc="positions x ranges [lo, hi] of the wavefront left out of the fit (inclusive)",
-        fix="give [[lo, hi], ...] in metres with lo < hi",
+    wave_mask_m: tuple = wave_mask_setting(
+        "positions x ranges [lo, hi] of the wavefront left out of the fit (inclusive)"
     )
 
 

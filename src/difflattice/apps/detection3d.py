@@ -57,7 +57,7 @@ def _plot_map(doc: dict, path):
     level = np.full((len(names), len(doc["poses"])), np.nan)
     for j, p in enumerate(doc["poses"]):
         for e in p["echoes"]:
-            level[names.index(e["surface"]), j] = e["level_db"]
+            level[names.index(e["surface"]), j] = e.get("level_db", np.nan)  # none: after the record's end
     fig = Figure(figsize=(2 + 1.6 * len(doc["poses"]), 1 + 0.45 * len(names)))
     ax = fig.add_subplot()
     im = ax.imshow(level, vmin=-80, vmax=0, cmap="viridis", aspect="auto")

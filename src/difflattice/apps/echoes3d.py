@@ -319,6 +319,20 @@ def label_echoes(t_s, a_scan, scene, grid, *, cycles: float, gate_start_step: in
             continue  # inside the transmit: no echo of its own (e.g. a floor beside the transducer)
         lo = int(round((t_lat - half) / dt))
         hi = int(round((t_lat + half) / dt))
+        if hi > len(a):  # its echo ends after the record: a row that says so, no arrival or level
+            rows.append(
+                {k: v for k, v in s.items() if k != "nearest"}
+                | {
+                    "path_m": path,
+                    "merged_paths_m": [float(p) for p in paths],
+                    "delay_air_s": t_air,
+                    "delay_lattice_s": t_lat,
+                    "group_velocity_m_s": v_lat,
+                    "recorded": False,
+                    "record_end_s": float(t[-1]),
+                }
+            )
+            continue
         k, level, inside = _peak(env, lo, hi)
         t_meas = t[0] + k * dt if np.isfinite(k) else float("nan")
         level_db = 20 * math.log10(max(level, 1e-300) / transmit)
@@ -333,6 +347,7 @@ def label_echoes(t_s, a_scan, scene, grid, *, cycles: float, gate_start_step: in
                 "arrival_s": t_meas,
                 "error_periods": (t_meas - t_lat) * f0,
                 "error_periods_air": (t_meas - t_air) * f0,
+                "recorded": True,
                 "resolved": bool(inside and gate_start_step <= lo),
                 "level_db": level_db,
                 "detected": {f"{th:g}": bool(level_db >= th) for th in THRESHOLDS_DB},
@@ -373,6 +388,8 @@ def _fit_all(a, found, mirrors, grid, cycles: float, gate_start_step: int, withi
     for name, (lag, template) in models.items():
         if lag - 1 < gate_start_step:
             continue
+        if lag - 1 + 2.0 * burst > len(a):
+            continue  # its window (two bursts after its start) runs past the record's end: not fitted
         others = [o - lag for n, (o, _) in models.items() if n != name]
         fit = fit_first_arrival(trace, template, lag, burst, 1 / (f0 * dt), others, gate_start_step)
         first = fit.first_arrival
@@ -409,6 +426,11 @@ def _fit_text(e: dict) -> str:
 def fit_line(e: dict) -> str:
     """One console line of a surface's fitted first arrival against its lattice delay."""
     f = e.get("fit")
+    if e.get("recorded") is False:
+        return (
+            f"echo {e['surface']!r} ({e.get('first_arrival', 'specular')}): path {e['path_m']:.4f} m, lattice delay "
+            f"{e['delay_lattice_s'] * 1e3:.3f} ms: after the record's end ({e['record_end_s'] * 1e3:.3f} ms), not measured"
+        )
     head = f"echo {e['surface']!r} ({e.get('first_arrival', 'specular')}): path {e['path_m']:.4f} m, {e['level_db']:.1f} dB"
     if not f:
         return f"{head}, envelope peak {e['error_periods']:+.3f} periods vs lattice delay"
@@ -434,7 +456,7 @@ def plot_labelled(t_s, a_scan, table: dict, gate_start_step: int, path):
     ax = fig.add_subplot()
     t_ms = np.asarray(t_s) * 1e3
     ax.plot(t_ms, db, lw=0.8)
-    for i, e in enumerate(table["echoes"]):
+    for i, e in enumerate(e for e in table["echoes"] if e.get("recorded", True)):
         ax.axvline(e["delay_lattice_s"] * 1e3, color="C1", lw=0.6, ls="--")
         ax.text(e["delay_lattice_s"] * 1e3, -5 - 6 * (i % 4), f" {_label(e)}{_fit_text(e)}", fontsize=7, color="C1")
     for th in table["thresholds_db"]:

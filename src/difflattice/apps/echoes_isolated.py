@@ -389,7 +389,7 @@ def isolate_echoes(scene, out_dir, *, full=None, only=None, saved=None, quiet: b
     transmit = echoes3d._transmit_peak(a, r.gate_start_step, burst_steps)
     wavelength = grid.dx_m * grid.cells_per_wavelength
     mirrors = echoes3d._rigid_planes(scene, grid, centre)
-    rows, traces = [], {}
+    rows, traces, unrecorded = [], {}, []
     found = echoes3d.surfaces(scene, grid, centre)
     if only is not None:
         unknown = set(only) - {s["surface"] for s in found}
@@ -403,6 +403,10 @@ def isolate_echoes(scene, out_dir, *, full=None, only=None, saved=None, quiet: b
         model = functools.partial(model_lag_steps, grid, ref, len(a), paths, weights, s["direction"])
         if model(lattice=True) < r.gate_start_step:
             continue  # inside the transmit: no echo of its own (a floor beside the transducer)
+        if model(lattice=True) - 1 + 2 * burst_steps > len(a):  # the fit's window, two bursts after its start
+            say(f"not isolating {s['surface']!r}: its echo ends after the record (a longer [run] duration_s records it)")
+            unrecorded.append(s["surface"])
+            continue
         if saved is not None:
             if s["surface"] not in saved_echoes:
                 continue
@@ -430,6 +434,20 @@ def isolate_echoes(scene, out_dir, *, full=None, only=None, saved=None, quiet: b
             }
         )
         traces[s["surface"]] = echo
+        say(
+            f"isolated {s['surface']!r}: first arrival {got[PRIMARY]['error_periods']:+.3f} ± "
+            f"{got[PRIMARY]['sigma_periods']:.3f} periods vs lattice delay"
+        )
+        _write_isolated(out_dir, t, a, f0, cycles, dt, rows, traces, unrecorded, complete=False)  # kept if cut short
+    doc = _write_isolated(out_dir, t, a, f0, cycles, dt, rows, traces, unrecorded, complete=True)
+    out = Path(out_dir)
+    plot_isolated(t, traces, doc, transmit, out / "echoes_isolated.png")
+    return doc
+
+
+def _write_isolated(out_dir, t, a, f0, cycles, dt, rows, traces, unrecorded, *, complete: bool) -> dict[str, Any]:
+    """Write OUT/echoes_isolated.json and .npz with the surfaces isolated so far (`complete`: all
+    of them; a run cut short keeps those done, marked incomplete); returns the table."""
     doc = {
         "what": "each surface's first echo isolated by a difference of runs (the scene minus the scene without "
         "it, same lattice and transducer), its arrival against the lattice's and the air's delay of its "
@@ -445,6 +463,8 @@ def isolate_echoes(scene, out_dir, *, full=None, only=None, saved=None, quiet: b
         "burst_cycles": cycles,
         "dt_s": dt,
         "echoes": rows,
+        "not_recorded": unrecorded,  # surfaces whose echo ends after the record: not isolated
+        "complete": complete,  # false while surfaces remain (a run cut short keeps those done)
     }
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -456,7 +476,6 @@ def isolate_echoes(scene, out_dir, *, full=None, only=None, saved=None, quiet: b
         surfaces=np.array(list(traces)),
         echoes=np.array(list(traces.values())),
     )
-    plot_isolated(t, traces, doc, transmit, out / "echoes_isolated.png")
     return doc
 
 

@@ -363,7 +363,12 @@ def _write_a_scans(sr: SceneRun3D, out: Path, arrays: dict) -> dict:
         png = echoes3d.plot_labelled(t, a, echoes, r.gate_start_step, out / "a_scan_labelled.png")
         files["a_scan_labelled"] = str(png)
         sr.summary["echoes"] = [
-            {k: e[k] for k in ("surface", "first_arrival", "path_m", "error_periods", "level_db", "resolved", "fit")}
+            {
+                k: e[k]
+                for k in ("surface", "first_arrival", "path_m", "error_periods", "level_db", "resolved", "fit")
+                + ("recorded", "delay_lattice_s", "record_end_s")
+                if k in e
+            }
             for e in echoes["echoes"]
         ]
     return files

@@ -183,9 +183,10 @@ def _fit_delays(pulse, y, taus0, lo, hi, bound: float):
     samples of where it started (and inside the window)."""
     from scipy.optimize import least_squares
 
-    taus0 = np.asarray(taus0, float)
-    lower = np.maximum(taus0 - bound, lo - pulse.centre - 0.5 * bound)
-    upper = np.minimum(taus0 + bound, hi - pulse.centre + 0.5 * bound)
+    reach = (lo - pulse.centre - 0.5 * bound, hi - pulse.centre + 0.5 * bound)  # delays that put the pulse in the window
+    taus0 = np.clip(np.asarray(taus0, float), *reach)  # a start beyond it begins at its edge
+    lower = np.maximum(taus0 - bound, reach[0])
+    upper = np.minimum(taus0 + bound, reach[1])
     x0 = np.clip(taus0, lower + 1e-6, upper - 1e-6)
     sol = least_squares(
         lambda t: _solve(pulse, y, t, lo, hi)[1], x0, bounds=(lower, upper), x_scale=1.0, diff_step=1e-4
@@ -299,6 +300,13 @@ def fit_arrivals(
         raise ValueError(
             f"the window [{lo}, {hi}) holds {n_eff:.1f} independent samples of the pulse's band: too few for "
             f"{len(predicted)} arrivals (3 parameters each); widen the window"
+        )
+    first = predicted[0] + pulse.centre  # where the surface's own pulse sits (samples)
+    if not lo - 0.5 * bound <= first <= hi + 0.5 * bound:
+        raise ValueError(
+            f"the predicted first arrival (pulse centre at sample {first:.1f}) lies outside the window [{lo}, {hi}) "
+            f"of a {len(x)}-sample trace: the trace ends before the echo or the window misses it; "
+            "record longer (a longer duration) or move the window onto the prediction"
         )
     taus = _fit_delays(pulse, y, predicted, lo, hi, bound)
     c, r = _solve(pulse, y, taus, lo, hi)

@@ -404,7 +404,9 @@ def isolate_echoes(scene, out_dir, *, full=None, only=None, saved=None, quiet: b
         if model(lattice=True) < r.gate_start_step:
             continue  # inside the transmit: no echo of its own (a floor beside the transducer)
         if model(lattice=True) - 1 + 2 * burst_steps > len(a):  # the fit's window, two bursts after its start
-            say(f"not isolating {s['surface']!r}: its echo ends after the record (a longer [run] duration_s records it)")
+            say(
+                f"not isolating {s['surface']!r}: its echo ends after the record (a longer [run] duration_s records it)"
+            )
             unrecorded.append(s["surface"])
             continue
         if saved is not None:

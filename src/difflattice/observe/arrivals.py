@@ -183,7 +183,10 @@ def _fit_delays(pulse, y, taus0, lo, hi, bound: float):
     samples of where it started (and inside the window)."""
     from scipy.optimize import least_squares
 
-    reach = (lo - pulse.centre - 0.5 * bound, hi - pulse.centre + 0.5 * bound)  # delays that put the pulse in the window
+    reach = (
+        lo - pulse.centre - 0.5 * bound,
+        hi - pulse.centre + 0.5 * bound,
+    )  # delays that put the pulse in the window
     taus0 = np.clip(np.asarray(taus0, float), *reach)  # a start beyond it begins at its edge
     lower = np.maximum(taus0 - bound, reach[0])
     upper = np.minimum(taus0 + bound, reach[1])

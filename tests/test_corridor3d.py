@@ -116,3 +116,44 @@ def test_full_corridor_is_room_scale_and_fits():
     grid = _grid(scene)
     assert 28e6 < math.prod(grid.shape) < 28.5e6
     assert scene.run.duration_s / grid.dt_s == pytest.approx(3657, abs=5)
+
+
+def test_mirrors_and_image_paths_of_the_full_corridor():
+    """The method of images in the corridor, from the geometry alone. Mirrors: the rigid window
+    sides and the right wall's face y = 0.30 (an object's planar face, met by both wall boxes: one
+    plane). The window side y_hi (0.36) lies behind the right wall: it reflects only in the door
+    recess. The end wall's echo (a plane square to the floor and both side walls, which map it
+    onto itself): the direct round trip 2 L and one corner path per mirror, each once, of length
+    2 sqrt(L^2 + h^2) with h the transducer's distance from the mirror (0.15 m to either side
+    wall: the right wall's face, not y_hi, whose path would meet it inside the far wall box). The
+    post (in front of the side walls, not mapped onto itself by them): via a side wall twice
+    (T -> S -> T' and back) and once out and back (T' -> S -> T')."""
+    scene = load_scene(SCENES / "corridor3d.toml")
+    grid = _grid(scene)
+    c = np.array([0.0736, 0.15, 0.0205])
+    found = echoes3d.surfaces(scene, grid, c)
+    mirrors = echoes3d._rigid_planes(scene, grid, c, found)
+    planes = sorted(
+        (int(np.argmax(np.abs(m.normal))), round(float(m.point @ np.abs(m.normal)), 4), m.side) for m in mirrors
+    )
+    h = 0.5 * grid.dx_m
+    assert (1, 0.30, False) in planes  # the right wall's face, once
+    assert (1, round(-h, 4), True) in planes and (2, round(-h, 4), True) in planes  # y_lo, the floor
+    assert sum(1 for p in planes if p[:2] == (1, 0.30)) == 1
+    wall = next(s for s in found if s["surface"] == "wall x_hi")
+    L = wall["distance_m"]
+    by_plane = {}
+    for m in mirrors:
+        by_plane[(int(np.argmax(np.abs(m.normal))), round(float(m.point @ np.abs(m.normal)), 3))] = (
+            echoes3d.mirror_paths(wall, m)
+        )
+    y_hi = (1, round((grid.shape[1] - 0.5) * grid.dx_m, 3))
+    assert by_plane[y_hi] == []  # its corner path would reflect inside the far wall box
+    for key, dist in (((1, 0.3), 0.15), ((1, round(-h, 3)), 0.15 + h), ((2, round(-h, 3)), c[2] + h)):
+        ((length, times, kind, _),) = by_plane[key]
+        assert (times, kind) == (1.0, "cross")
+        assert length == pytest.approx(2 * math.hypot(L, dist), rel=1e-9)
+    post = next(s for s in found if s["surface"] == "post")
+    m_right = next(m for m in mirrors if not m.side)
+    kinds = sorted((k, t) for _, t, k, _ in echoes3d.mirror_paths(post, m_right))
+    assert kinds == [("cross", 2.0), ("double", 1.0)]

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -144,36 +144,148 @@ def _on_plane(x, *, axis: int, plane: float) -> np.ndarray:
     return p
 
 
-def _rigid_planes(scene, grid, centre_m=None) -> list[tuple[np.ndarray, np.ndarray]]:
-    """The transducer's images in the rigid window sides: (its centre mirrored, the side's axis)."""
+class Mirror(NamedTuple):
+    """A plane the transducer sees itself in: a rigid window side (`side`) or an object's planar
+    face. `image`: the transducer's centre mirrored in it; `centre`: the centre; `point`, `normal`:
+    a point of the plane and its unit normal towards the transducer; `reflects(a, b, away)`: whether
+    the path a -> b (b on the image's side) reflects off the plane on the solid, in free air (not in
+    a door gap of a wall's plane, not behind an object, inside the window), tested half a cell off
+    the plane and, along `away`, off the echoing surface (a corner path meets the mirror where the
+    surface stands on it)."""
+
+    image: np.ndarray
+    centre: np.ndarray
+    point: np.ndarray
+    normal: np.ndarray
+    side: bool
+    reflects: Any
+
+    def reflected(self, x) -> np.ndarray:
+        """A point mirrored in the plane."""
+        x = np.asarray(x, float)
+        return x - 2 * float((x - self.point) @ self.normal) * self.normal
+
+    def mirrored(self, v) -> np.ndarray:
+        """A direction mirrored in the plane (the image transducer's axis)."""
+        v = np.asarray(v, float)
+        return v - 2 * float(v @ self.normal) * self.normal
+
+
+def _rigid_planes(scene, grid, centre_m=None, found=None) -> list[Mirror]:
+    """The transducer's mirrors: each rigid window side and each object's planar face whose point
+    nearest the transducer is specular (`found`: `surfaces` of the scene, else computed), planes
+    met twice counted once. A path via a mirror counts only where it `reflects` on the solid."""
+    import jax
+    import jax.numpy as jnp
+
+    from ..scene.objects import shape3d
+
     t = scene.transducers[0]
     c = np.asarray(t.centre_m if centre_m is None else centre_m, float)
-    out = []
+    eps = 0.5 * grid.dx_m
+    lo_w = np.full(3, -0.5 * grid.dx_m)
+    hi_w = (np.asarray(grid.shape, float) - 0.5) * grid.dx_m
+    shapes = [shape3d(scene.path, f"objects[{i}]", o) for i, o in enumerate(scene.objects)]
+
+    def sdf(x) -> float:  # the objects' union (metres; > 0 in air)
+        p = [jnp.asarray(float(v)) for v in x]
+        return min((float(sh.sdf(*p)) for sh in shapes), default=math.inf)
+
+    def reflects_fn(point, normal, side: bool):
+        def reflects(a, b, away=None) -> bool:
+            a, b = np.asarray(a, float), np.asarray(b, float)
+            den = float(normal @ (b - a))
+            if abs(den) < 1e-15:
+                return False
+            r = a + float(normal @ (point - a)) / den * (b - a)
+            if np.any(r < lo_w - eps) or np.any(r > hi_w + eps):
+                return False  # outside the window
+            off = np.zeros(3) if away is None else eps * np.asarray(away, float)  # off the echoing surface at a corner
+            if sdf(r + eps * normal + off) <= 0:
+                return False  # an object stands in front of the plane there
+            return side or sdf(r - eps * normal + off) < 0  # an object's face: solid behind it (not a gap)
+
+        return reflects
+
+    out: list[Mirror] = []
+
+    def add(point, normal, side: bool) -> None:
+        point, normal = np.asarray(point, float), np.asarray(normal, float)
+        for m in out:
+            if abs(float(m.normal @ normal)) > 1 - 1e-9 and abs(float(m.normal @ (point - m.point))) < 0.1 * grid.dx_m:
+                return
+        image = c - 2 * float((c - point) @ normal) * normal
+        out.append(Mirror(image, c, point, normal, side, reflects_fn(point, normal, side)))
+
     for axis, n in enumerate(grid.shape):
         for side, plane in (("lo", -0.5 * grid.dx_m), ("hi", (n - 0.5) * grid.dx_m)):
             if _side_kind(scene, f"{'xyz'[axis]}_{side}") == "rigid":
-                image = c.copy()
-                image[axis] = 2 * plane - c[axis]
-                out.append((image, c))
+                point = c.copy()
+                point[axis] = plane
+                normal = np.zeros(3)
+                normal[axis] = 1.0 if side == "lo" else -1.0
+                add(point, normal, True)
+    reach = 2.0 * grid.dx_m * grid.cells_per_wavelength  # a face counts as a plane over two wavelengths round its point
+    for s in found if found is not None else surfaces(scene, grid, centre_m):
+        if "object" not in s or s["first_arrival"] != "specular":
+            continue
+        p, n = np.asarray(s["point_m"], float), -np.asarray(s["direction"], float)
+        sh = shapes[s["object"]]
+        grad = jax.grad(lambda q, sh=sh: sh.sdf(q[0], q[1], q[2]))
+        e1 = np.cross(n, [0.0, 0.0, 1.0] if abs(n[2]) < 0.9 else [1.0, 0.0, 0.0])
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(n, e1)
+        planar = True
+        for q in (p + reach * e1, p - reach * e1, p + reach * e2, p - reach * e2):
+            g = np.asarray(grad(jnp.asarray(q - eps * n)), float)  # just inside the face
+            on = abs(float(sh.sdf(*(jnp.asarray(v) for v in q)))) < 0.05 * grid.dx_m
+            planar &= on and float(g @ n) / max(float(np.linalg.norm(g)), 1e-30) > 0.9999
+        if planar:
+            add(p, n, False)
+    return out
+
+
+def mirror_paths(s: dict, m: Mirror) -> list[tuple[float, float, str, np.ndarray]]:
+    """The round trips of surface `s` via mirror `m` (method of images, monostatic), as (length,
+    multiplicity, "cross" or "double", the point on `s`):
+
+    - a surface the mirror maps onto itself (a wall or a post square to a floor: the point of `s`
+      nearest T' is the mirror image of the one nearest T) has one more image, T reflected in `s`
+      and the mirror: the corner path T -> S -> T' ("cross", once: it is its own reverse);
+    - any other (a post in front of a side wall) has the two paths T -> S -> T' and T' -> S -> T
+      ("cross", each the other's reverse, both rays) and T' -> S -> T' ("double": out and back via
+      the mirror).
+
+    A path counts only where it meets the mirror on its solid (`Mirror.reflects`)."""
+    nearest = s["nearest"]
+    p = np.asarray(s["point_m"], float)
+    c, image = m.centre, m.image
+    pm = nearest(0.5 * (image + c))
+    cross = float(np.linalg.norm(pm - c) + np.linalg.norm(pm - image))
+    pd = nearest(image)
+    away = -np.asarray(s["direction"], float)  # from the surface back towards the transducer
+    out: list[tuple[float, float, str, np.ndarray]] = []
+    if not m.reflects(pm, image, away):
+        return out
+    if np.linalg.norm(pd - m.reflected(p)) <= 1e-6 * max(float(np.linalg.norm(p - c)), 1e-30):
+        return [(cross, 1.0, "cross", pm)]
+    out.append((cross, 2.0, "cross", pm))
+    if m.reflects(pd, image, away):
+        out.append((2 * float(np.linalg.norm(pd - image)), 1.0, "double", pd))
     return out
 
 
 def _merged_paths(s: dict, mirrors, within_m: float) -> tuple[list[float], list[float]]:
-    """The round trips that make one echo with the direct one (2 d): out or back via the
-    transducer's image T' in a rigid window side (a floor under it), each path through its own
-    reflection point (the surface point nearest the midpoint of its ends: exact for planes and
-    posts parallel to the image's offset), kept when it adds less than `within_m` (half a burst):
-    T -> S -> T' twice, T' -> S -> T' once."""
-    nearest = s["nearest"]
+    """The round trips that make one echo with the direct one (2 d): via the transducer's image T'
+    in each mirror (`_rigid_planes`: a floor under it, a corridor's side walls; `mirror_paths`),
+    kept when they add less than `within_m` (half a burst), with their multiplicities."""
     d = s["distance_m"]
     paths, weights = [2 * d], [1.0]
-    for image, c in mirrors:
-        pm = nearest(0.5 * (image + c))
-        cross = float(np.linalg.norm(pm - c) + np.linalg.norm(pm - image))
-        double = 2 * float(np.linalg.norm(nearest(image) - image))
-        if 1e-6 < cross - 2 * d < within_m:  # (the side the point lies on mirrors it onto itself)
-            paths += [cross, double]
-            weights += [2.0, 1.0]
+    for m in mirrors:
+        for length, times, _, _ in mirror_paths(s, m):
+            if 1e-6 < length - 2 * d < within_m:  # (a mirror through the surface's point maps it onto itself)
+                paths.append(length)
+                weights.append(times)
     return paths, weights
 
 
@@ -306,7 +418,7 @@ def label_echoes(t_s, a_scan, scene, grid, *, cycles: float, gate_start_step: in
     half = 0.5 * cycles / f0
     rows = []
     found = surfaces(scene, grid, centre_m)
-    mirrors = _rigid_planes(scene, grid, centre_m)
+    mirrors = _rigid_planes(scene, grid, centre_m, found)
     fits = _fit_all(a, found, mirrors, grid, cycles, gate_start_step, half * c_air)
     for s in found:
         path = 2 * s["distance_m"]

@@ -296,27 +296,23 @@ def _directivity(axis, direction, ka: float) -> float:
 
 def _weighted_paths(s: dict, mirrors, within_m: float, transducer, wavelength_m: float):
     """The round trips of `echoes3d._merged_paths` (direct, and via the transducer's image T' in
-    each rigid window side: T -> S -> T' both ways, T' -> S -> T'), each weighted by the disc's
+    each mirror, `echoes3d.mirror_paths`), each weighted by its multiplicity and the disc's
     directivity at the drive frequency out of its source and into its receiver (the image's axis
     mirrored): a path that leaves the beam counts for what the disc sends and hears along it."""
-    nearest, d = s["nearest"], s["distance_m"]
+    d = s["distance_m"]
     axis = np.asarray(transducer.axis, float)
     ka = math.pi * float(transducer.diameter_m or 0.0) / wavelength_m
     paths = [2 * d]
     weights = [_directivity(axis, s["direction"], ka) ** 2]
-    for image, c in mirrors:
-        flip = np.where(np.abs(image - c) > 1e-12, -1.0, 1.0)
-        axis_i = axis * flip
-        pm = nearest(0.5 * (image + c))
-        cross = float(np.linalg.norm(pm - c) + np.linalg.norm(pm - image))
-        pd = nearest(image)
-        double = 2 * float(np.linalg.norm(pd - image))
-        if 1e-6 < cross - 2 * d < within_m:
-            paths += [cross, double]
-            weights += [
-                2 * _directivity(axis, pm - c, ka) * _directivity(axis_i, pm - image, ka),
-                _directivity(axis_i, pd - image, ka) ** 2,
-            ]
+    for m in mirrors:
+        axis_i = m.mirrored(axis)  # the image transducer's
+        for length, times, kind, q in echoes3d.mirror_paths(s, m):
+            if 1e-6 < length - 2 * d < within_m:
+                out_leg = (
+                    _directivity(axis, q - m.centre, ka) if kind == "cross" else _directivity(axis_i, q - m.image, ka)
+                )
+                paths.append(length)
+                weights.append(times * out_leg * _directivity(axis_i, q - m.image, ka))
     return paths, weights
 
 
@@ -388,9 +384,9 @@ def isolate_echoes(scene, out_dir, *, full=None, only=None, saved=None, quiet: b
     ref = np.asarray(ToneBurst(f0, cycles)(t), float)[: int(math.ceil(burst_steps)) + 2]
     transmit = echoes3d._transmit_peak(a, r.gate_start_step, burst_steps)
     wavelength = grid.dx_m * grid.cells_per_wavelength
-    mirrors = echoes3d._rigid_planes(scene, grid, centre)
     rows, traces, unrecorded = [], {}, []
     found = echoes3d.surfaces(scene, grid, centre)
+    mirrors = echoes3d._rigid_planes(scene, grid, centre, found)
     if only is not None:
         unknown = set(only) - {s["surface"] for s in found}
         if unknown:

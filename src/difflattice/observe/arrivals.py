@@ -215,7 +215,11 @@ def _covariance(pulse, y, taus, c, lo, hi, inflation: float):
         len(y) - 3 * K * inflation, inflation
     )  # a band-limited residual: each parameter takes `inflation` samples
     s2 = float(r @ r) / dof * inflation
-    return s2 * np.linalg.pinv(J.T @ J), r
+    # columns scaled to unit norm first: delays (samples) and amplitudes (the pulse's units) differ
+    # in scale, and pinv's cut-off would otherwise depend on the pulse's amplitude
+    D = 1.0 / np.maximum(np.linalg.norm(J, axis=0), 1e-300)
+    Js = J * D
+    return s2 * (D[:, None] * np.linalg.pinv(Js.T @ Js) * D[None, :]), r
 
 
 def _starts(pulse, r, taus, predicted, lo, hi, samples_per_period: float):

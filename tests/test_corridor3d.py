@@ -157,3 +157,22 @@ def test_mirrors_and_image_paths_of_the_full_corridor():
     m_right = next(m for m in mirrors if not m.side)
     kinds = sorted((k, t) for _, t, k, _ in echoes3d.mirror_paths(post, m_right))
     assert kinds == [("cross", 2.0), ("double", 1.0)]
+
+
+def test_a_post_shadows_an_image_path():
+    """In the short corridor the end wall's corner path via the left wall y_lo runs from the
+    transducer (0.0736, 0.15) to the corner (x_hi, 0): at the post's x (0.3586) it passes
+    y = 0.113, inside the post (0.10 +- 0.025): geometrically shadowed, so not counted; the path
+    via the right wall's face (towards y = 0.30) runs clear of it and counts."""
+    scene = load_scene(SCENES / "corridor3d_short.toml")
+    grid = _grid(scene)
+    c = np.array([0.0736, 0.15, 0.0205])
+    found = echoes3d.surfaces(scene, grid, c)
+    mirrors = echoes3d._rigid_planes(scene, grid, c, found)
+    wall = next(s for s in found if s["surface"] == "wall x_hi")
+    y_lo = next(m for m in mirrors if m.side and m.normal[1] > 0.5)
+    right = next(m for m in mirrors if not m.side)
+    assert echoes3d.mirror_paths(wall, y_lo) == []
+    assert [k for _, _, k, _ in echoes3d.mirror_paths(wall, right)] == ["cross"]
+    assert not y_lo.clear(c, np.array([0.9, 0.0, 0.0205]))
+    assert y_lo.clear(c, np.array([0.9, 0.29, 0.0205]))

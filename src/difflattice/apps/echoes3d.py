@@ -159,6 +159,13 @@ class Mirror(NamedTuple):
     normal: np.ndarray
     side: bool
     reflects: Any
+    clear: Any = None  # clear(*points): the polyline through them runs in air (no object across it)
+
+    def crossing(self, a, b) -> np.ndarray:
+        """Where the segment a -> b meets the plane (a path's reflection point)."""
+        a, b = np.asarray(a, float), np.asarray(b, float)
+        den = float(self.normal @ (b - a))
+        return a if abs(den) < 1e-15 else a + float(self.normal @ (self.point - a)) / den * (b - a)
 
     def reflected(self, x) -> np.ndarray:
         """A point mirrored in the plane."""
@@ -191,6 +198,20 @@ def _rigid_planes(scene, grid, centre_m=None, found=None) -> list[Mirror]:
         p = [jnp.asarray(float(v)) for v in x]
         return min((float(sh.sdf(*p)) for sh in shapes), default=math.inf)
 
+    def clear(*pts) -> bool:  # the polyline through `pts` in air: no object across it (ends excepted)
+        for a, b in zip(pts[:-1], pts[1:]):
+            a, b = np.asarray(a, float), np.asarray(b, float)
+            n = max(2, int(np.linalg.norm(b - a) / (0.5 * grid.dx_m)))
+            f = np.linspace(0.0, 1.0, n + 1)[1:-1]
+            f = f[(f * np.linalg.norm(b - a) > 2 * grid.dx_m) & ((1 - f) * np.linalg.norm(b - a) > 2 * grid.dx_m)]
+            if not len(f) or not shapes:
+                continue
+            q = a[None, :] + f[:, None] * (b - a)[None, :]
+            x, y, z = (jnp.asarray(q[:, i]) for i in range(3))
+            if min(float(jnp.min(sh.sdf(x, y, z))) for sh in shapes) < -0.25 * grid.dx_m:
+                return False
+        return True
+
     def reflects_fn(point, normal, side: bool):
         def reflects(a, b, away=None) -> bool:
             a, b = np.asarray(a, float), np.asarray(b, float)
@@ -215,7 +236,7 @@ def _rigid_planes(scene, grid, centre_m=None, found=None) -> list[Mirror]:
             if abs(float(m.normal @ normal)) > 1 - 1e-9 and abs(float(m.normal @ (point - m.point))) < 0.1 * grid.dx_m:
                 return
         image = c - 2 * float((c - point) @ normal) * normal
-        out.append(Mirror(image, c, point, normal, side, reflects_fn(point, normal, side)))
+        out.append(Mirror(image, c, point, normal, side, reflects_fn(point, normal, side), clear))
 
     for axis, n in enumerate(grid.shape):
         for side, plane in (("lo", -0.5 * grid.dx_m), ("hi", (n - 0.5) * grid.dx_m)):
@@ -256,7 +277,8 @@ def mirror_paths(s: dict, m: Mirror) -> list[tuple[float, float, str, np.ndarray
       ("cross", each the other's reverse, both rays) and T' -> S -> T' ("double": out and back via
       the mirror).
 
-    A path counts only where it meets the mirror on its solid (`Mirror.reflects`)."""
+    A path counts only where it meets the mirror on its solid (`Mirror.reflects`) and runs in air
+    (`Mirror.clear`: the near jamb shadows a door recess's inner corner)."""
     nearest = s["nearest"]
     p = np.asarray(s["point_m"], float)
     c, image = m.centre, m.image
@@ -265,12 +287,12 @@ def mirror_paths(s: dict, m: Mirror) -> list[tuple[float, float, str, np.ndarray
     pd = nearest(image)
     away = -np.asarray(s["direction"], float)  # from the surface back towards the transducer
     out: list[tuple[float, float, str, np.ndarray]] = []
-    if not m.reflects(pm, image, away):
+    if not (m.reflects(pm, image, away) and m.clear is not None and m.clear(c, pm, m.crossing(pm, image), c)):
         return out
     if np.linalg.norm(pd - m.reflected(p)) <= 1e-6 * max(float(np.linalg.norm(p - c)), 1e-30):
         return [(cross, 1.0, "cross", pm)]
     out.append((cross, 2.0, "cross", pm))
-    if m.reflects(pd, image, away):
+    if m.reflects(pd, image, away) and m.clear(c, m.crossing(pd, image), pd):
         out.append((2 * float(np.linalg.norm(pd - image)), 1.0, "double", pd))
     return out
 

@@ -27,8 +27,9 @@ which the isolated echo (no overlap, float32 rounding the only noise) supports.
 the round trip(s) frequency by frequency with the lattice's dispersion relation along the path
 (`analytic3d.lattice_wavenumber_3d`: its group delay and the spread over the band), or with the
 air's speed. The paths are the image-source / nearest-point round trip from the transducer's
-centre (the weighted mean of its cells) and those via its image in each rigid window side (a floor
-under it) within a burst of it, weighted by the disc's directivity out and in. The surface is the rasterised one: the cells whose centre lies
+centre (the weighted mean of its cells) and those via its image in each mirror (`echoes3d.mirror_paths`:
+the rigid window sides, a floor under it, and the objects' planar faces) within a burst of it,
+weighted by the disc's directivity out and in. The surface is the rasterised one: the cells whose centre lies
 inside (hard rasterisation) present their faces, so the distance is taken to those faces, the mean
 over the rays to the surface's first Fresnel zone (exact for a plane along the cells' faces).
 Times of flight: the soft source adds v(n dt) to the pressure of step n, i.e. the forcing of the
@@ -451,7 +452,7 @@ def _write_isolated(out_dir, t, a, f0, cycles, dt, rows, traces, unrecorded, *, 
         "it, same lattice and transducer), its arrival against the lattice's and the air's delay of its "
         "first geometric arrival (first_arrival: the image source's round trip, or the shortest path via the "
         "nearest edge where no face has a specular point; rasterised surface; merged with the paths via the "
-        "transducer's images in rigid window sides within a burst)",
+        "transducer's images in its mirrors within a burst: rigid window sides and planar object faces)",
         "first_arrival": echoes3d.FIRST_ARRIVAL,
         "arrival": ARRIVAL,
         "reference": "the model echo: the drive burst carried along the paths with the lattice's dispersion relation "

@@ -132,7 +132,7 @@ def test_mirrors_and_image_paths_of_the_full_corridor():
     grid = _grid(scene)
     c = np.array([0.0736, 0.15, 0.0205])
     found = echoes3d.surfaces(scene, grid, c)
-    mirrors = echoes3d._rigid_planes(scene, grid, c, found)
+    mirrors = echoes3d.find_mirrors(scene, grid, c, found)
     planes = sorted(
         (int(np.argmax(np.abs(m.normal))), round(float(m.point @ np.abs(m.normal)), 4), m.side) for m in mirrors
     )
@@ -168,7 +168,7 @@ def test_a_post_shadows_an_image_path():
     grid = _grid(scene)
     c = np.array([0.0736, 0.15, 0.0205])
     found = echoes3d.surfaces(scene, grid, c)
-    mirrors = echoes3d._rigid_planes(scene, grid, c, found)
+    mirrors = echoes3d.find_mirrors(scene, grid, c, found)
     wall = next(s for s in found if s["surface"] == "wall x_hi")
     y_lo = next(m for m in mirrors if m.side and m.normal[1] > 0.5)
     right = next(m for m in mirrors if not m.side)
@@ -176,3 +176,24 @@ def test_a_post_shadows_an_image_path():
     assert [k for _, _, k, _ in echoes3d.mirror_paths(wall, right)] == ["cross"]
     assert not y_lo.clear(c, np.array([0.9, 0.0, 0.0205]))
     assert y_lo.clear(c, np.array([0.9, 0.29, 0.0205]))
+
+
+def test_an_echo_after_the_record_is_said_so():
+    """A record that ends (3.0 ms) before the end wall's echo (1.15 m of path, ~3.35 ms): its row
+    says recorded = false with the record's end and carries no arrival or level (it once carried a
+    NaN arrival and -6000 dB, and the fit stopped on SciPy's "initial guess outside bounds"); the
+    post's echo, inside the record, is labelled as before."""
+    scene = load_scene(SCENES / "corridor3d_short.toml")
+    grid = _grid(scene, cpw=120.0)
+    cycles, f0, dt = 8.0, grid.frequency_hz, grid.dt_s
+    t = np.arange(1, int(0.0030 / dt) + 1) * dt
+    burst = ToneBurst(f0, cycles)
+    post = next(s for s in echoes3d.surfaces(scene, grid) if s["surface"] == "post")
+    a = np.array(burst(t - dt), float) + 0.05 * np.asarray(burst(t - 2 * post["distance_m"] / grid.c_max_m_s + dt))
+    table = echoes3d.label_echoes(t, a, scene, grid, cycles=cycles, gate_start_step=int(0.0004 / dt))
+    rows = {e["surface"]: e for e in table["echoes"]}
+    end = rows["wall x_hi"]
+    assert end["recorded"] is False and "arrival_s" not in end and "level_db" not in end
+    assert end["record_end_s"] == pytest.approx(t[-1]) and end["delay_lattice_s"] > t[-1]
+    assert "after the record's end" in echoes3d.fit_line(end)
+    assert rows["post"]["recorded"] is True and np.isfinite(rows["post"]["arrival_s"])

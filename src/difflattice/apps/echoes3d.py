@@ -159,7 +159,7 @@ class Mirror(NamedTuple):
     normal: np.ndarray
     side: bool
     reflects: Any
-    clear: Any = None  # clear(*points): the polyline through them runs in air (no object across it)
+    clear: Any  # clear(*points): whether the polyline through them runs in air (no object across it)
 
     def crossing(self, a, b) -> np.ndarray:
         """Where the segment a -> b meets the plane (a path's reflection point)."""
@@ -178,7 +178,7 @@ class Mirror(NamedTuple):
         return v - 2 * float(v @ self.normal) * self.normal
 
 
-def _rigid_planes(scene, grid, centre_m=None, found=None) -> list[Mirror]:
+def find_mirrors(scene, grid, centre_m=None, found=None) -> list[Mirror]:
     """The transducer's mirrors: each rigid window side and each object's planar face whose point
     nearest the transducer is specular (`found`: `surfaces` of the scene, else computed), planes
     met twice counted once. A path via a mirror counts only where it `reflects` on the solid."""
@@ -287,7 +287,7 @@ def mirror_paths(s: dict, m: Mirror) -> list[tuple[float, float, str, np.ndarray
     pd = nearest(image)
     away = -np.asarray(s["direction"], float)  # from the surface back towards the transducer
     out: list[tuple[float, float, str, np.ndarray]] = []
-    if not (m.reflects(pm, image, away) and m.clear is not None and m.clear(c, pm, m.crossing(pm, image), c)):
+    if not (m.reflects(pm, image, away) and m.clear(c, pm, m.crossing(pm, image), c)):
         return out
     if np.linalg.norm(pd - m.reflected(p)) <= 1e-6 * max(float(np.linalg.norm(p - c)), 1e-30):
         return [(cross, 1.0, "cross", pm)]
@@ -299,7 +299,7 @@ def mirror_paths(s: dict, m: Mirror) -> list[tuple[float, float, str, np.ndarray
 
 def _merged_paths(s: dict, mirrors, within_m: float) -> tuple[list[float], list[float]]:
     """The round trips that make one echo with the direct one (2 d): via the transducer's image T'
-    in each mirror (`_rigid_planes`: a floor under it, a corridor's side walls; `mirror_paths`),
+    in each mirror (`find_mirrors`: a floor under it, a corridor's side walls; `mirror_paths`),
     kept when they add less than `within_m` (half a burst), with their multiplicities."""
     d = s["distance_m"]
     paths, weights = [2 * d], [1.0]
@@ -440,7 +440,7 @@ def label_echoes(t_s, a_scan, scene, grid, *, cycles: float, gate_start_step: in
     half = 0.5 * cycles / f0
     rows = []
     found = surfaces(scene, grid, centre_m)
-    mirrors = _rigid_planes(scene, grid, centre_m, found)
+    mirrors = find_mirrors(scene, grid, centre_m, found)
     fits = _fit_all(a, found, mirrors, grid, cycles, gate_start_step, half * c_air)
     for s in found:
         path = 2 * s["distance_m"]
@@ -453,31 +453,22 @@ def label_echoes(t_s, a_scan, scene, grid, *, cycles: float, gate_start_step: in
             continue  # inside the transmit: no echo of its own (e.g. a floor beside the transducer)
         lo = int(round((t_lat - half) / dt))
         hi = int(round((t_lat + half) / dt))
+        head = {k: v for k, v in s.items() if k != "nearest"} | {
+            "path_m": path,
+            "merged_paths_m": [float(p) for p in paths],
+            "delay_air_s": t_air,
+            "delay_lattice_s": t_lat,
+            "group_velocity_m_s": v_lat,
+        }
         if hi > len(a):  # its echo ends after the record: a row that says so, no arrival or level
-            rows.append(
-                {k: v for k, v in s.items() if k != "nearest"}
-                | {
-                    "path_m": path,
-                    "merged_paths_m": [float(p) for p in paths],
-                    "delay_air_s": t_air,
-                    "delay_lattice_s": t_lat,
-                    "group_velocity_m_s": v_lat,
-                    "recorded": False,
-                    "record_end_s": float(t[-1]),
-                }
-            )
+            rows.append(head | {"recorded": False, "record_end_s": float(t[-1])})
             continue
         k, level, inside = _peak(env, lo, hi)
         t_meas = t[0] + k * dt if np.isfinite(k) else float("nan")
         level_db = 20 * math.log10(max(level, 1e-300) / transmit)
         rows.append(
-            {k: v for k, v in s.items() if k != "nearest"}
+            head
             | {
-                "path_m": path,
-                "merged_paths_m": [float(p) for p in paths],
-                "delay_air_s": t_air,
-                "delay_lattice_s": t_lat,
-                "group_velocity_m_s": v_lat,
                 "arrival_s": t_meas,
                 "error_periods": (t_meas - t_lat) * f0,
                 "error_periods_air": (t_meas - t_air) * f0,

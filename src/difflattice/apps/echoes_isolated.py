@@ -387,7 +387,7 @@ def isolate_echoes(scene, out_dir, *, full=None, only=None, saved=None, quiet: b
     wavelength = grid.dx_m * grid.cells_per_wavelength
     rows, traces, unrecorded = [], {}, []
     found = echoes3d.surfaces(scene, grid, centre)
-    mirrors = echoes3d._rigid_planes(scene, grid, centre, found)
+    mirrors = echoes3d.find_mirrors(scene, grid, centre, found)
     if only is not None:
         unknown = set(only) - {s["surface"] for s in found}
         if unknown:

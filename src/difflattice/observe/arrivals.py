@@ -217,7 +217,8 @@ def _covariance(pulse, y, taus, c, lo, hi, inflation: float):
     s2 = float(r @ r) / dof * inflation
     # columns scaled to unit norm first: delays (samples) and amplitudes (the pulse's units) differ
     # in scale, and pinv's cut-off would otherwise depend on the pulse's amplitude
-    D = 1.0 / np.maximum(np.linalg.norm(J, axis=0), 1e-300)
+    norm = np.linalg.norm(J, axis=0)
+    D = np.where(norm > 1e-12 * norm.max(initial=0.0), 1.0 / np.where(norm > 0, norm, 1.0), 1.0)  # a null column as is
     Js = J * D
     return s2 * (D[:, None] * np.linalg.pinv(Js.T @ Js) * D[None, :]), r
 

@@ -14,6 +14,7 @@ envelope peak of at most amplitude x delay, ~0.05 period). Hence 0.1 period, the
 with that budget (measured: +0.005 period)."""
 
 import dataclasses
+import json
 import math
 
 import numpy as np
@@ -212,3 +213,27 @@ def test_isolated_edge_echo_arrives_at_the_edge_path_delay(tmp_path):
     vg = float(group_velocity_3d(g.omega, g.courant, e["direction"], stencil=stencil)) / g.courant
     expect_air = e["path_m"] / 343.21 * (1 / vg - 1) * 40e3
     assert e["error_periods_air"] == pytest.approx(expect_air, abs=0.1)
+
+
+@pytest.mark.slow
+def test_an_isolation_cut_short_keeps_the_surfaces_done(tmp_path):
+    """Interrupted while isolating its second surface (here by the progress callback; in the GPU
+    session by a time limit), `isolate_echoes` leaves echoes_isolated.json and .npz with the first
+    surface measured and `complete: false`; measuring that file again (`saved=`) gives the same
+    table without a run."""
+    p = tmp_path / "wall.toml"
+    p.write_text(WALL)
+    scene = load_scene(p)
+
+    def log(message):
+        if message.startswith("isolating") and (tmp_path / "out" / "echoes_isolated.json").exists():
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        ei.isolate_echoes(scene, tmp_path / "out", log=log)
+    doc = json.loads((tmp_path / "out" / "echoes_isolated.json").read_text())
+    assert doc["complete"] is False and len(doc["echoes"]) == 1
+    again = ei.isolate_echoes(scene, tmp_path / "again", saved=tmp_path / "out" / "echoes_isolated.npz")
+    assert again["complete"] is True
+    assert [e["surface"] for e in again["echoes"]] == [doc["echoes"][0]["surface"]]
+    assert again["echoes"][0]["error_periods"] == pytest.approx(doc["echoes"][0]["error_periods"], abs=1e-9)

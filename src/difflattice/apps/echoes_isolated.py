@@ -433,11 +433,12 @@ def isolate_echoes(scene, out_dir, *, full=None, only=None, saved=None, quiet: b
             }
         )
         traces[s["surface"]] = echo
+        if saved is None:  # a run cut short keeps the surfaces done (a saved file is not rewritten half-way)
+            _write_isolated(out_dir, t, a, f0, cycles, dt, rows, traces, unrecorded, complete=False)
         say(
             f"isolated {s['surface']!r}: first arrival {got[PRIMARY]['error_periods']:+.3f} ± "
             f"{got[PRIMARY]['sigma_periods']:.3f} periods vs lattice delay"
         )
-        _write_isolated(out_dir, t, a, f0, cycles, dt, rows, traces, unrecorded, complete=False)  # kept if cut short
     doc = _write_isolated(out_dir, t, a, f0, cycles, dt, rows, traces, unrecorded, complete=True)
     out = Path(out_dir)
     plot_isolated(t, traces, doc, transmit, out / "echoes_isolated.png")

@@ -162,10 +162,9 @@ class Mirror(NamedTuple):
     clear: Any  # clear(*points): whether the polyline through them runs in air (no object across it)
 
     def crossing(self, a, b) -> np.ndarray:
-        """Where the segment a -> b meets the plane (a path's reflection point)."""
-        a, b = np.asarray(a, float), np.asarray(b, float)
-        den = float(self.normal @ (b - a))
-        return a if abs(den) < 1e-15 else a + float(self.normal @ (self.point - a)) / den * (b - a)
+        """Where the segment a -> b meets the plane (a path's reflection point; a if parallel)."""
+        r = _plane_crossing(self.point, self.normal, a, b)
+        return np.asarray(a, float) if r is None else r
 
     def reflected(self, x) -> np.ndarray:
         """A point mirrored in the plane."""
@@ -176,6 +175,13 @@ class Mirror(NamedTuple):
         """A direction mirrored in the plane (the image transducer's axis)."""
         v = np.asarray(v, float)
         return v - 2 * float(v @ self.normal) * self.normal
+
+
+def _plane_crossing(point, normal, a, b) -> np.ndarray | None:
+    """Where the line a -> b meets the plane through `point` with `normal` (None if parallel)."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    den = float(normal @ (b - a))
+    return None if abs(den) < 1e-15 else a + float(normal @ (point - a)) / den * (b - a)
 
 
 def find_mirrors(scene, grid, centre_m=None, found=None) -> list[Mirror]:
@@ -214,11 +220,9 @@ def find_mirrors(scene, grid, centre_m=None, found=None) -> list[Mirror]:
 
     def reflects_fn(point, normal, side: bool):
         def reflects(a, b, away=None) -> bool:
-            a, b = np.asarray(a, float), np.asarray(b, float)
-            den = float(normal @ (b - a))
-            if abs(den) < 1e-15:
+            r = _plane_crossing(point, normal, a, b)
+            if r is None:
                 return False
-            r = a + float(normal @ (point - a)) / den * (b - a)
             if np.any(r < lo_w - eps) or np.any(r > hi_w + eps):
                 return False  # outside the window
             off = np.zeros(3) if away is None else eps * np.asarray(away, float)  # off the echoing surface at a corner

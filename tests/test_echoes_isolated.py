@@ -237,3 +237,29 @@ def test_an_isolation_cut_short_keeps_the_surfaces_done(tmp_path):
     assert again["complete"] is True
     assert [e["surface"] for e in again["echoes"]] == [doc["echoes"][0]["surface"]]
     assert again["echoes"][0]["error_periods"] == pytest.approx(doc["echoes"][0]["error_periods"], abs=1e-9)
+
+
+@pytest.mark.slow
+def test_the_run_without_a_surface_stops_after_its_window(tmp_path):
+    """The run without a surface stops a burst after the fit's window (two bursts after the echo
+    starts): the isolated echo is the full-length difference up to there (the same steps, float32
+    rounding apart), zero after it, and the row says where it ends."""
+    from difflattice.apps.scene3d_run import run_scene3d
+
+    p = tmp_path / "wall.toml"
+    p.write_text(WALL.replace("duration_s = 0.001", "duration_s = 0.0016"))  # a record that goes on after the window
+    scene = load_scene(p)
+    doc = ei.isolate_echoes(scene, tmp_path / "out", only=["wall x_hi"])
+    (row,) = doc["echoes"]
+    dt = doc["dt_s"]
+    burst = doc["burst_cycles"] / (doc["frequency_hz"] * dt)
+    m = int(round(row["recorded_until_s"] / dt))
+    with np.load(tmp_path / "out" / "echoes_isolated.npz") as z:
+        assert list(z["recorded_steps"]) == [m]
+        a, echo = z["a_scan"], z["echoes"][0]
+    assert row["delay_lattice_s"] / dt + 3 * burst <= m < len(a) - burst  # cut, after the window
+    grid = scene.build().grid
+    s = next(s for s in ei.echoes3d.surfaces(scene, grid) if s["surface"] == "wall x_hi")
+    _, _, a_long, _ = ei._receiver(run_scene3d(ei.without(scene, grid, s, 8.0), quiet=True))  # not cut
+    assert len(a_long) == len(a)
+    assert np.max(np.abs(echo[:m] - (a[:m] - a_long[:m]))) <= 1e-6 * np.max(np.abs(a)) and not np.any(echo[m:])

@@ -16,6 +16,7 @@ Echo metrics, from the gated echo's phasor at the drive frequency: arrival = pha
 """
 
 import math
+import tomllib
 from pathlib import Path
 
 import jax.numpy as jnp
@@ -94,6 +95,24 @@ def test_receiving_applies_weights_and_lags():
 
 @pytest.mark.parametrize("path", sorted(SCENES.glob("*3d*.toml")), ids=lambda p: p.stem)
 def test_scene_files_load_and_round_trip(path, tmp_path):
+    """Each shipped 3-D scene loads and writes back as the same scene; a room-scale one (the
+    corridors: 28-52 M cells, a 1-2 minute build) at fewer cells per wavelength, ~5 M cells (the
+    round trip does not depend on the resolution)."""
+    text = path.read_text()
+    data = tomllib.loads(text)
+    cpw = float(data["grid"]["cells_per_wavelength"])
+    wavelength = 343.21 / float(data["grid"]["frequency_hz"])
+    cells = math.prod(s / wavelength * cpw for s in data["grid"]["size_m"])
+    if cells > 10e6:
+        coarse = cpw * (5e6 / cells) ** (1 / 3)
+        path = tmp_path / "coarse" / path.name
+        path.parent.mkdir()
+        path.write_text(
+            text.replace(
+                f"cells_per_wavelength = {data['grid']['cells_per_wavelength']}", f"cells_per_wavelength = {coarse:.3f}"
+            )
+        )
+        assert tomllib.loads(path.read_text())["grid"]["cells_per_wavelength"] == pytest.approx(coarse, rel=1e-3)
     sc = load_scene3d(path)
     assert sc.grid.kind == "3d" and sc.n_steps > 0 and sc.source.n_cells > 100
     assert float(jnp.max(sc.medium.rigid)) == pytest.approx(1.0)

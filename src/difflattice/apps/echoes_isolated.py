@@ -10,7 +10,9 @@ grown on that side by the absorbing layer's depth plus half a burst, the side ma
 (the scene's absorbing kind; the grown cells lie beyond the wall, so the layer's own weak echo
 comes a burst later). The difference contains what the surface adds: its echo and, by
 construction, its interactions with the rest (double bounces, shadowing), which the image-source
-delay does not model.
+delay does not model. The run without a surface stops a burst after the last step its measures
+read (the fit's window, or the model echo's spread on the lattice): a side wall's costs a sixth
+of the scene's steps; the isolated echo is zero after it (`recorded_until_s`).
 
 **The arrival measure** is the peak of the Hilbert envelope of the matched-filtered echo (the
 isolated echo cross-correlated with the drive burst), refined by a parabola through its
@@ -187,10 +189,13 @@ def _shifted(scene, axis: int, metres: float):
     )
 
 
-def without(scene, grid, surface: dict, cycles: float):
+def without(scene, grid, surface: dict, cycles: float, *, n_steps: int | None = None):
     """The scene without `surface` (a row of `echoes3d.surfaces`), on the same lattice: an object
     left out, or a rigid window side moved out (the window grown on that side by the absorbing
-    layer's depth and half a burst, the side absorbing; a low side grown by moving everything)."""
+    layer's depth and half a burst, the side absorbing; a low side grown by moving everything);
+    run for `n_steps` (default: as long as the scene)."""
+    if n_steps is not None:
+        scene = dataclasses.replace(scene, run=dataclasses.replace(scene.run, n_steps=int(n_steps), duration_s=None))
     if "object" in surface:
         i = surface["object"]
         return dataclasses.replace(scene, objects=scene.objects[:i] + scene.objects[i + 1 :])
@@ -345,10 +350,11 @@ def _check_pulse_echo(scene) -> float:
     return float(t.cycles)
 
 
-def _saved(scene, path) -> tuple[Any, Any, np.ndarray, np.ndarray, np.ndarray, dict]:
-    """(grid, receiver, t_s, A-scan, centre m, isolated echoes by surface) of a saved
-    echoes_isolated.npz of `scene`, the scene built (not run) for its grid and transducer. An npz
-    written before the A-scan was saved in it gives zeros for the A-scan (levels then unknown)."""
+def _saved(scene, path) -> tuple[Any, Any, np.ndarray, np.ndarray, np.ndarray, dict, dict]:
+    """(grid, receiver, t_s, A-scan, centre m, isolated echoes by surface, their recorded steps) of a
+    saved echoes_isolated.npz of `scene`, the scene built (not run) for its grid and transducer. An
+    npz written before the A-scan was saved in it gives zeros for the A-scan (levels then unknown);
+    one written before the runs without a surface were cut short, the whole record for each echo."""
     built = scene.build()
     r = built.receivers[0]
     src = built.sources[r.source]
@@ -357,7 +363,9 @@ def _saved(scene, path) -> tuple[Any, Any, np.ndarray, np.ndarray, np.ndarray, d
         t = np.asarray(z["t_s"], float)
         a = np.asarray(z["a_scan"], float) if "a_scan" in z else np.zeros_like(t)
         echoes = {str(k): np.asarray(v, float) for k, v in zip(z["surfaces"], z["echoes"])}
-    return built.grid, r, t, a, centre * built.grid.dx_m, echoes
+        ends = z["recorded_steps"] if "recorded_steps" in z else [len(t)] * len(echoes)
+    recorded = {k: int(n) for k, n in zip(echoes, ends)}
+    return built.grid, r, t, a, centre * built.grid.dx_m, echoes, recorded
 
 
 def isolate_echoes(scene, out_dir, *, full=None, only=None, saved=None, quiet: bool = True, log=None) -> dict[str, Any]:
@@ -373,8 +381,9 @@ def isolate_echoes(scene, out_dir, *, full=None, only=None, saved=None, quiet: b
 
     cycles = _check_pulse_echo(scene)
     say = log or (lambda s: None)
+    saved_recorded: dict[str, int] = {}
     if saved is not None:
-        grid, r, t, a, centre, saved_echoes = _saved(scene, saved)
+        grid, r, t, a, centre, saved_echoes, saved_recorded = _saved(scene, saved)
     else:
         sr = full if full is not None else run_scene3d(scene, quiet=quiet)
         grid = sr.grid
@@ -386,6 +395,7 @@ def isolate_echoes(scene, out_dir, *, full=None, only=None, saved=None, quiet: b
     transmit = echoes3d._transmit_peak(a, r.gate_start_step, burst_steps)
     wavelength = grid.dx_m * grid.cells_per_wavelength
     rows, traces, unrecorded = [], {}, []
+    recorded_steps: dict[str, int] = {}
     found = echoes3d.surfaces(scene, grid, centre)
     mirrors = echoes3d.find_mirrors(scene, grid, centre, found)
     if only is not None:
@@ -406,15 +416,28 @@ def isolate_echoes(scene, out_dir, *, full=None, only=None, saved=None, quiet: b
             )
             unrecorded.append(s["surface"])
             continue
+        # the steps the measures read: the fit's window (two bursts after the echo starts) and a
+        # burst more (the matched filter's reach and the envelope's edge), or the model echo's own
+        # length (a short burst spreads on the lattice: its band reaches where the lattice's
+        # group velocity falls) and a burst; the run without the surface stops there (the later
+        # steps would cost time and tell nothing of its first echo)
+        template = echoes3d.model_echo(grid, ref, len(a), paths, weights, s["direction"])
+        env = echoes3d.envelope(np.concatenate([template, np.zeros_like(template)]))[: len(a)]
+        tail = float(np.flatnonzero(env > 1e-3 * env.max())[-1]) if np.any(env > 0) else 0.0
+        needed = min(len(a), int(math.ceil(max(model(lattice=True) + 3 * burst_steps, tail + burst_steps))) + 2)
         if saved is not None:
             if s["surface"] not in saved_echoes:
                 continue
             echo, without_shape = saved_echoes[s["surface"]], None
+            recorded = saved_recorded.get(s["surface"], len(a))
         else:
-            say(f"isolating {s['surface']!r}: the scene without it ...")
-            sr_wo = run_scene3d(without(scene, grid, s, cycles), quiet=True)
+            say(f"isolating {s['surface']!r}: the scene without it, {needed} of {len(a)} steps ...")
+            sr_wo = run_scene3d(without(scene, grid, s, cycles, n_steps=needed), quiet=True)
             _, _, a_wo, _ = _receiver(sr_wo)
-            echo, without_shape = a - a_wo, list(sr_wo.grid.shape)
+            recorded = min(len(a_wo), len(a))
+            echo = np.zeros_like(a)  # after `recorded` no difference was measured: zeros, and the row says so
+            echo[:recorded] = a[:recorded] - a_wo[:recorded]
+            without_shape = list(sr_wo.grid.shape)
         got = measure_echo(grid, echo, ref, model, paths, weights, s["direction"], burst_steps)
         lo = int(got[PRIMARY]["delay_lattice_s"] / dt)
         level = float(echoes3d.envelope(echo)[lo : lo + int(2 * burst_steps)].max()) if lo < len(echo) else 0.0
@@ -430,22 +453,26 @@ def isolate_echoes(scene, out_dir, *, full=None, only=None, saved=None, quiet: b
                 "level_db": 20 * math.log10(max(level, 1e-300) / transmit),
                 "by_estimator": got,
                 "without_shape": without_shape,
+                "recorded_until_s": recorded * dt,  # the isolated echo's end (the run without it stopped)
             }
         )
         traces[s["surface"]] = echo
+        recorded_steps[s["surface"]] = recorded
         if saved is None:  # a run cut short keeps the surfaces done (a saved file is not rewritten half-way)
-            _write_isolated(out_dir, t, a, f0, cycles, dt, rows, traces, unrecorded, complete=False)
+            _write_isolated(out_dir, t, a, f0, cycles, dt, rows, traces, recorded_steps, unrecorded, complete=False)
         say(
             f"isolated {s['surface']!r}: first arrival {got[PRIMARY]['error_periods']:+.3f} ± "
             f"{got[PRIMARY]['sigma_periods']:.3f} periods vs lattice delay"
         )
-    doc = _write_isolated(out_dir, t, a, f0, cycles, dt, rows, traces, unrecorded, complete=True)
+    doc = _write_isolated(out_dir, t, a, f0, cycles, dt, rows, traces, recorded_steps, unrecorded, complete=True)
     out = Path(out_dir)
-    plot_isolated(t, traces, doc, transmit, out / "echoes_isolated.png")
+    plot_isolated(t, traces, doc, transmit, out / "echoes_isolated.png", recorded_steps)
     return doc
 
 
-def _write_isolated(out_dir, t, a, f0, cycles, dt, rows, traces, unrecorded, *, complete: bool) -> dict[str, Any]:
+def _write_isolated(
+    out_dir, t, a, f0, cycles, dt, rows, traces, recorded_steps, unrecorded, *, complete: bool
+) -> dict[str, Any]:
     """Write OUT/echoes_isolated.json and .npz with the surfaces isolated so far (`complete`: all
     of them; a run cut short keeps those done, marked incomplete); returns the table."""
     doc = {
@@ -475,13 +502,15 @@ def _write_isolated(out_dir, t, a, f0, cycles, dt, rows, traces, unrecorded, *, 
         a_scan=a,
         surfaces=np.array(list(traces)),
         echoes=np.array(list(traces.values())),
+        recorded_steps=np.array([recorded_steps[k] for k in traces], dtype=np.int64),  # each echo's end: zeros after
     )
     return doc
 
 
-def plot_isolated(t_s, traces: dict, doc: dict, transmit: float, path):
-    """Left: each isolated echo's envelope (dB re the transmit peak), its lattice delay dashed;
-    right: each arrival's error in periods against the lattice delay, the +-0.1 period band shaded."""
+def plot_isolated(t_s, traces: dict, doc: dict, transmit: float, path, recorded_steps=None):
+    """Left: each isolated echo's envelope (dB re the transmit peak) up to where it was recorded,
+    its lattice delay dashed; right: each arrival's error in periods against the lattice delay, the
+    +-0.1 period band shaded."""
     from matplotlib.figure import Figure
 
     from .. import plots
@@ -493,7 +522,9 @@ def plot_isolated(t_s, traces: dict, doc: dict, transmit: float, path):
     for i, e in enumerate(rows):
         x = traces[e["surface"]]
         env = echoes3d.envelope(np.concatenate([x, np.zeros_like(x)]))[: len(x)]  # padded: no wrap-around
-        ax.plot(t_ms, 20 * np.log10(np.maximum(env / transmit, 1e-6)), lw=0.8, color=f"C{i}", label=echoes3d._label(e))
+        end = (recorded_steps or {}).get(e["surface"], len(x))
+        level = 20 * np.log10(np.maximum(env[:end] / transmit, 1e-6))
+        ax.plot(t_ms[:end], level, lw=0.8, color=f"C{i}", label=echoes3d._label(e))
         ax.axvline(e["delay_lattice_s"] * 1e3, color=f"C{i}", lw=0.6, ls="--")  # time of flight: the echo starts
     ax.set_ylim(-100, 0)
     ax.set_xlabel("t (ms)")

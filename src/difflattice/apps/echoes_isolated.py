@@ -416,21 +416,21 @@ def isolate_echoes(scene, out_dir, *, full=None, only=None, saved=None, quiet: b
             )
             unrecorded.append(s["surface"])
             continue
-        # the steps the measures read: the fit's window (two bursts after the echo starts) and a
-        # burst more (the matched filter's reach and the envelope's edge), or the model echo's own
-        # length (a short burst spreads on the lattice: its band reaches where the lattice's
-        # group velocity falls) and a burst; the run without the surface stops there (the later
-        # steps would cost time and tell nothing of its first echo)
-        template = echoes3d.model_echo(grid, ref, len(a), paths, weights, s["direction"])
-        env = echoes3d.envelope(np.concatenate([template, np.zeros_like(template)]))[: len(a)]
-        tail = float(np.flatnonzero(env > 1e-3 * env.max())[-1]) if np.any(env > 0) else 0.0
-        needed = min(len(a), int(math.ceil(max(model(lattice=True) + 3 * burst_steps, tail + burst_steps))) + 2)
         if saved is not None:
             if s["surface"] not in saved_echoes:
                 continue
             echo, without_shape = saved_echoes[s["surface"]], None
             recorded = saved_recorded.get(s["surface"], len(a))
         else:
+            # the steps the measures read: the fit's window (two bursts after the echo starts) and a
+            # burst more (the matched filter's reach and the envelope's edge), or the model echo's own
+            # length (a short burst spreads on the lattice: its band reaches where the lattice's
+            # group velocity falls) and a burst; the run without the surface stops there (the later
+            # steps would cost time and tell nothing of its first echo)
+            template = echoes3d.model_echo(grid, ref, len(a), paths, weights, s["direction"])
+            env = echoes3d.envelope(np.concatenate([template, np.zeros_like(template)]))[: len(a)]
+            tail = float(np.flatnonzero(env > 1e-3 * env.max())[-1]) if np.any(env > 0) else 0.0
+            needed = min(len(a), int(math.ceil(max(model(lattice=True) + 3 * burst_steps, tail + burst_steps))) + 2)
             say(f"isolating {s['surface']!r}: the scene without it, {needed} of {len(a)} steps ...")
             sr_wo = run_scene3d(without(scene, grid, s, cycles, n_steps=needed), quiet=True)
             _, _, a_wo, _ = _receiver(sr_wo)

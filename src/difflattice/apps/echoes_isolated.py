@@ -262,15 +262,14 @@ def _measure(echo, ref, model, dt: float, f0: float, burst_steps: float, *, matc
     }
 
 
-def measure_echo(grid, echo, ref, model, paths, weights, direction, burst_steps: float) -> dict[str, dict]:
-    """Every estimator's arrival (`ESTIMATORS`) of one isolated echo against its lattice delay."""
+def measure_echo(grid, echo, ref, model, template, burst_steps: float) -> dict[str, dict]:
+    """Every estimator's arrival (`ESTIMATORS`) of one isolated echo against its lattice delay
+    (`template`: the model echo on the echo's samples, `echoes3d.model_echo`, the fit's pulse)."""
     dt, f0 = grid.dt_s, grid.frequency_hz
     got = {m: _measure(echo, ref, model, dt, f0, burst_steps, matched=m == "matched") for m in ESTIMATORS if m != "fit"}
     lag_lat = model(lattice=True, matched=True)
     lag_air = model(lattice=False, matched=True)
-    fit = echoes3d.fit_first_arrival(
-        echo, echoes3d.model_echo(grid, ref, len(echo), paths, weights, direction), lag_lat, burst_steps, 1 / (f0 * dt)
-    )
+    fit = echoes3d.fit_first_arrival(echo, template, lag_lat, burst_steps, 1 / (f0 * dt))
     first = fit.first_arrival
     got["fit"] = {
         "delay_lattice_s": lag_lat * dt,
@@ -416,9 +415,10 @@ def isolate_echoes(scene, out_dir, *, full=None, only=None, saved=None, quiet: b
             )
             unrecorded.append(s["surface"])
             continue
+        if saved is not None and s["surface"] not in saved_echoes:
+            continue
+        template = echoes3d.model_echo(grid, ref, len(a), paths, weights, s["direction"])  # the fit's pulse
         if saved is not None:
-            if s["surface"] not in saved_echoes:
-                continue
             echo, without_shape = saved_echoes[s["surface"]], None
             recorded = saved_recorded.get(s["surface"], len(a))
         else:
@@ -427,7 +427,6 @@ def isolate_echoes(scene, out_dir, *, full=None, only=None, saved=None, quiet: b
             # length (a short burst spreads on the lattice: its band reaches where the lattice's
             # group velocity falls) and a burst; the run without the surface stops there (the later
             # steps would cost time and tell nothing of its first echo)
-            template = echoes3d.model_echo(grid, ref, len(a), paths, weights, s["direction"])
             env = echoes3d.envelope(np.concatenate([template, np.zeros_like(template)]))[: len(a)]
             tail = float(np.flatnonzero(env > 1e-3 * env.max())[-1]) if np.any(env > 0) else 0.0
             needed = min(len(a), int(math.ceil(max(model(lattice=True) + 3 * burst_steps, tail + burst_steps))) + 2)
@@ -438,7 +437,7 @@ def isolate_echoes(scene, out_dir, *, full=None, only=None, saved=None, quiet: b
             echo = np.zeros_like(a)  # after `recorded` no difference was measured: zeros, and the row says so
             echo[:recorded] = a[:recorded] - a_wo[:recorded]
             without_shape = list(sr_wo.grid.shape)
-        got = measure_echo(grid, echo, ref, model, paths, weights, s["direction"], burst_steps)
+        got = measure_echo(grid, echo, ref, model, template, burst_steps)
         lo = int(got[PRIMARY]["delay_lattice_s"] / dt)
         level = float(echoes3d.envelope(echo)[lo : lo + int(2 * burst_steps)].max()) if lo < len(echo) else 0.0
         rows.append(

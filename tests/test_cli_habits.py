@@ -151,6 +151,34 @@ def test_ctrl_c_during_simulate_exits_130_with_one_line(tmp_path):
         assert (out / INCOMPLETE).exists() or lines[0].endswith("are complete"), lines
 
 
+def test_an_interrupt_turned_into_another_error_still_ends_with_one_line(tmp_path, monkeypatch, capsys):
+    """Ctrl-C that lands inside an extension module's import comes out as `ImportError:
+    initialization failed` (CI, matplotlib's ft2font), not as KeyboardInterrupt: still code 130
+    and the one line; the same error without a Ctrl-C is a bug and is raised."""
+
+    def interrupted_import(args, **kw):
+        cli._SESSION["interrupted"] = True  # what the SIGINT handler records before raising
+        raise ImportError("initialization failed")
+
+    monkeypatch.setattr(cli, "_INTERRUPT_LOCK", threading.Lock())
+    monkeypatch.setitem(cli._SESSION, "interrupted", False)
+    monkeypatch.setattr(cli, "_run", interrupted_import)
+    argv = ["simulate", str(ROOT / "data/scenes/fig02_polaroid.toml"), "--out", str(tmp_path / "o")]
+    assert main(argv) == 130
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if ln.strip()]
+    assert len(lines) == 1 and lines[0].startswith("interrupted (Ctrl-C)"), err
+
+    def plain_bug(args, **kw):
+        raise ImportError("initialization failed")
+
+    monkeypatch.setattr(cli, "_INTERRUPT_LOCK", threading.Lock())
+    monkeypatch.setitem(cli._SESSION, "interrupted", False)
+    monkeypatch.setattr(cli, "_run", plain_bug)
+    with pytest.raises(ImportError, match="initialization failed"):
+        main(argv)
+
+
 def test_the_top_level_names_do_not_change_with_import_order():
     code = (
         "import types, difflattice as dl\n"

@@ -632,6 +632,14 @@ def main(argv: list[str] | None = None) -> int:
         if _INTERRUPT_LOCK.acquire(blocking=False):  # not already reported by the watcher thread
             print(f"\n{_interrupted_line()}", file=sys.stderr)  # on its own line, after a progress bar
         return 130
+    except Exception:
+        if not _SESSION.get("interrupted"):
+            raise
+        # Ctrl-C whose KeyboardInterrupt was turned into another error by the code it landed in
+        # (seen in CI: inside matplotlib's ft2font import -> "ImportError: initialization failed")
+        if _INTERRUPT_LOCK.acquire(blocking=False):
+            print(f"\n{_interrupted_line()}", file=sys.stderr)
+        return 130
 
 
 def _run(args, *, quiet: bool, verbose: bool) -> int:
@@ -664,6 +672,11 @@ def entry() -> None:
     except KeyboardInterrupt:  # before main's own handling began (parsing the command line)
         print("interrupted (Ctrl-C): no output was written", file=sys.stderr)
         code = 130
+    except Exception:  # a bug: its traceback, then the same prompt exit as every other ending (a
+        import traceback  # half-imported extension module can crash Python's own shutdown)
+
+        traceback.print_exc()
+        code = 1
     _MAIN_DONE.set()
     if (
         os.environ.get("DIFFLATTICE_FAST_EXIT", "1") == "0"

@@ -263,3 +263,28 @@ def test_the_run_without_a_surface_stops_after_its_window(tmp_path):
     _, _, a_long, _ = ei._receiver(run_scene3d(ei.without(scene, grid, s, 8.0), quiet=True))  # not cut
     assert len(a_long) == len(a)
     assert np.max(np.abs(echo[:m] - (a[:m] - a_long[:m]))) <= 1e-6 * np.max(np.abs(a)) and not np.any(echo[m:])
+
+
+def test_a_walls_echo_between_a_rigid_floor_and_ceiling(tmp_path):
+    """The wall of `test_isolated_wall_echo_within_a_tenth_of_a_period` with a rigid ceiling as
+    well (z_hi): floor and ceiling make a guide (`echoes3d.find_guides`) and the wall's echo has
+    copies via the transducer's images in them; the one via the ceiling's (2 H - 2 u above it, H
+    the window's height, u the disc's height over the floor) adds ~7 periods to the round trip,
+    inside the burst, so it is in the model echo (weighted by the disc's directivity at its tilt),
+    and the isolated echo's first arrival is within 0.1 period of the image-source delay (the same
+    budget as the open scene's; without the ceiling's image the model misses a copy of 0.8 of the
+    direct echo's amplitude in the fit's window)."""
+    p = tmp_path / "wall.toml"
+    p.write_text(WALL.replace('z_lo = "rigid"\n', 'z_lo = "rigid"\nz_hi = "rigid"\n'))
+    scene = dataclasses.replace(load_scene(p), objects=())
+    doc = ei.isolate_echoes(scene, tmp_path / "out", only=["wall x_hi"])
+    (e,) = doc["echoes"]
+    built = scene.build()
+    grid = built.grid
+    src = built.sources[built.receivers[0].source]  # the disc's centre: the mean of its cells
+    centre = np.average(np.asarray(src.cells_array, float), axis=0, weights=np.abs(np.asarray(src.weights)))
+    height = grid.shape[2] * grid.dx_m
+    u = centre[2] * grid.dx_m + 0.5 * grid.dx_m
+    ceiling = math.hypot(e["path_m"] - 2 * e["rasterised_offset_m"], 2 * height - 2 * u) + 2 * e["rasterised_offset_m"]
+    assert any(abs(q - ceiling) < 1e-9 for q in e["merged_paths_m"]), (ceiling, e["merged_paths_m"])
+    assert abs(e["error_periods"]) < 0.1, e

@@ -63,10 +63,10 @@ def _simulate(args) -> int:
         data_format=args.format,
     )
     if scene.kind.ndim == 3:
-        if args.isolate_echoes:
-            _isolate_echoes(scene, sr, args.out)
+        if args.isolate_echoes or args.isolate:
+            _isolate_echoes(scene, sr, args.out, args.isolate)
         return _report_3d(args, sr, files)
-    if args.isolate_echoes:
+    if args.isolate_echoes or args.isolate:
         print('error: --isolate-echoes is for kind = "3d" pulse-echo scenes', file=sys.stderr)
         return 2
     s = sr.summary
@@ -89,11 +89,12 @@ def _simulate(args) -> int:
     return 0
 
 
-def _isolate_echoes(scene, sr, out) -> None:
-    """--isolate-echoes: one more run per surface (apps.echoes_isolated), its table on stdout."""
+def _isolate_echoes(scene, sr, out, only=None) -> None:
+    """--isolate-echoes: one more run per surface (apps.echoes_isolated; `only`: those named by
+    --isolate), its table on stdout."""
     from .apps.echoes_isolated import isolate_echoes
 
-    doc = isolate_echoes(scene, out, full=sr, log=lambda m: print(m, file=sys.stderr, flush=True))
+    doc = isolate_echoes(scene, out, full=sr, only=only, log=lambda m: print(m, file=sys.stderr, flush=True))
     for e in doc["echoes"]:
         print(
             f"isolated echo {e['surface']!r} ({e['first_arrival']}): path {e['path_m']:.4f} m, {e['level_db']:.1f} dB, first "
@@ -287,6 +288,14 @@ def _add_simulate(sub) -> None:
         help="3-D pulse-echo: also run the scene once without each surface and write echoes_isolated.json/.png: "
         "each surface's own echo (the difference of the runs), its matched-filter arrival against its "
         "image-source delay on the lattice and in air (one more run per surface)",
+    )
+    s.add_argument(
+        "--isolate",
+        action="append",
+        default=None,
+        metavar="SURFACE",
+        help="3-D pulse-echo: --isolate-echoes for this surface only (its name as in echoes.json, e.g. 'post'; "
+        "repeat for several)",
     )
     s.set_defaults(func=_simulate)
 

@@ -160,6 +160,7 @@ class Mirror(NamedTuple):
     side: bool
     reflects: Any
     clear: Any  # clear(*points): whether the polyline through them runs in air (no object across it)
+    shadow: Any = None  # shadow(*points): (depth m inside an object at its deepest, where along the polyline m)
 
     def crossing(self, a, b) -> np.ndarray:
         """Where the segment a -> b meets the plane (a path's reflection point; a if parallel)."""
@@ -204,19 +205,28 @@ def find_mirrors(scene, grid, centre_m=None, found=None) -> list[Mirror]:
         p = [jnp.asarray(float(v)) for v in x]
         return min((float(sh.sdf(*p)) for sh in shapes), default=math.inf)
 
-    def clear(*pts) -> bool:  # the polyline through `pts` in air: no object across it (ends excepted)
+    def shadow(*pts) -> tuple[float, float]:
+        """(how deep, m, the polyline through `pts` runs inside an object at its deepest, ends
+        excepted; 0 in air all along, and how far along it, m, that point lies)."""
+        deepest, at, run = 0.0, 0.0, 0.0
         for a, b in zip(pts[:-1], pts[1:]):
             a, b = np.asarray(a, float), np.asarray(b, float)
-            n = max(2, int(np.linalg.norm(b - a) / (0.5 * grid.dx_m)))
+            seg = float(np.linalg.norm(b - a))
+            n = max(2, int(seg / (0.5 * grid.dx_m)))
             f = np.linspace(0.0, 1.0, n + 1)[1:-1]
-            f = f[(f * np.linalg.norm(b - a) > 2 * grid.dx_m) & ((1 - f) * np.linalg.norm(b - a) > 2 * grid.dx_m)]
-            if not len(f) or not shapes:
-                continue
-            q = a[None, :] + f[:, None] * (b - a)[None, :]
-            x, y, z = (jnp.asarray(q[:, i]) for i in range(3))
-            if min(float(jnp.min(sh.sdf(x, y, z))) for sh in shapes) < -0.25 * grid.dx_m:
-                return False
-        return True
+            f = f[(f * seg > 2 * grid.dx_m) & ((1 - f) * seg > 2 * grid.dx_m)]
+            if len(f) and shapes:
+                q = a[None, :] + f[:, None] * (b - a)[None, :]
+                x, y, z = (jnp.asarray(q[:, i]) for i in range(3))
+                v = np.min([np.asarray(sh.sdf(x, y, z), float) for sh in shapes], axis=0)
+                k = int(np.argmin(v))
+                if -v[k] > deepest:
+                    deepest, at = float(-v[k]), run + float(f[k]) * seg
+            run += seg
+        return deepest, at
+
+    def clear(*pts) -> bool:  # the polyline through `pts` in air: no object across it (ends excepted)
+        return shadow(*pts)[0] <= 0.25 * grid.dx_m
 
     def reflects_fn(point, normal, side: bool):
         def reflects(a, b, away=None) -> bool:
@@ -240,7 +250,7 @@ def find_mirrors(scene, grid, centre_m=None, found=None) -> list[Mirror]:
             if abs(float(m.normal @ normal)) > 1 - 1e-9 and abs(float(m.normal @ (point - m.point))) < 0.1 * grid.dx_m:
                 return
         image = c - 2 * float((c - point) @ normal) * normal
-        out.append(Mirror(image, c, point, normal, side, reflects_fn(point, normal, side), clear))
+        out.append(Mirror(image, c, point, normal, side, reflects_fn(point, normal, side), clear, shadow))
 
     for axis, n in enumerate(grid.shape):
         for side, plane in (("lo", -0.5 * grid.dx_m), ("hi", (n - 0.5) * grid.dx_m)):
@@ -301,17 +311,201 @@ def mirror_paths(s: dict, m: Mirror) -> list[tuple[float, float, str, np.ndarray
     return out
 
 
-def _merged_paths(s: dict, mirrors, within_m: float) -> tuple[list[float], list[float]]:
-    """The round trips that make one echo with the direct one (2 d): via the transducer's image T'
-    in each mirror (`find_mirrors`: a floor under it, a corridor's side walls; `mirror_paths`),
-    kept when they add less than `within_m` (half a burst), with their multiplicities."""
-    d = s["distance_m"]
-    paths, weights = [2 * d], [1.0]
+class Guide(NamedTuple):
+    """Two rigid window sides facing each other across `axis` (a floor and a ceiling) with every
+    object an extrusion between them: the scene is invariant along `axis` inside the window, so the
+    method of images is exact there: each path of a surface that is itself invariant (a wall or a
+    post standing floor to ceiling) has a copy via every image of the transducer in the pair, the
+    unfolded path tilted by the image's offset (`offsets_m`, signed, each image once)."""
+
+    axis: int
+    offsets_m: tuple[float, ...]
+
+    def carries(self, s: dict) -> bool:
+        """Whether surface `s` is invariant along the guide's axis (its echo has the images)."""
+        return (
+            abs(float(np.asarray(s["direction"], float)[self.axis])) < 1e-9
+            and s.get("side", "")[:1] != "xyz"[self.axis]
+        )
+
+    def is_plane(self, m: Mirror) -> bool:
+        """Whether mirror `m` is one of the guide's two planes (its images are the guide's own)."""
+        return abs(abs(float(m.normal[self.axis])) - 1.0) < 1e-9
+
+
+def _reach(grid, within_m: float) -> float:
+    """How far off (m) an image of the transducer may lie and add less than `within_m` to a round
+    trip inside the window (twice its diagonal)."""
+    diagonal = float(np.linalg.norm(np.asarray(grid.shape, float) * grid.dx_m))
+    return math.sqrt(4 * diagonal * within_m + within_m**2)
+
+
+def find_guides(scene, grid, centre_m, reach_m: float) -> list[Guide]:
+    """The scene's `Guide`s (each axis whose two window sides are rigid, across which the
+    transducer's axis lies and along which every object is an extrusion through the window: its
+    signed distance the same at every height, sampled at random points in air), with the
+    transducer's images within `reach_m` of it: a floor and a ceiling; in an empty duct, its
+    side walls as well."""
+    import jax.numpy as jnp
+
+    from ..scene.objects import shape3d
+
+    t = scene.transducers[0]
+    c = np.asarray(centre_m, float)
+    shapes = [shape3d(scene.path, f"objects[{i}]", o) for i, o in enumerate(scene.objects)]
+    lo_w = np.full(3, -0.5 * grid.dx_m)
+    hi_w = (np.asarray(grid.shape, float) - 0.5) * grid.dx_m
+    rng = np.random.default_rng(0)
+    guides = []
+    for axis in range(3):
+        key = "xyz"[axis]
+        if _side_kind(scene, f"{key}_lo") != "rigid" or _side_kind(scene, f"{key}_hi") != "rigid":
+            continue
+        if abs(float(_transducer_axis(t)[axis])) > 1e-9:
+            continue
+        pts = lo_w + rng.random((256, 3)) * (hi_w - lo_w)
+        levels = np.linspace(lo_w[axis], hi_w[axis], 7)
+        invariant = True
+        for sh in shapes:
+            vals = []
+            for z in levels:
+                q = pts.copy()
+                q[:, axis] = z
+                vals.append(np.asarray(sh.sdf(*(jnp.asarray(q[:, i]) for i in range(3))), float))
+            v = np.stack(vals)
+            air = np.all(v > 0, axis=0)
+            if not np.any(air) or np.max(np.ptp(v[:, air], axis=0)) > 1e-6 * grid.dx_m:
+                invariant = False
+                break
+        if not invariant:
+            continue
+        height = hi_w[axis] - lo_w[axis]
+        u0 = c[axis] - lo_w[axis]
+        offsets: set[float] = set()
+        k_max = int(reach_m / (2 * height)) + 2
+        for k in range(-k_max, k_max + 1):
+            for off in (2 * k * height, 2 * k * height - 2 * u0):
+                if 1e-9 < abs(off) <= reach_m and not any(abs(off - o) < 1e-6 * grid.dx_m for o in offsets):
+                    offsets.add(off)
+        guides.append(Guide(axis, tuple(sorted(offsets, key=abs))))
+    return guides
+
+
+def _transducer_axis(transducer) -> np.ndarray:
+    """The unit direction a transducer faces (a disc's `axis`, default +x)."""
+    a = np.asarray(getattr(transducer, "axis", None) or (1.0, 0.0, 0.0), float)
+    return a / np.linalg.norm(a)
+
+
+def shadowed_paths(s: dict, mirrors, wavelength_m: float, within_m: float) -> list[float]:
+    """The round trips of `s` via a mirror (`mirror_paths`'s corner paths) that reflect on the
+    mirror's solid but whose straight line runs through an object less deep than the first Fresnel
+    zone's radius sqrt(lambda d1 d2 / (d1 + d2)) there (d1, d2 along the unfolded path): shadowed
+    geometrically, so not in the model echo, but grazing an edge (a door recess's inner corner
+    seen past the near jamb), where diffraction brings much of them back. Their lengths (m), those
+    adding less than `within_m` to the direct round trip, as predicted arrivals of their own for a
+    fit (`fit_first_arrival`'s `others_steps`)."""
+    out: list[float] = []
+    away = -np.asarray(s["direction"], float)
     for m in mirrors:
-        for length, times, _, _ in mirror_paths(s, m):
-            if 1e-6 < length - 2 * d < within_m:  # (a mirror through the surface's point maps it onto itself)
-                paths.append(length)
-                weights.append(times)
+        if m.shadow is None:
+            continue
+        c, image = m.centre, m.image
+        pm = s["nearest"](0.5 * (image + c))
+        if not m.reflects(pm, image, away):
+            continue
+        pts = (c, pm, m.crossing(pm, image), c)
+        depth, at = m.shadow(*pts)
+        length = float(sum(np.linalg.norm(np.asarray(b) - np.asarray(a)) for a, b in zip(pts[:-1], pts[1:])))
+        if depth <= 0.0 or m.clear(*pts):
+            continue
+        if depth < math.sqrt(wavelength_m * at * (length - at) / length) and length - 2 * s["distance_m"] < within_m:
+            out.append(length)
+    return out
+
+
+def _sin_off(axis, direction) -> float:
+    """The sine of the angle between `axis` and `direction`."""
+    a = np.asarray(axis, float) / np.linalg.norm(axis)
+    d = np.asarray(direction, float) / np.linalg.norm(direction)
+    return math.sqrt(max(0.0, 1.0 - float(a @ d) ** 2))
+
+
+def _jinc(x):
+    """2 J1(x) / x (1 at 0), elementwise."""
+    from scipy.special import j1
+
+    x = np.asarray(x, float)
+    small = np.abs(x) < 1e-9
+    return np.where(small, 1.0, 2 * j1(np.where(small, 1.0, x)) / np.where(small, 1.0, x))
+
+
+def _directivity(axis, direction, ka: float) -> float:
+    """The far-field directivity 2 J1(x) / x, x = ka sin(theta), of a disc whose axis is `axis`
+    towards `direction` (signed: the side lobes' phase)."""
+    return float(_jinc(ka * _sin_off(axis, direction)))
+
+
+class PathWeight(NamedTuple):
+    """A round trip's weight: its multiplicity and the disc's far-field directivity 2 J1(x) / x,
+    x = ka sin(theta), out of its source and into its receiver. `float()` gives it at the drive
+    frequency; called with frequency / drive frequency (an array) it gives it across the band
+    (ka scales with frequency: a path near a null of the lobe changes across the burst's band)."""
+
+    times: float
+    ka: float
+    sin_out: float
+    sin_in: float
+
+    def __float__(self) -> float:
+        return float(self(1.0))
+
+    def __call__(self, ratio):
+        return self.times * _jinc(self.ka * ratio * self.sin_out) * _jinc(self.ka * ratio * self.sin_in)
+
+
+def weighted_paths(s: dict, mirrors, within_m: float, transducer, wavelength_m: float, guides=()):
+    """The round trips that make one echo with the direct one (2 d): direct, and via the
+    transducer's image T' in each mirror (`find_mirrors`: a floor under it, a corridor's side
+    walls; `mirror_paths`) adding less than `within_m`, each weighted by its multiplicity and the disc's
+    directivity at the drive frequency out of its source and into its receiver (the image's axis
+    mirrored): a path that leaves the beam counts for what the disc sends and hears along it. In
+    `guides` (`find_guides`: a rigid floor and ceiling, the scene an extrusion between
+    them) a surface they carry has each of these paths again via every image of the transducer in
+    their planes, the unfolded path tilted by the image's offset (its legs' directivity at the tilt).
+    The weights are `PathWeight`s (a float at the drive frequency, a function across the band)."""
+    import itertools
+
+    d = s["distance_m"]
+    axis = _transducer_axis(transducer)
+    ka = math.pi * float(getattr(transducer, "diameter_m", None) or 0.0) / wavelength_m  # 0: no directivity
+    carry = [g for g in guides if g.carries(s)]
+    direction = np.asarray(s["direction"], float)
+    legs = [(2 * d, 1.0, direction, axis, direction, axis)]  # (length, times, out leg, its axis, in leg, its axis)
+    for m in mirrors:
+        if any(g.is_plane(m) for g in carry):
+            continue  # the guides' images below
+        axis_i = m.mirrored(axis)  # the image transducer's
+        for length, times, kind, q in mirror_paths(s, m):
+            if 1e-6 < length - 2 * d < within_m:
+                out = (q - m.centre, axis) if kind == "cross" else (q - m.image, axis_i)
+                legs.append((length, times, *out, q - m.image, axis_i))
+    offsets = []
+    for combo in itertools.product(*[(0.0,) + g.offsets_m for g in carry]):
+        v = np.zeros(3)
+        for g, o in zip(carry, combo):
+            v[g.axis] = o
+        offsets.append(v)
+    paths, weights = [], []
+    for length, times, v_out, a_out, v_in, a_in in legs:
+        for off in offsets:
+            tilted = math.hypot(length, float(np.linalg.norm(off)))
+            if tilted > length and not tilted - 2 * d < within_m:
+                continue
+            u_out = np.asarray(v_out, float) / np.linalg.norm(v_out) * length + off
+            u_in = np.asarray(v_in, float) / np.linalg.norm(v_in) * length + off
+            paths.append(tilted)
+            weights.append(PathWeight(float(times), ka, _sin_off(a_out, u_out), _sin_off(a_in, u_in)))
     return paths, weights
 
 
@@ -330,8 +524,8 @@ def envelope(x: np.ndarray) -> np.ndarray:
 
 
 def path_phase(grid, w: np.ndarray, keep: np.ndarray, paths_m, weights, direction, *, lattice: bool) -> np.ndarray:
-    """The transfer of paths `paths_m` (m, summed with `weights`) along `direction` at lattice
-    frequencies `w` (rad/step): each frequency delayed by its phase delay, the lattice's
+    """The transfer of paths `paths_m` (m, summed with `weights`: numbers, or `PathWeight`s taken
+    at each frequency) along `direction` at lattice frequencies `w` (rad/step): each frequency delayed by its phase delay, the lattice's
     (`analytic3d.lattice_wavenumber_3d`, the grid's stencil) or the air's. Frequencies above the
     lattice's band edge are dropped from `keep` (in place)."""
     from ..observe.analytic3d import lattice_wavenumber_3d
@@ -347,7 +541,11 @@ def path_phase(grid, w: np.ndarray, keep: np.ndarray, paths_m, weights, directio
         else:
             k = w[j] / grid.courant
         slowness[j] = k / w[j]
-    return sum(wt * np.exp(-1j * w * slowness * p / grid.dx_m) for p, wt in zip(paths_m, weights))
+    ratio = w / grid.omega  # frequency / the drive's: a `PathWeight` across the band
+    return sum(
+        (wt(ratio) if callable(wt) else wt) * np.exp(-1j * w * slowness * p / grid.dx_m)
+        for p, wt in zip(paths_m, weights)
+    )
 
 
 def model_echo(grid, ref: np.ndarray, n: int, paths_m, weights, direction) -> np.ndarray:
@@ -376,8 +574,17 @@ def fit_first_arrival(
     start = lag_steps - 1  # the template's burst starts on this sample (its one-step lead)
     lo = max(int(math.floor(start - 0.5 * burst_steps)), gate_step)
     hi = int(math.ceil(start + 2.0 * burst_steps))
-    predicted = [0.0] + [float(d) for d in others_steps if lo < start + d < hi - 0.5 * burst_steps and abs(d) > 0.5]
-    return fit_arrivals(trace, Pulse(template, len(trace)), predicted, lo, hi, samples_per_period=steps_per_period)
+    others = sorted(
+        (float(d) for d in others_steps if lo < start + d < hi - 0.5 * burst_steps and abs(d) > 0.5), key=abs
+    )
+    pulse = Pulse(template, len(trace))
+    while True:
+        try:
+            return fit_arrivals(trace, pulse, [0.0] + others, lo, hi, samples_per_period=steps_per_period)
+        except ValueError as e:  # the window holds too few independent samples for every prediction:
+            if not others or "too few for" not in str(e):  # the farthest from the surface's goes first
+                raise
+            others.pop()
 
 
 def propagated_envelope_peak_s(
@@ -390,7 +597,7 @@ def propagated_envelope_peak_s(
     `path_m` may be several paths (summed with `weights`: one echo over paths that merge, e.g.
     via a floor's image). On `n` steps; a soft source's one-step lead included."""
     paths = np.atleast_1d(np.asarray(path_m, float))
-    wts = np.ones_like(paths) if weights is None else np.asarray(weights, float)
+    wts = [1.0] * len(paths) if weights is None else list(weights)
     from ..solver.sources import ToneBurst
 
     dt = grid.dt_s
@@ -445,12 +652,22 @@ def label_echoes(t_s, a_scan, scene, grid, *, cycles: float, gate_start_step: in
     rows = []
     found = surfaces(scene, grid, centre_m)
     mirrors = find_mirrors(scene, grid, centre_m, found)
-    fits = _fit_all(a, found, mirrors, grid, cycles, gate_start_step, half * c_air)
+    transducer = scene.transducers[0]
+    wavelength = grid.dx_m * grid.cells_per_wavelength
+    guides = find_guides(scene, grid, transducer.centre_m if centre_m is None else centre_m, _reach(grid, half * c_air))
+
+    def merged(s):  # the round trips that make its echo, weighted by the disc's directivity
+        return weighted_paths(s, mirrors, half * c_air, transducer, wavelength, guides)
+
+    def partly(s):  # its corner paths that graze an edge (`shadowed_paths`), within the fit's window
+        return shadowed_paths(s, mirrors, wavelength, 2 * cycles * wavelength)
+
+    fits = _fit_all(a, found, merged, partly, grid, cycles, gate_start_step)
     for s in found:
         path = 2 * s["distance_m"]
         vg = float(group_velocity_3d(grid.omega, grid.courant, s["direction"], stencil=grid.stencil))
         v_lat = vg * grid.dx_m / dt  # m/s
-        paths, weights = _merged_paths(s, mirrors, half * c_air)
+        paths, weights = merged(s)
         t_air = propagated_envelope_peak_s(grid, paths, s["direction"], cycles, len(a), lattice=False, weights=weights)
         t_lat = propagated_envelope_peak_s(grid, paths, s["direction"], cycles, len(a), weights=weights)
         if t_lat - half < gate_start_step * dt:
@@ -498,9 +715,11 @@ def label_echoes(t_s, a_scan, scene, grid, *, cycles: float, gate_start_step: in
     }
 
 
-def _fit_all(a, found, mirrors, grid, cycles: float, gate_start_step: int, within_m: float) -> dict[str, dict]:
+def _fit_all(a, found, merged, partly, grid, cycles: float, gate_start_step: int) -> dict[str, dict]:
     """Per surface the fitted first arrival (`fit_first_arrival`) of the A-scan `a` after the gate:
-    the copies started at its model echo and at every other surface's lattice delay in the window."""
+    the copies started at its model echo (over its round trips `merged(s)`: paths, weights), at
+    every other surface's lattice delay in the window and at its partly shadowed paths
+    (`partly(s)`: lengths, m)."""
     from ..solver.sources import ToneBurst
 
     dt, f0 = grid.dt_s, grid.frequency_hz
@@ -508,9 +727,12 @@ def _fit_all(a, found, mirrors, grid, cycles: float, gate_start_step: int, withi
     t = np.arange(1, len(a) + 1) * dt
     ref = np.asarray(ToneBurst(f0, cycles)(t), float)[: int(math.ceil(burst)) + 2]
     trace = np.where(np.arange(len(a)) >= gate_start_step, a, 0.0)
-    models = {}
+    models, shadowed = {}, {}
     for s in found:
-        paths, weights = _merged_paths(s, mirrors, within_m)
+        paths, weights = merged(s)
+        shadowed[s["surface"]] = [
+            (p - 2 * s["distance_m"]) / (grid.dx_m * float(_vg(grid, s["direction"]))) for p in partly(s)
+        ]
         lag = 2 * s["distance_m"] / (grid.dx_m * float(_vg(grid, s["direction"])))  # the group delay, steps
         models[s["surface"]] = (lag, model_echo(grid, ref, len(a), paths, weights, s["direction"]))
     out = {}
@@ -519,7 +741,7 @@ def _fit_all(a, found, mirrors, grid, cycles: float, gate_start_step: int, withi
             continue
         if lag - 1 + 2.0 * burst > len(a):
             continue  # its window (two bursts after its start) runs past the record's end: not fitted
-        others = [o - lag for n, (o, _) in models.items() if n != name]
+        others = [o - lag for n, (o, _) in models.items() if n != name] + shadowed[name]
         fit = fit_first_arrival(trace, template, lag, burst, 1 / (f0 * dt), others, gate_start_step)
         first = fit.first_arrival
         out[name] = {

@@ -262,14 +262,15 @@ def _measure(echo, ref, model, dt: float, f0: float, burst_steps: float, *, matc
     }
 
 
-def measure_echo(grid, echo, ref, model, template, burst_steps: float) -> dict[str, dict]:
+def measure_echo(grid, echo, ref, model, template, burst_steps: float, others_steps=()) -> dict[str, dict]:
     """Every estimator's arrival (`ESTIMATORS`) of one isolated echo against its lattice delay
-    (`template`: the model echo on the echo's samples, `echoes3d.model_echo`, the fit's pulse)."""
+    (`template`: the model echo on the echo's samples, `echoes3d.model_echo`, the fit's pulse;
+    `others_steps`: further predicted arrivals, steps after it, where the fit starts copies)."""
     dt, f0 = grid.dt_s, grid.frequency_hz
     got = {m: _measure(echo, ref, model, dt, f0, burst_steps, matched=m == "matched") for m in ESTIMATORS if m != "fit"}
     lag_lat = model(lattice=True, matched=True)
     lag_air = model(lattice=False, matched=True)
-    fit = echoes3d.fit_first_arrival(echo, template, lag_lat, burst_steps, 1 / (f0 * dt))
+    fit = echoes3d.fit_first_arrival(echo, template, lag_lat, burst_steps, 1 / (f0 * dt), others_steps)
     first = fit.first_arrival
     got["fit"] = {
         "delay_lattice_s": lag_lat * dt,
@@ -286,39 +287,6 @@ def measure_echo(grid, echo, ref, model, template, burst_steps: float) -> dict[s
         "residual_rel": fit.residual_rel,
     }
     return {m: got[m] for m in ESTIMATORS}
-
-
-def _directivity(axis, direction, ka: float) -> float:
-    """The far-field directivity 2 J1(x) / x, x = ka sin(theta), of a disc whose axis is `axis`
-    towards `direction` (signed: the side lobes' phase)."""
-    from scipy.special import j1
-
-    a = np.asarray(axis, float) / np.linalg.norm(axis)
-    d = np.asarray(direction, float) / np.linalg.norm(direction)
-    x = ka * math.sqrt(max(0.0, 1.0 - float(a @ d) ** 2))
-    return 1.0 if x < 1e-9 else float(2 * j1(x) / x)
-
-
-def _weighted_paths(s: dict, mirrors, within_m: float, transducer, wavelength_m: float):
-    """The round trips of `echoes3d._merged_paths` (direct, and via the transducer's image T' in
-    each mirror, `echoes3d.mirror_paths`), each weighted by its multiplicity and the disc's
-    directivity at the drive frequency out of its source and into its receiver (the image's axis
-    mirrored): a path that leaves the beam counts for what the disc sends and hears along it."""
-    d = s["distance_m"]
-    axis = np.asarray(transducer.axis, float)
-    ka = math.pi * float(transducer.diameter_m or 0.0) / wavelength_m
-    paths = [2 * d]
-    weights = [_directivity(axis, s["direction"], ka) ** 2]
-    for m in mirrors:
-        axis_i = m.mirrored(axis)  # the image transducer's
-        for length, times, kind, q in echoes3d.mirror_paths(s, m):
-            if 1e-6 < length - 2 * d < within_m:
-                out_leg = (
-                    _directivity(axis, q - m.centre, ka) if kind == "cross" else _directivity(axis_i, q - m.image, ka)
-                )
-                paths.append(length)
-                weights.append(times * out_leg * _directivity(axis_i, q - m.image, ka))
-    return paths, weights
 
 
 def _on_mirrors(scene, grid, centre_m) -> np.ndarray:
@@ -397,14 +365,21 @@ def isolate_echoes(scene, out_dir, *, full=None, only=None, saved=None, quiet: b
     recorded_steps: dict[str, int] = {}
     found = echoes3d.surfaces(scene, grid, centre)
     mirrors = echoes3d.find_mirrors(scene, grid, centre, found)
+    within = cycles * wavelength
+    guides = echoes3d.find_guides(scene, grid, centre, echoes3d._reach(grid, within))
     if only is not None:
         unknown = set(only) - {s["surface"] for s in found}
         if unknown:
-            raise ValueError(f"only = {sorted(unknown)}: no such surface; the scene's: {[s['surface'] for s in found]}")
+            from ..scene.model import SceneError
+
+            raise SceneError(
+                f"{scene.path}: --isolate {sorted(unknown)}: no such surface; give one of the scene's: "
+                f"{[s['surface'] for s in found]}"
+            )
         found = [s for s in found if s["surface"] in only]
     for s in found:
         offset = rasterised_offset_m(s, _occupied(scene, grid, s), centre, grid, wavelength)
-        paths, weights = _weighted_paths(s, mirrors, cycles * wavelength, scene.transducers[0], wavelength)
+        paths, weights = echoes3d.weighted_paths(s, mirrors, within, scene.transducers[0], wavelength, guides)
         paths = [p + 2 * offset for p in paths]
         model = functools.partial(model_lag_steps, grid, ref, len(a), paths, weights, s["direction"])
         if model(lattice=True) < r.gate_start_step:
@@ -437,7 +412,12 @@ def isolate_echoes(scene, out_dir, *, full=None, only=None, saved=None, quiet: b
             echo = np.zeros_like(a)  # after `recorded` no difference was measured: zeros, and the row says so
             echo[:recorded] = a[:recorded] - a_wo[:recorded]
             without_shape = list(sr_wo.grid.shape)
-        got = measure_echo(grid, echo, ref, model, template, burst_steps)
+        # corner paths that graze an edge (shadowed within their Fresnel zone): predicted copies
+        partly = [
+            (p - 2 * s["distance_m"]) / (grid.dx_m * echoes3d._vg(grid, s["direction"]))
+            for p in echoes3d.shadowed_paths(s, mirrors, wavelength, 2 * within)
+        ]
+        got = measure_echo(grid, echo, ref, model, template, burst_steps, partly)
         lo = int(got[PRIMARY]["delay_lattice_s"] / dt)
         level = float(echoes3d.envelope(echo)[lo : lo + int(2 * burst_steps)].max()) if lo < len(echo) else 0.0
         rows.append(

@@ -277,3 +277,13 @@ def test_the_watcher_ends_a_main_thread_that_does_not_stop(tmp_path):
         f"interrupted (Ctrl-C): the outputs in {out} are partial (marked by {out / INCOMPLETE})"
     ], err
     assert (out / INCOMPLETE).exists()
+
+
+def test_a_misspelt_isolate_surface_is_refused_before_the_run(tmp_path, capsys):
+    """`simulate --isolate NAME` with a name the scene has no surface of: code 2 and one line that
+    names the scene's surfaces, before the (here 16-minute) run, nothing written."""
+    out = tmp_path / "o"
+    code = main(["simulate", str(ROOT / "data/scenes/corridor3d.toml"), "--out", str(out), "--isolate", "postt"])
+    err = capsys.readouterr().err
+    assert code == 2 and "postt" in err and "'post'" in err and "'wall x_hi'" in err, err
+    assert not out.exists() or not any(out.iterdir())  # no run: nothing written

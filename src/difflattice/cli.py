@@ -53,6 +53,13 @@ def _simulate(args) -> int:
         scene = dataclasses.replace(
             scene, output=dataclasses.replace(scene.output, render_every_cells=args.render_every)
         )
+    if args.isolate and scene.kind.ndim == 3:  # a misspelt surface is refused before the run, not after it
+        from .apps.echoes_isolated import surface_names
+
+        unknown = sorted(set(args.isolate) - set(surface_names(scene)))
+        if unknown:
+            print(f"error: --isolate {unknown}: no such surface; give one of {surface_names(scene)}", file=sys.stderr)
+            return 2
     available = None if args.max_memory_gib is None else int(args.max_memory_gib * 2**30)
     sr = run_scene(scene, progress=not args.quiet, available_bytes=available, mlups=args.assume_mlups)
     files = write_outputs(
@@ -295,7 +302,7 @@ def _add_simulate(sub) -> None:
         default=None,
         metavar="SURFACE",
         help="3-D pulse-echo: --isolate-echoes for this surface only (its name as in echoes.json, e.g. 'post'; "
-        "repeat for several)",
+        "repeat for several; default: none, --isolate-echoes isolates every surface)",
     )
     s.set_defaults(func=_simulate)
 

@@ -29,6 +29,10 @@ THRESHOLDS_DB = (-20.0, -30.0, -40.0, -50.0, -60.0)
 """Detection thresholds, dB re the transmit peak of the A-scan."""
 
 
+SIDES = ("x_lo", "x_hi", "y_lo", "y_hi", "z_lo", "z_hi")
+"""The window's sides (a rigid one is a wall: "wall x_hi")."""
+
+
 def surfaces(scene, grid, centre_m=None) -> list[dict[str, Any]]:
     """The reflecting surfaces of a 3-D scene seen from its first transducer's centre (or
     `centre_m`: where its cells lie on the lattice, e.g. their mean): name, the
@@ -75,7 +79,7 @@ def surfaces(scene, grid, centre_m=None) -> list[dict[str, Any]]:
                 "nearest": nearest,
             }
         )
-    sides = {k for k in ("x_lo", "x_hi", "y_lo", "y_hi", "z_lo", "z_hi") if _side_kind(scene, k) == "rigid"}
+    sides = {k for k in SIDES if _side_kind(scene, k) == "rigid"}
     lo = -0.5 * grid.dx_m
     for axis, n in enumerate(grid.shape):
         hi = (n - 0.5) * grid.dx_m
@@ -440,6 +444,14 @@ def _jinc(x):
     return np.where(small, 1.0, 2 * j1(np.where(small, 1.0, x)) / np.where(small, 1.0, x))
 
 
+def shadowed_lags_steps(s: dict, mirrors, grid, within_m: float) -> list[float]:
+    """`shadowed_paths` of `s` as lags after its direct round trip, steps (the lattice's group
+    velocity along its direction): the fit's predicted arrivals."""
+    wavelength = grid.dx_m * grid.cells_per_wavelength
+    step_m = grid.dx_m * _vg(grid, s["direction"])
+    return [(p - 2 * s["distance_m"]) / step_m for p in shadowed_paths(s, mirrors, wavelength, within_m)]
+
+
 def _directivity(axis, direction, ka: float) -> float:
     """The far-field directivity 2 J1(x) / x, x = ka sin(theta), of a disc whose axis is `axis`
     towards `direction` (signed: the side lobes' phase)."""
@@ -660,7 +672,7 @@ def label_echoes(t_s, a_scan, scene, grid, *, cycles: float, gate_start_step: in
         return weighted_paths(s, mirrors, half * c_air, transducer, wavelength, guides)
 
     def partly(s):  # its corner paths that graze an edge (`shadowed_paths`), within the fit's window
-        return shadowed_paths(s, mirrors, wavelength, 2 * cycles * wavelength)
+        return shadowed_lags_steps(s, mirrors, grid, 2 * cycles * wavelength)
 
     fits = _fit_all(a, found, merged, partly, grid, cycles, gate_start_step)
     for s in found:
@@ -719,7 +731,7 @@ def _fit_all(a, found, merged, partly, grid, cycles: float, gate_start_step: int
     """Per surface the fitted first arrival (`fit_first_arrival`) of the A-scan `a` after the gate:
     the copies started at its model echo (over its round trips `merged(s)`: paths, weights), at
     every other surface's lattice delay in the window and at its partly shadowed paths
-    (`partly(s)`: lengths, m)."""
+    (`partly(s)`: their lags after its own, steps)."""
     from ..solver.sources import ToneBurst
 
     dt, f0 = grid.dt_s, grid.frequency_hz
@@ -730,9 +742,7 @@ def _fit_all(a, found, merged, partly, grid, cycles: float, gate_start_step: int
     models, shadowed = {}, {}
     for s in found:
         paths, weights = merged(s)
-        shadowed[s["surface"]] = [
-            (p - 2 * s["distance_m"]) / (grid.dx_m * float(_vg(grid, s["direction"]))) for p in partly(s)
-        ]
+        shadowed[s["surface"]] = partly(s)
         lag = 2 * s["distance_m"] / (grid.dx_m * float(_vg(grid, s["direction"])))  # the group delay, steps
         models[s["surface"]] = (lag, model_echo(grid, ref, len(a), paths, weights, s["direction"]))
     out = {}

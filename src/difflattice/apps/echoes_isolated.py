@@ -31,8 +31,12 @@ the round trip(s) frequency by frequency with the lattice's dispersion relation 
 air's speed. The paths are the image-source / nearest-point round trip from the transducer's
 centre (the weighted mean of its cells) and those via its image in each mirror (`echoes3d.mirror_paths`:
 the rigid window sides, a floor under it, and the objects' planar faces) within a burst of it,
-weighted by the disc's directivity out and in. The surface is the rasterised one: the cells whose centre lies
-inside (hard rasterisation) present their faces, so the distance is taken to those faces, the mean
+and, between a rigid floor and ceiling (`echoes3d.find_guides`), via every image of the
+transducer in the pair, each weighted by the disc's directivity out and in at each frequency of
+the band (`echoes3d.weighted_paths`). A corner path shadowed geometrically but within its first
+Fresnel zone (`echoes3d.shadowed_paths`) is a predicted arrival of its own for the fit. The
+surface is the rasterised one: the cells whose centre lies inside (hard rasterisation) present
+their faces, so the distance is taken to those faces, the mean
 over the rays to the surface's first Fresnel zone (exact for a plane along the cells' faces).
 Times of flight: the soft source adds v(n dt) to the pressure of step n, i.e. the forcing of the
 leapfrog's step n - 1 -> n, centred at (n - 1) dt, so the radiated wave leads the drive by one
@@ -289,6 +293,15 @@ def measure_echo(grid, echo, ref, model, template, burst_steps: float, others_st
     return {m: got[m] for m in ESTIMATORS}
 
 
+def surface_names(scene) -> list[str]:
+    """The names a 3-D scene's surfaces can have in echoes.json, from the file alone (no build):
+    each object's (its name, else "SHAPE i") and "wall SIDE" for each rigid window side (one that
+    passes by the transducer or lies behind an object has no echo of its own and is left out
+    later, by `echoes3d.surfaces`)."""
+    names = [str(o.name or f"{o.shape} {i}") for i, o in enumerate(scene.objects)]
+    return names + [f"wall {k}" for k in echoes3d.SIDES if echoes3d._side_kind(scene, k) == "rigid"]
+
+
 def _on_mirrors(scene, grid, centre_m) -> np.ndarray:
     """The transducer's centre put on each rigid window side that passes within its radius: such a
     side is a symmetry plane (the cells on this side of it and their mirror images make the disc)."""
@@ -413,10 +426,7 @@ def isolate_echoes(scene, out_dir, *, full=None, only=None, saved=None, quiet: b
             echo[:recorded] = a[:recorded] - a_wo[:recorded]
             without_shape = list(sr_wo.grid.shape)
         # corner paths that graze an edge (shadowed within their Fresnel zone): predicted copies
-        partly = [
-            (p - 2 * s["distance_m"]) / (grid.dx_m * echoes3d._vg(grid, s["direction"]))
-            for p in echoes3d.shadowed_paths(s, mirrors, wavelength, 2 * within)
-        ]
+        partly = echoes3d.shadowed_lags_steps(s, mirrors, grid, 2 * within)
         got = measure_echo(grid, echo, ref, model, template, burst_steps, partly)
         lo = int(got[PRIMARY]["delay_lattice_s"] / dt)
         level = float(echoes3d.envelope(echo)[lo : lo + int(2 * burst_steps)].max()) if lo < len(echo) else 0.0

@@ -164,7 +164,7 @@ class Mirror(NamedTuple):
     side: bool
     reflects: Any
     clear: Any  # clear(*points): whether the polyline through them runs in air (no object across it)
-    shadow: Any = None  # shadow(*points): (depth m inside an object at its deepest, where along the polyline m)
+    shadow: Any  # shadow(*points): (depth m inside an object at its deepest, where along the polyline m)
 
     def crossing(self, a, b) -> np.ndarray:
         """Where the segment a -> b meets the plane (a path's reflection point; a if parallel)."""
@@ -189,6 +189,19 @@ def _plane_crossing(point, normal, a, b) -> np.ndarray | None:
     return None if abs(den) < 1e-15 else a + float(normal @ (point - a)) / den * (b - a)
 
 
+def _window(grid) -> tuple[np.ndarray, np.ndarray]:
+    """The window's low and high corners (m): the rigid sides' planes, half a cell outside the
+    first and last cell centres."""
+    return np.full(3, -0.5 * grid.dx_m), (np.asarray(grid.shape, float) - 0.5) * grid.dx_m
+
+
+def _shapes(scene) -> list:
+    """The scene's objects as 3-D shapes (their signed distances, m)."""
+    from ..scene.objects import shape3d
+
+    return [shape3d(scene.path, f"objects[{i}]", o) for i, o in enumerate(scene.objects)]
+
+
 def find_mirrors(scene, grid, centre_m=None, found=None) -> list[Mirror]:
     """The transducer's mirrors: each rigid window side and each object's planar face whose point
     nearest the transducer is specular (`found`: `surfaces` of the scene, else computed), planes
@@ -196,14 +209,11 @@ def find_mirrors(scene, grid, centre_m=None, found=None) -> list[Mirror]:
     import jax
     import jax.numpy as jnp
 
-    from ..scene.objects import shape3d
-
     t = scene.transducers[0]
     c = np.asarray(t.centre_m if centre_m is None else centre_m, float)
     eps = 0.5 * grid.dx_m
-    lo_w = np.full(3, -0.5 * grid.dx_m)
-    hi_w = (np.asarray(grid.shape, float) - 0.5) * grid.dx_m
-    shapes = [shape3d(scene.path, f"objects[{i}]", o) for i, o in enumerate(scene.objects)]
+    lo_w, hi_w = _window(grid)
+    shapes = _shapes(scene)
 
     def sdf(x) -> float:  # the objects' union (metres; > 0 in air)
         p = [jnp.asarray(float(v)) for v in x]
@@ -352,13 +362,10 @@ def find_guides(scene, grid, centre_m, reach_m: float) -> list[Guide]:
     side walls as well."""
     import jax.numpy as jnp
 
-    from ..scene.objects import shape3d
-
     t = scene.transducers[0]
     c = np.asarray(centre_m, float)
-    shapes = [shape3d(scene.path, f"objects[{i}]", o) for i, o in enumerate(scene.objects)]
-    lo_w = np.full(3, -0.5 * grid.dx_m)
-    hi_w = (np.asarray(grid.shape, float) - 0.5) * grid.dx_m
+    shapes = _shapes(scene)
+    lo_w, hi_w = _window(grid)
     rng = np.random.default_rng(0)
     guides = []
     for axis in range(3):
@@ -412,8 +419,6 @@ def shadowed_paths(s: dict, mirrors, wavelength_m: float, within_m: float) -> li
     out: list[float] = []
     away = -np.asarray(s["direction"], float)
     for m in mirrors:
-        if m.shadow is None:
-            continue
         c, image = m.centre, m.image
         pm = s["nearest"](0.5 * (image + c))
         if not m.reflects(pm, image, away):
@@ -450,12 +455,6 @@ def shadowed_lags_steps(s: dict, mirrors, grid, within_m: float) -> list[float]:
     wavelength = grid.dx_m * grid.cells_per_wavelength
     step_m = grid.dx_m * _vg(grid, s["direction"])
     return [(p - 2 * s["distance_m"]) / step_m for p in shadowed_paths(s, mirrors, wavelength, within_m)]
-
-
-def _directivity(axis, direction, ka: float) -> float:
-    """The far-field directivity 2 J1(x) / x, x = ka sin(theta), of a disc whose axis is `axis`
-    towards `direction` (signed: the side lobes' phase)."""
-    return float(_jinc(ka * _sin_off(axis, direction)))
 
 
 class PathWeight(NamedTuple):

@@ -99,6 +99,7 @@ def _simulate(args) -> int:
 def _isolate_echoes(scene, sr, out, only=None) -> None:
     """--isolate-echoes: one more run per surface (apps.echoes_isolated; `only`: those named by
     --isolate), its table on stdout."""
+    from .apps.echoes3d import UNDER_RESOLVED
     from .apps.echoes_isolated import isolate_echoes
 
     doc = isolate_echoes(scene, out, full=sr, only=only, log=lambda m: print(m, file=sys.stderr, flush=True))
@@ -107,6 +108,7 @@ def _isolate_echoes(scene, sr, out, only=None) -> None:
             f"isolated echo {e['surface']!r} ({e['first_arrival']}): path {e['path_m']:.4f} m, {e['level_db']:.1f} dB, first "
             f"arrival {e['error_periods']:+.3f} ± {e['sigma_periods']:.3f} periods vs lattice delay "
             f"({'separable' if e['separable'] else 'not separable: ' + e['why']}), {e['error_periods_air']:+.2f} vs air"
+            + (f"; {UNDER_RESOLVED}" if e.get("under_resolved") else "")
         )
 
 

@@ -434,6 +434,7 @@ def isolate_echoes(scene, out_dir, *, full=None, only=None, saved=None, quiet: b
             {k: v for k, v in s.items() if k != "nearest"}
             | {
                 "rasterised_offset_m": offset,
+                "under_resolved": echoes3d.under_resolved(s, grid),
                 "path_m": paths[0],
                 "merged_paths_m": [float(p) for p in paths],
             }

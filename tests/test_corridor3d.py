@@ -84,6 +84,8 @@ def test_a_post_is_curved_and_says_when_the_grid_is_too_coarse_for_it():
     }
     assert echoes3d.fit_line(row).endswith(echoes3d.UNDER_RESOLVED)
     assert echoes3d.UNDER_RESOLVED not in echoes3d.fit_line(row | {"under_resolved": False})
+    assert echoes3d._fit_text(row).endswith("(curved: under-resolved)")
+    assert "under-resolved" not in echoes3d._fit_text(row | {"under_resolved": False})
 
 
 def _directional(x, sin_t: float, ka: float, dt: float, f0: float) -> np.ndarray:

@@ -810,11 +810,16 @@ def _label(e: dict) -> str:
 
 
 def _fit_text(e: dict) -> str:
-    """The fitted first arrival as a label: ": +0.03 +- 0.01 T" (periods), "not separable" flagged."""
+    """The fitted first arrival as a label: ": +0.03 +- 0.01 T" (periods), "not separable" and an
+    `under_resolved` curved surface flagged."""
     f = e.get("fit")
     if not f:
         return ""
-    return f": {f['error_periods']:+.2f} ± {f['sigma_periods']:.2f} T" + ("" if f["separable"] else " (not separable)")
+    return (
+        f": {f['error_periods']:+.2f} ± {f['sigma_periods']:.2f} T"
+        + ("" if f["separable"] else " (not separable)")
+        + (" (curved: under-resolved)" if e.get("under_resolved") else "")
+    )
 
 
 def fit_line(e: dict) -> str:

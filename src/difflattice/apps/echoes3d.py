@@ -315,8 +315,8 @@ surface's place not modelled), where a plane at the same place gives -0.002 +- 0
 
 
 UNDER_RESOLVED = (
-    f"a curved surface on fewer than {CURVED_MIN_CELLS_PER_WAVELENGTH:g} cells per wavelength: its staircase "
-    "scatters and its first echo is not its image source's (docs/three_d.md, 'A round post')"
+    f"a curved surface on fewer than {CURVED_MIN_CELLS_PER_WAVELENGTH:g} cells per wavelength: its rasterised "
+    "surface scatters and its first echo is not its image source's (docs/three_d.md, 'A round post')"
 )
 """What an echo row's `under_resolved` means (the console lines give it)."""
 

@@ -136,3 +136,41 @@ def test_the_fit_does_not_depend_on_the_pulse_scale():
         assert g[0] == got[0][0] and g[3] == got[0][3], got
         assert g[1] == pytest.approx(got[0][1], abs=1e-6), got
         assert g[2] == pytest.approx(got[0][2], rel=1e-3), got
+
+
+def test_a_narrow_band_echo_widens_the_window_it_is_fitted_in():
+    """A model echo whose band is narrow for its burst (a wall beside the disc, heard at the edge of
+    its lobe) holds too few independent samples in the usual window (half a burst before its start
+    to two after: `fit_arrivals` refuses it, as the corridor's side wall was in session 20); the
+    window grows by half bursts up to `MAX_WINDOW_BURSTS`, and the delay of a copy placed at a
+    known shift (2.3 samples, no noise) comes back to rounding."""
+    import math
+
+    from difflattice.apps.echoes3d import MAX_WINDOW_BURSTS, fit_first_arrival
+
+    n, spp, width, centre = 3000, 10.0, 40.0, 800.0
+    t = np.arange(n, dtype=float)
+
+    def echo(shift):
+        x = t - centre - shift
+        return np.exp(-0.5 * (x / width) ** 2) * np.cos(2 * np.pi * x / spp)
+
+    template = echo(0.0)
+    burst = 3.5 / (5 * Pulse(template, n).bandwidth)  # 3.5 independent samples in 2.5 bursts
+    lag = centre - 3 * width + 1
+    trace = 0.7 * echo(2.3)
+    start = lag - 1
+    with pytest.raises(ValueError, match="too few for 1 arrivals"):
+        fit_arrivals(
+            trace,
+            Pulse(template, n),
+            [0.0],
+            int(math.floor(start - 0.5 * burst)),
+            int(math.ceil(start + 2 * burst)),
+            samples_per_period=spp,
+        )
+    fit = fit_first_arrival(trace, template, lag, burst, spp)
+    assert fit.first_arrival.delay == pytest.approx(2.3, abs=1e-6)
+    assert abs(fit.arrivals[0].amplitude) == pytest.approx(0.7, rel=1e-6)
+    with pytest.raises(ValueError, match="too few"):  # no wider than MAX_WINDOW_BURSTS: refused, said so
+        fit_first_arrival(trace, template, lag, burst * 2.5 / (MAX_WINDOW_BURSTS + 1.5), spp)

@@ -612,12 +612,16 @@ def fit_first_arrival(
     at time of flight `lag_steps`) to `trace` from half a burst before it to two bursts after (not
     before `gate_step`), from the template where it is and the `others_steps` (other predicted
     arrivals, steps relative to it, those inside the window); the first arrival's delay is its
-    excess over the template's, in steps."""
+    excess over the template's, in steps. Where the window holds too few independent samples of
+    the template's band for every prediction, the farthest prediction goes first; for the
+    template's own (a narrow band: a path at the edge of the disc's lobe, a wall beside it) the
+    window then grows by half a burst at a time, up to `MAX_WINDOW_BURSTS` after the start."""
     from ..observe.arrivals import Pulse, fit_arrivals
 
     start = lag_steps - 1  # the template's burst starts on this sample (its one-step lead)
     lo = max(int(math.floor(start - 0.5 * burst_steps)), gate_step)
-    hi = int(math.ceil(start + 2.0 * burst_steps))
+    after = 2.0
+    hi = int(math.ceil(start + after * burst_steps))
     others = sorted(
         (float(d) for d in others_steps if lo < start + d < hi - 0.5 * burst_steps and abs(d) > 0.5), key=abs
     )
@@ -626,9 +630,20 @@ def fit_first_arrival(
         try:
             return fit_arrivals(trace, pulse, [0.0] + others, lo, hi, samples_per_period=steps_per_period)
         except ValueError as e:  # the window holds too few independent samples for every prediction:
-            if not others or "too few for" not in str(e):  # the farthest from the surface's goes first
+            if "too few for" not in str(e):
                 raise
-            others.pop()
+            if others:  # the farthest from the surface's goes first
+                others.pop()
+                continue
+            wider = int(math.ceil(start + (after + 0.5) * burst_steps))
+            if after + 0.5 > MAX_WINDOW_BURSTS or wider > len(trace):
+                raise
+            after, hi = after + 0.5, wider
+
+
+MAX_WINDOW_BURSTS = 3.0
+"""How far after its start (bursts) `fit_first_arrival` may read an echo: the run without a
+surface (`echoes_isolated`) records three bursts after its echo starts."""
 
 
 def propagated_envelope_peak_s(

@@ -417,7 +417,7 @@ def isolate_echoes(scene, out_dir, *, full=None, only=None, saved=None, quiet: b
             # steps would cost time and tell nothing of its first echo)
             env = echoes3d.envelope(np.concatenate([template, np.zeros_like(template)]))[: len(a)]
             tail = float(np.flatnonzero(env > 1e-3 * env.max())[-1]) if np.any(env > 0) else 0.0
-            needed = min(len(a), int(math.ceil(max(model(lattice=True) + 3 * burst_steps, tail + burst_steps))) + 2)
+            needed = min(len(a), int(math.ceil(max(model(lattice=True) + echoes3d.MAX_WINDOW_BURSTS * burst_steps, tail + burst_steps))) + 2)
             say(f"isolating {s['surface']!r}: the scene without it, {needed} of {len(a)} steps ...")
             sr_wo = run_scene3d(without(scene, grid, s, cycles, n_steps=needed), quiet=True)
             _, _, a_wo, _ = _receiver(sr_wo)

@@ -17,7 +17,8 @@ the transducer's images in floor and ceiling). The cases:
 - `post_9_hard`, `post_9_smooth`: the post on 9 cells per wavelength;
 - `post_far_6_hard`: the post where it stands in the corridor (1.31 m), 6 cells per wavelength.
 
-A case whose `DIR/CASE/echoes_isolated.json` exists is read, not run again. Writes
+Each case's scene file is `DIR/CASE.toml`, its run `DIR/CASE/`; a case whose
+`DIR/CASE/echoes_isolated.json` exists is read, not run again. Writes
 `DIR/round_post.json` (rows: case, cells per wavelength, rasterisation, stencil, range, the fitted
 first arrival and its standard error in periods, separable, residual, level dB, the number of
 arrivals fitted, run seconds) and `DIR/round_post.md`, with the load average at start and end.
@@ -96,8 +97,8 @@ def run_case(case: str, out: Path) -> dict:
     where = out / case
     table = where / "echoes_isolated.json"
     seconds = None
-    where.mkdir(parents=True, exist_ok=True)
-    scene = where / f"{case}.toml"
+    out.mkdir(parents=True, exist_ok=True)
+    scene = out / f"{case}.toml"  # beside its run's directory (`simulate --out` takes a new or empty one)
     scene.write_text(data_to_toml(d, f"benchmarks/round_post.py case {case} (from data/scenes/corridor3d.toml)"))
     if not table.exists():
         cmd = [sys.executable, "-m", "difflattice.cli", "simulate", str(scene), "--out", str(where)]
@@ -142,7 +143,7 @@ def figure(cases: list[str], out: Path, path: Path) -> None:
 
     fig, axes = plt.subplots(len(cases), 1, figsize=(8, 1.9 * len(cases)), sharex=True, squeeze=False)
     for ax, case in zip(axes[:, 0], cases):
-        scene = load_scene_at(str(out / case / f"{case}.toml"), None)
+        scene = load_scene_at(str(out / f"{case}.toml"), None)
         grid, _, t, a, centre, echoes, _ = ei._saved(scene, out / case / "echoes_isolated.npz")
         centre = ei._on_mirrors(scene, grid, centre)
         name = next(iter(echoes))
@@ -154,9 +155,7 @@ def figure(cases: list[str], out: Path, path: Path) -> None:
         s = next(x for x in found if x["surface"] == name)
         mirrors = echoes3d.find_mirrors(scene, grid, centre, found)
         guides = echoes3d.find_guides(scene, grid, centre, echoes3d._reach(grid, cycles * wl))
-        paths, weights = echoes3d.weighted_paths(s, mirrors, cycles * wl, scene.transducers[0], wl, guides)
-        offset = ei.rasterised_offset_m(s, ei._occupied(scene, grid, s), centre, grid, wl)
-        paths = [p + 2 * offset for p in paths]
+        paths, weights, _ = ei.surface_paths(scene, grid, centre, s, mirrors, guides, cycles * wl)
         lag = functools.partial(ei.model_lag_steps, grid, ref, len(a), paths, weights, s["direction"])(lattice=True)
         model = echoes3d.model_echo(grid, ref, len(a), paths, weights, s["direction"])
         lo, hi = int(lag - steps), int(lag + 3 * steps)

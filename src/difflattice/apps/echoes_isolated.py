@@ -348,6 +348,16 @@ def _saved(scene, path) -> tuple[Any, Any, np.ndarray, np.ndarray, np.ndarray, d
     return built.grid, r, t, a, centre * built.grid.dx_m, echoes, recorded
 
 
+def surface_paths(scene, grid, centre_m, s: dict, mirrors, guides, within_m: float) -> tuple[list, list, float]:
+    """(round trips m, their weights, the rasterised offset m) of surface `s`'s model echo:
+    `echoes3d.weighted_paths` within `within_m` of its direct one, each lengthened by twice the
+    offset of its rasterised surface from its geometric one (`rasterised_offset_m`)."""
+    wavelength = grid.dx_m * grid.cells_per_wavelength
+    offset = rasterised_offset_m(s, _occupied(scene, grid, s), centre_m, grid, wavelength)
+    paths, weights = echoes3d.weighted_paths(s, mirrors, within_m, scene.transducers[0], wavelength, guides)
+    return [p + 2 * offset for p in paths], weights, offset
+
+
 def isolate_echoes(scene, out_dir, *, full=None, only=None, saved=None, quiet: bool = True, log=None) -> dict[str, Any]:
     """Each surface's first echo isolated by a difference of runs (module docstring): the scene run
     as it is (or `full`, its `SceneRun3D` already run) and once without each surface whose echo
@@ -391,9 +401,7 @@ def isolate_echoes(scene, out_dir, *, full=None, only=None, saved=None, quiet: b
             )
         found = [s for s in found if s["surface"] in only]
     for s in found:
-        offset = rasterised_offset_m(s, _occupied(scene, grid, s), centre, grid, wavelength)
-        paths, weights = echoes3d.weighted_paths(s, mirrors, within, scene.transducers[0], wavelength, guides)
-        paths = [p + 2 * offset for p in paths]
+        paths, weights, offset = surface_paths(scene, grid, centre, s, mirrors, guides, within)
         model = functools.partial(model_lag_steps, grid, ref, len(a), paths, weights, s["direction"])
         if model(lattice=True) < r.gate_start_step:
             continue  # inside the transmit: no echo of its own (a floor beside the transducer)

@@ -19,7 +19,7 @@ the transducer's images in floor and ceiling). The cases:
 
 Each case's scene file is `DIR/CASE.toml`, its run `DIR/CASE/`; a case whose
 `DIR/CASE/echoes_isolated.json` exists is read, not run again. Writes
-`DIR/round_post.json` (rows: case, cells per wavelength, rasterisation, stencil, range, the fitted
+`DIR/round_post.json` (rows: case, cells per wavelength, rasterisation, stencil, round trip, the fitted
 first arrival and its standard error in periods, separable, residual, level dB, the number of
 arrivals fitted, run seconds) and `DIR/round_post.md`, with the load average at start and end.
 Runs take 1-13 minutes each on the 2-core machine (all seven: ~50 minutes).
@@ -28,7 +28,6 @@ Runs take 1-13 minutes each on the 2-core machine (all seven: ~50 minutes).
 from __future__ import annotations
 
 import argparse
-import copy
 import json
 import os
 import subprocess
@@ -53,8 +52,7 @@ CASES = (
 def case_data(case: str) -> tuple[dict, str]:
     """(scene tables, the isolated object's name) of one case, from the corridor's file."""
     with open(CORRIDOR, "rb") as f:
-        base = tomllib.load(f)
-    d = copy.deepcopy(base)
+        d = tomllib.load(f)
     kind, cpw, rasterise = case.rsplit("_", 2)
     far = kind.endswith("_far")
     post = next(o for o in d["objects"] if o["name"] == "post")
@@ -127,7 +125,6 @@ def run_case(case: str, out: Path) -> dict:
 def figure(cases: list[str], out: Path, path: Path) -> None:
     """Each case's isolated echo's envelope against its model echo's (each to its own peak), time
     in periods from the lattice delay."""
-    import functools
     import math
 
     import matplotlib
@@ -156,7 +153,7 @@ def figure(cases: list[str], out: Path, path: Path) -> None:
         mirrors = echoes3d.find_mirrors(scene, grid, centre, found)
         guides = echoes3d.find_guides(scene, grid, centre, echoes3d._reach(grid, cycles * wl))
         paths, weights, _ = ei.surface_paths(scene, grid, centre, s, mirrors, guides, cycles * wl)
-        lag = functools.partial(ei.model_lag_steps, grid, ref, len(a), paths, weights, s["direction"])(lattice=True)
+        lag = ei.model_lag_steps(grid, ref, len(a), paths, weights, s["direction"], lattice=True)
         model = echoes3d.model_echo(grid, ref, len(a), paths, weights, s["direction"])
         lo, hi = int(lag - steps), int(lag + 3 * steps)
         x = (np.arange(lo, hi) - lag) * grid.dt_s * grid.frequency_hz

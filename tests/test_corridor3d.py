@@ -69,10 +69,10 @@ def test_a_post_is_curved_and_says_when_the_grid_is_too_coarse_for_it():
     0.1 period of its image source (docs/three_d.md, "A round post"), and its console line says so."""
     scene = load_scene(SCENES / "corridor3d_short.toml")
     for cpw, flagged in ((6.0, {"post"}), (9.0, set())):
-        found = echoes3d.surfaces(scene, _grid(scene, cpw))
+        grid = _grid(scene, cpw)
+        found = echoes3d.surfaces(scene, grid)
         curved = {s["surface"] for s in found if s["curved"]}
         assert curved == {"post"}, curved
-        grid = _grid(scene, cpw)
         assert {s["surface"] for s in found if echoes3d.under_resolved(s, grid)} == flagged
     row = {
         "surface": "post",

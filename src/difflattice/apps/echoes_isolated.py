@@ -66,7 +66,8 @@ PRIMARY = "fit"
 ARRIVAL = (
     "the first significant arrival of a sum of delayed, scaled (complex amplitude: free phase) copies of the model "
     "echo fitted to the isolated echo from half a burst before its lattice delay to two bursts after (up to three "
-    "for a narrow-band model echo that holds too few independent samples in two) (observe.arrivals: the first copy started at the lattice delay, more added while the BIC falls), as a time "
+    "for a narrow-band model echo that holds too few independent samples in two) (observe.arrivals: the first "
+    "copy started at the lattice delay, more added while the BIC falls), as a time "
     "of flight with its standard error and whether it is separable from the arrivals behind it; by_estimator "
     "also gives the peak of the Hilbert envelope of the isolated echo matched-filtered with the drive burst "
     "(matched) and of the echo itself (envelope)"
@@ -418,8 +419,8 @@ def isolate_echoes(scene, out_dir, *, full=None, only=None, saved=None, quiet: b
             echo, without_shape = saved_echoes[s["surface"]], None
             recorded = saved_recorded.get(s["surface"], len(a))
         else:
-            # the steps the measures read: the fit's window (up to MAX_WINDOW_BURSTS after the echo starts) and a
-            # burst more (the matched filter's reach and the envelope's edge), or the model echo's own
+            # the steps the measures read: the fit's window (up to MAX_WINDOW_BURSTS after the echo
+            # starts; the matched filter and the envelope read within it), or the model echo's own
             # length (a short burst spreads on the lattice: its band reaches where the lattice's
             # group velocity falls) and a burst; the run without the surface stops there (the later
             # steps would cost time and tell nothing of its first echo)
